@@ -1,0 +1,1 @@
+"""Benchmarks (``make bench``): every ``bench_*.py`` here has ``main() -> list[Result]``."""

@@ -1,0 +1,172 @@
+"""The one error tree of icenav.
+
+Every error icenav raises derives from :class:`IcenavError`, so a caller can catch all of
+them at once. Errors caused by a bad value also derive from :class:`ValueError`, so code
+that already catches ``ValueError`` keeps working. Leaves carry context: the value, its
+unit and the allowed range (as canopen's ``SdoAbortedError`` carries the abort code).
+
+::
+
+    IcenavError
+    ├── InvalidValueError (ValueError)        a value is malformed or out of range
+    │   ├── NonFiniteError                    NaN or inf where a finite number is needed
+    │   ├── ShapeError                        an array has the wrong shape
+    │   ├── JointLimitError                   a joint state beyond its limit
+    │   ├── TransformError                    a matrix that is not a rigid transform
+    │   ├── UnreachablePoseError              no joint state reaches a pose
+    │   └── ConfigurationError                a bad setting (geometry, plant, tracker, ...)
+    ├── FileFormatError (ValueError)          a file that icenav cannot read
+    │   └── UnsupportedVersionError           written by a newer icenav, or unknown version
+    ├── PlanningError                         no path can be planned
+    │   └── GoalUnreachableError              the goal is not connected to the start
+    ├── StoreError                            the session store failed (disk full, read-only, ...)
+    ├── MotionAborted                         an automatic motion was aborted or stopped
+    ├── HardwareError                         a robot backend reports a problem
+    │   ├── DriveFaultError                   a motor drive is in FAULT (code and text)
+    │   ├── HeartbeatLostError                a drive stopped sending heartbeats
+    │   └── EmergencyStopError                the robot is e-stopped; reset required
+    └── TrackerError                          the tracker is not running or misconfigured
+"""
+
+from __future__ import annotations
+
+__all__ = [
+    "ConfigurationError",
+    "DriveFaultError",
+    "EmergencyStopError",
+    "FileFormatError",
+    "GoalUnreachableError",
+    "HardwareError",
+    "HeartbeatLostError",
+    "IcenavError",
+    "InvalidValueError",
+    "JointLimitError",
+    "MotionAborted",
+    "NonFiniteError",
+    "PlanningError",
+    "ShapeError",
+    "StoreError",
+    "TrackerError",
+    "TransformError",
+    "UnreachablePoseError",
+    "UnsupportedVersionError",
+]
+
+
+class IcenavError(Exception):
+    """Root of every error raised by icenav."""
+
+
+class InvalidValueError(IcenavError, ValueError):
+    """A value is malformed or outside its allowed range."""
+
+
+class NonFiniteError(InvalidValueError):
+    """NaN or inf where a finite number is required."""
+
+
+class ShapeError(InvalidValueError):
+    """An array argument has the wrong shape."""
+
+
+class JointLimitError(InvalidValueError):
+    """A joint state lies beyond its limit.
+
+    Attributes
+    ----------
+    joint : str
+        Joint name (``phi1``, ``phi2``, ``phi3`` or ``d4``).
+    value : float
+        The offending value, in the joint's unit (rad or mm).
+    low, high : float
+        The allowed range, in the same unit.
+    """
+
+    def __init__(self, message: str, *, joint: str, value: float, low: float, high: float):
+        super().__init__(message)
+        self.joint = joint
+        self.value = value
+        self.low = low
+        self.high = high
+
+
+class TransformError(InvalidValueError):
+    """A 4x4 matrix is not a rigid (proper, orthonormal) homogeneous transform."""
+
+
+class UnreachablePoseError(InvalidValueError):
+    """No joint state reaches the requested pose within tolerance.
+
+    Attributes
+    ----------
+    position_residual_mm, rotation_residual_rad : float
+        Distance from the requested pose to the nearest reachable one.
+    """
+
+    def __init__(
+        self, message: str, *, position_residual_mm: float, rotation_residual_rad: float
+    ):
+        super().__init__(message)
+        self.position_residual_mm = position_residual_mm
+        self.rotation_residual_rad = rotation_residual_rad
+
+
+class ConfigurationError(InvalidValueError):
+    """A configuration value (geometry, plant, tracker, controller, ...) is invalid."""
+
+
+class FileFormatError(IcenavError, ValueError):
+    """A file is corrupt, truncated or not an icenav file of the expected kind."""
+
+
+class UnsupportedVersionError(FileFormatError):
+    """A file's format version is newer than (or unknown to) this icenav."""
+
+
+class PlanningError(IcenavError):
+    """No path can be planned."""
+
+
+class GoalUnreachableError(PlanningError):
+    """The goal is not connected to the start in the roadmap."""
+
+
+class StoreError(IcenavError):
+    """The session store could not read or write (disk full, read-only, locked, ...)."""
+
+
+class MotionAborted(IcenavError):
+    """An automatic motion was aborted (operator input, stop or e-stop)."""
+
+
+class HardwareError(IcenavError):
+    """A robot backend reports a problem."""
+
+
+class DriveFaultError(HardwareError):
+    """A motor drive is in FAULT.
+
+    Attributes
+    ----------
+    axis : str
+        The axis whose drive faulted.
+    code : int
+        The drive's error code (CiA 402 error code / EMCY code), 0 if unknown.
+    """
+
+    def __init__(self, message: str, *, axis: str = "", code: int = 0):
+        super().__init__(message)
+        self.axis = axis
+        self.code = code
+
+
+class HeartbeatLostError(HardwareError):
+    """A drive stopped sending heartbeats within its supervision time."""
+
+
+class EmergencyStopError(HardwareError):
+    """The robot is emergency-stopped; motion needs an explicit reset."""
+
+
+class TrackerError(IcenavError):
+    """The tracker is not running, or is misconfigured."""
