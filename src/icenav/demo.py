@@ -21,8 +21,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     g = CatheterGeometry()
     print("icenav demo: tip of the image centre frame in the base frame (model, mm)")
     print(f"{'phi1 deg':>9} {'phi2 deg':>9} {'phi3 deg':>9} {'d4 mm':>7}   x, y, z (mm)")
-    for p1, p2, p3, d4 in [(0, 0, 0, 0), (30, 0, 0, 0), (0, 60, 0, 0), (45, 45, 90, 10), (90, -90, 0, -20)]:
+    settings = [(0, 0, 0, 0), (30, 0, 0, 0), (0, 60, 0, 0), (45, 45, 90, 10), (90, -90, 0, -20)]
+    for p1, p2, p3, d4 in settings:
         q = np.array([math.radians(p1), math.radians(p2), math.radians(p3), d4])
         pos = forward(q, g)[:3, 3]
-        print(f"{p1:9.1f} {p2:9.1f} {p3:9.1f} {d4:7.1f}   {pos[0]:7.2f} {pos[1]:7.2f} {pos[2]:7.2f}")
+        x, y, z = pos
+        print(f"{p1:9.1f} {p2:9.1f} {p3:9.1f} {d4:7.1f}   {x:7.2f} {y:7.2f} {z:7.2f}")
     return 0

@@ -103,9 +103,7 @@ class UnreachablePoseError(InvalidValueError):
         Distance from the requested pose to the nearest reachable one.
     """
 
-    def __init__(
-        self, message: str, *, position_residual_mm: float, rotation_residual_rad: float
-    ):
+    def __init__(self, message: str, *, position_residual_mm: float, rotation_residual_rad: float):
         super().__init__(message)
         self.position_residual_mm = position_residual_mm
         self.rotation_residual_rad = rotation_residual_rad

@@ -282,9 +282,12 @@ def _forward_batch(q: Array, g: CatheterGeometry) -> Array:
         oc = out[start : start + _CHUNK]
         u = k * qc[:, 0]
         v = k * qc[:, 1]
-        a = np.hypot(u, v)
-        s1 = _s1(a)
-        c2 = _c2(a)
+        a2 = u * u + v * v
+        a = np.sqrt(a2)
+        small = a < 1e-3  # series below: truncation error < 1e-18, no cancellation
+        safe = np.where(small, 1.0, a)
+        s1 = np.where(small, 1.0 - a2 / 6.0, np.sin(safe) / safe)
+        c2 = np.where(small, 0.5 - a2 / 24.0, (1.0 - np.cos(safe)) / (safe * safe))
         cu = c2 * u
         cv = c2 * v
         r00 = 1.0 - cu * u
@@ -334,10 +337,7 @@ def forward(
     tip2base : ndarray, shape (4, 4) or (..., 4, 4)
         Pose of the image centre frame in the base frame (translation in mm).
     """
-    if check:
-        arr = check_joint_state(q, geometry.joint_limits)
-    else:
-        arr = np.asarray(q, dtype=np.float64)
+    arr = check_joint_state(q, geometry.joint_limits) if check else np.asarray(q, np.float64)
     if arr.shape == (4,):
         return _forward_scalar(arr, geometry)
     return _forward_batch(arr, geometry)
@@ -396,15 +396,20 @@ def _inverse_closed_form(t: Array, g: CatheterGeometry) -> Array:
     return np.stack([phi1, phi2, phi3, d4], axis=-1)
 
 
+def _vee_antisymmetric(m: Array) -> Array:
+    """vee(m - m^T) for (..., 3, 3) -> (..., 3): 2 sin(angle) * axis for a rotation."""
+    return np.stack(
+        [m[..., 2, 1] - m[..., 1, 2], m[..., 0, 2] - m[..., 2, 0], m[..., 1, 0] - m[..., 0, 1]],
+        axis=-1,
+    )
+
+
 def _rotation_angle(r_a: Array, r_b: Array) -> Array:
     """Angle (rad) of r_a^T r_b, shape (...)."""
     rel = np.swapaxes(r_a, -1, -2) @ r_b
     tr = np.trace(rel, axis1=-2, axis2=-1)
     # atan2 form, accurate for small angles
-    vee = np.stack(
-        [rel[..., 2, 1] - rel[..., 1, 2], rel[..., 0, 2] - rel[..., 2, 0], rel[..., 1, 0] - rel[..., 0, 1]],
-        axis=-1,
-    )
+    vee = _vee_antisymmetric(rel)
     return np.arctan2(0.5 * np.linalg.norm(vee, axis=-1), 0.5 * (tr - 1.0))
 
 
@@ -413,10 +418,7 @@ def _pose_error_body(target: Array, reached: Array) -> Array:
     rel = _rigid_inverse(reached) @ target
     rot = rel[..., :3, :3]
     angle = _rotation_angle(np.broadcast_to(np.eye(3), rot.shape), rot)
-    vee = np.stack(
-        [rot[..., 2, 1] - rot[..., 1, 2], rot[..., 0, 2] - rot[..., 2, 0], rot[..., 1, 0] - rot[..., 0, 1]],
-        axis=-1,
-    )
+    vee = _vee_antisymmetric(rot)
     s = np.sin(angle)
     scale = np.where(s > 1e-9, angle / np.where(s > 1e-9, 2.0 * s, 1.0), 0.5)
     return np.concatenate([rel[..., :3, 3], vee * scale[..., None]], axis=-1)
@@ -559,7 +561,8 @@ def inverse(
         if t.shape == (4, 4):
             q = _inverse_scalar(t, geometry)
             if phi3_near is not None:
-                q[2] = float(_wrap_near(np.float64(q[2]), np.float64(phi3_near)))
+                near = float(np.asarray(phi3_near, dtype=np.float64))
+                q[2] = near + math.remainder(q[2] - near, 2.0 * math.pi)
             return q
         q = _inverse_closed_form(t, geometry)
         if phi3_near is not None:
@@ -571,7 +574,7 @@ def inverse(
         tip2base, geometry, tol_mm=tol_mm, tol_rad=tol_rad, phi3_near=phi3_near
     )
     if unreachable == "raise" and not np.all(sol.reachable):
-        idx = np.argmax(~np.ravel(sol.reachable))
+        idx = int(np.argmin(np.ravel(sol.reachable)))
         pr = float(np.ravel(sol.position_residual_mm)[idx])
         rr = float(np.ravel(sol.rotation_residual_rad)[idx])
         raise UnreachablePoseError(
@@ -667,7 +670,7 @@ def jacobian(
     # roll joint: spatial twist about z through the origin of the rolled base: w = ez, v = 0
     # body: w_b = R^T ez, v_b = R^T (ez x ... ) -> v_b = R^T (w x p)?  For T^-1 dT with
     # dT = [ez]x T (left-multiplied): body = R^T ez, R^T (ez x p)
-    w_roll = (r_full_t @ ez)
+    w_roll = r_full_t @ ez
     v_roll = (r_full_t @ np.cross(ez, p_tip)[..., None])[..., 0]
     col3 = np.concatenate([v_roll, w_roll], axis=-1)
     col4 = np.concatenate([r_full_t @ ez, np.zeros_like(w_roll)], axis=-1)
@@ -683,15 +686,20 @@ def tip_jog(
     geometry: CatheterGeometry = DEFAULT_GEOMETRY,
     *,
     dt: float = 0.01,
+    rotation_weight: float = 10.0,
     damping: float = 0.05,
-    singular_threshold: float = 0.1,
+    singular_threshold: float = 0.05,
     check: bool = True,
 ) -> Array:
     """Joint velocities that move the tip with a twist given in its own frame.
 
-    Damped least squares (adaptive damping below ``singular_threshold``) in scaled units:
-    angular velocities count as ``L`` mm/s per rad/s and the three angle joints as ``L`` mm
-    per rad, so mm and rad are weighed alike. Joints that would cross their limit within
+    Four joints cannot follow every 6-D twist, so the answer is the weighted least-squares
+    one: angular velocity errors count as ``rotation_weight`` mm/s per rad/s (the default,
+    10 mm/rad, puts the position first, which is what an operator pushing the tip sideways
+    expects; ``bending_length`` weighs both alike). Damped least squares (adaptive damping
+    below ``singular_threshold``) in scaled units, the three angle joints counting as ``L``
+    mm per rad, so the scaled Jacobian's singular values are of order 1 and ``damping`` and
+    ``singular_threshold`` are dimensionless. Joints that would cross their limit within
     ``dt`` are frozen and the others re-solved; the result never takes q past a limit in
     one step of ``dt``.
 
@@ -722,11 +730,13 @@ def tip_jog(
                 f"(vx, vy, vz mm/s, wx, wy, wz rad/s), got {qa.shape} and {tw.shape}"
             )
         check_positive(dt, "dt", "s")
+        check_positive(rotation_weight, "rotation_weight", "mm/rad")
     else:
         qa = np.asarray(q, dtype=np.float64)
         tw = np.asarray(twist_tip, dtype=np.float64)
     L = g.bending_length
-    row_w = np.array([1.0, 1.0, 1.0, L, L, L])
+    rw = rotation_weight
+    row_w = np.array([1.0, 1.0, 1.0, rw, rw, rw])
     col_s = np.array([L, L, L, 1.0])  # scaled joint = col_s * joint
     jac = jacobian(qa, g, check=False) * row_w[:, None] / col_s[None, :]
     target = tw * row_w
@@ -738,8 +748,8 @@ def tip_jog(
         sv = np.linalg.svd(jf, compute_uv=False)
         smin = float(sv[-1]) if sv.size else 0.0
         lam2 = 0.0
-        if smin < singular_threshold * L:
-            lam2 = (damping * L) ** 2 * (1.0 - (smin / (singular_threshold * L)) ** 2)
+        if smin < singular_threshold:
+            lam2 = damping**2 * (1.0 - (smin / singular_threshold) ** 2)
         lhs = jf.T @ jf + (lam2 + 1e-12) * np.eye(int(free.sum()))
         xs = np.linalg.solve(lhs, jf.T @ target)
         dq = np.zeros(4)
@@ -772,9 +782,7 @@ class Backbone:
     """(4, 4) pose of the image centre frame in the base frame (mm)."""
 
 
-def backbone(
-    q: ArrayLike, geometry: CatheterGeometry = DEFAULT_GEOMETRY, n: int = 50
-) -> Backbone:
+def backbone(q: ArrayLike, geometry: CatheterGeometry = DEFAULT_GEOMETRY, n: int = 50) -> Backbone:
     """Points along the bending section and the tip frame, for drawing.
 
     Parameters

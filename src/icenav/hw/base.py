@@ -22,7 +22,7 @@ from typing import Protocol, runtime_checkable
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-__all__ = ["TRANSITIONS", "JointState", "RobotBackend", "RobotStatus"]
+__all__ = ["JointState", "RobotBackend", "RobotStatus", "TRANSITIONS"]
 
 
 class RobotStatus(enum.Enum):

@@ -1,0 +1,34 @@
+"""The public API: every name in __all__ exists, __all__ is sorted, nothing public is missing."""
+
+from __future__ import annotations
+
+import importlib
+
+import pytest
+
+import icenav
+
+MODULES = ["icenav", "icenav.errors", "icenav.kinematics", "icenav.validation", "icenav.hw.base"]
+
+
+@pytest.mark.parametrize("name", MODULES)
+def test_all_is_sorted_and_resolves(name: str) -> None:
+    module = importlib.import_module(name)
+    exported = list(module.__all__)
+    assert exported == sorted(exported), f"{name}.__all__ is not sorted"
+    for member in exported:
+        assert hasattr(module, member), f"{name}.{member} is in __all__ but missing"
+
+
+def test_package_exports_every_public_error() -> None:
+    from icenav import errors
+
+    for name in errors.__all__:
+        assert getattr(errors, name).__module__ == "icenav.errors"
+
+
+def test_kinematics_public_names_are_exported_from_the_package() -> None:
+    from icenav import kinematics
+
+    for name in kinematics.__all__:
+        assert name in icenav.__all__, f"icenav.kinematics.{name} not re-exported by icenav"
