@@ -91,6 +91,9 @@ def check_joint_state(
         )
     if limits is not None:
         flat = arr.reshape(-1, 4)
+        outside = (flat < limits[:, 0] - 1e-12) | (flat > limits[:, 1] + 1e-12)
+        if not outside.any():
+            return arr
         for j in range(4):
             low, high = float(limits[j, 0]), float(limits[j, 1])
             col = flat[:, j]
