@@ -4,7 +4,7 @@ VENV := .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
 
-.PHONY: install test lint typecheck pytest bench demo docs clean
+.PHONY: install browser test lint typecheck pytest bench demo docs clean
 
 $(STAMP): pyproject.toml
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
@@ -14,14 +14,18 @@ $(STAMP): pyproject.toml
 
 install: $(STAMP)
 
+# Debian chromium + playwright for the console's browser test (apt-get; idempotent)
+browser: $(STAMP)
+	bash scripts/install-browser.sh $(PY)
+
 lint: $(STAMP)
-	$(VENV)/bin/ruff check src tests benchmarks examples
-	$(VENV)/bin/ruff format --check src tests benchmarks examples
+	$(VENV)/bin/ruff check src tests benchmarks examples docs/make_figures.py docs/figures
+	$(VENV)/bin/ruff format --check src tests benchmarks examples docs/make_figures.py docs/figures
 
 typecheck: $(STAMP)
 	$(VENV)/bin/mypy
 
-pytest: $(STAMP)
+pytest: $(STAMP) browser
 	$(PY) -m pytest
 
 test: lint typecheck pytest

@@ -1,30 +1,206 @@
-"""``icenav demo``: until the console lands, a short headless run that prints the tip pose
-of the constant-curvature model for a few knob settings."""
+"""``icenav demo``: the operator console on the simulated robot.
+
+::
+
+    icenav demo [--host 127.0.0.1] [--port 8080] [--session FILE] [--seed N]
+                [--vessel straight|moderate|steep] [--igtl [--igtl-port 18944]]
+    icenav demo --headless --duration S    # scripted operator, no browser; exit 0 if all well
+
+The console binds to 127.0.0.1 unless ``--host`` says otherwise. With ``--session`` the
+roadmap, the views and the event log are kept in an SQLite file and resumed from it.
+"""
 
 from __future__ import annotations
 
 import argparse
 import math
+import sys
+import threading
+import time
 from collections.abc import Sequence
+from pathlib import Path
 
 import numpy as np
 
-from icenav.kinematics import CatheterGeometry, forward
+from icenav.errors import IcenavError
 
-__all__ = ["main"]
+__all__ = ["main", "run_headless"]
+
+
+def _parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(
+        prog="icenav demo",
+        description="Start the icenav console on the simulated ICE catheter robot.",
+    )
+    p.add_argument("--host", default="127.0.0.1", help="address to bind (default 127.0.0.1)")
+    p.add_argument("--port", type=int, default=8080, help="console port (default 8080)")
+    p.add_argument("--session", type=Path, default=None, help="SQLite session file to resume")
+    p.add_argument("--seed", type=int, default=100, help="catheter seed of the twin (>= 0)")
+    p.add_argument(
+        "--vessel",
+        choices=("straight", "moderate", "steep"),
+        default="straight",
+        help="vessel curvature condition of the twin",
+    )
+    p.add_argument("--headless", action="store_true", help="scripted operator, no browser")
+    p.add_argument(
+        "--duration",
+        type=float,
+        default=20.0,
+        help="headless: simulated seconds to run (> 0, default 20)",
+    )
+    p.add_argument("--igtl", action="store_true", help="stream to 3D Slicer over OpenIGTLink")
+    p.add_argument("--igtl-port", type=int, default=18944, help="OpenIGTLink port (default 18944)")
+    return p
+
+
+def _check_args(args: argparse.Namespace, parser: argparse.ArgumentParser) -> None:
+    if not 0 <= args.port <= 65535:
+        parser.error(f"--port must be in [0, 65535], got {args.port}")
+    if not 0 <= args.igtl_port <= 65535:
+        parser.error(f"--igtl-port must be in [0, 65535], got {args.igtl_port}")
+    if args.seed < 0:
+        parser.error(f"--seed must be >= 0, got {args.seed}")
+    if not (math.isfinite(args.duration) and args.duration > 0):
+        parser.error(f"--duration must be > 0 s, got {args.duration}")
+
+
+def run_headless(args: argparse.Namespace) -> int:
+    """A scripted operator: drive, save two views, wander, return to each, spin; check it."""
+    from icenav.app import make_sim_controller
+    from icenav.io.joystick import JoystickMapping, Keyframe, ScriptedInput
+    from icenav.state import Mode
+
+    sim_t = [0.0]
+
+    def clock() -> float:
+        return sim_t[0]
+
+    m = JoystickMapping()
+    en = m.enable_button
+    script = ScriptedInput(
+        [
+            Keyframe(0.0, (0.3, -0.6, 0.0, 0.0, 0.2), (en,)),
+            Keyframe(1.5, (), ()),
+            Keyframe(1.7, (), (m.save_view_button,)),
+            Keyframe(1.8, (), ()),
+            Keyframe(2.0, (-0.5, 0.2, 0.0, 0.4, -0.3), (en,)),
+            Keyframe(3.5, (), ()),
+            Keyframe(3.7, (), (m.save_view_button,)),
+            Keyframe(3.8, (), ()),
+            Keyframe(4.0, (0.6, 0.5, 0.0, -0.5, 0.0), (en,)),
+            Keyframe(5.5, (), ()),
+        ],
+        clock=clock,
+    )
+    from icenav.controller import ControllerConfig
+
+    session = make_sim_controller(
+        seed=args.seed,
+        vessel=args.vessel,
+        session=args.session,
+        input_source=script,
+        clock=clock,
+        config=ControllerConfig(image_rate_hz=2.0),  # faster than real time: fewer images
+    )
+    ctrl = session.controller
+    dt = ctrl.config.dt
+    failures: list[str] = []
+
+    def run(seconds: float) -> None:
+        for _ in range(int(round(seconds / dt))):
+            sim_t[0] += dt
+            state = ctrl.step()
+            if state.mode in (Mode.FAULT, Mode.ESTOP):
+                failures.append(f"t={state.time:.2f} s: {state.mode.value}: {state.message}")
+                return
+
+    try:
+        print(f"icenav demo (headless): catheter seed {args.seed}, {args.vessel} vessel")
+        run(6.0)
+        names = [v.name for v in ctrl.snapshot().views]
+        print(f"  operator drove {ctrl.roadmap.n_vertices} roadmap states, saved views {names}")
+        if len(names) < 2:
+            failures.append(f"expected 2 saved views, got {names}")
+        for name in names[:2]:
+            ctrl.goto_view(name)
+            state = ctrl.run_until(lambda s: s.mode is Mode.IDLE and s.progress is None, 6000)
+            err = float(np.max(np.abs(state.q_motor - ctrl.views.get(name).q)))
+            print(f"  returned to {name!r}: max joint error {err:.2e} ({state.message})")
+            if err > 1e-6:
+                failures.append(f"return to {name!r} ended {err:.3g} from the view")
+        ctrl.start_spin()
+        state = ctrl.run_until(lambda s: s.mode is Mode.IDLE and s.progress is None, 20000)
+        print(f"  spin: {state.message}")
+        remaining = args.duration - sim_t[0]
+        if remaining > 0:
+            run(remaining)
+        image = ctrl.latest_image()
+        if image is None:
+            failures.append("no ICE image was rendered")
+        else:
+            print(f"  live image {image.pixels.shape}, mean grey {image.pixels.mean():.0f}")
+    finally:
+        session.close()
+    if failures:
+        for f in failures:
+            print(f"FAILED: {f}", file=sys.stderr)
+        return 1
+    print("headless demo: all went well")
+    return 0
+
+
+def run_console(args: argparse.Namespace) -> int:
+    """The console in the browser on the real-time controller; Ctrl-C to stop."""
+    from icenav.app import make_sim_controller
+    from icenav.console import Console
+    from icenav.io.joystick import Sdl2Gamepad
+
+    bridge = streamer = forwarder = None
+    if args.igtl:
+        from icenav.io.igtl import IgtlBridge, IgtlConfig
+        from icenav.io.igtl_stream import CommandForwarder
+
+        # pyigtl installs signal handlers: the server must be made on the main thread
+        forwarder = CommandForwarder()
+        bridge = IgtlBridge(IgtlConfig(port=args.igtl_port), on_command=forwarder)
+    gamepad = Sdl2Gamepad()
+    session = make_sim_controller(
+        seed=args.seed, vessel=args.vessel, session=args.session, input_source=gamepad
+    )
+    ctrl = session.controller
+    if bridge is not None:
+        from icenav.io.igtl_stream import attach_bridge
+
+        streamer = attach_bridge(ctrl, bridge, forwarder)
+        print(f"OpenIGTLink: 127.0.0.1:{bridge.port} (TipToBase, SensorToTracker, Image)")
+    console = Console(ctrl, host=args.host, port=args.port)
+    ctrl.start()
+    console.start()
+    print(f"icenav console: {console.url}  (Ctrl-C to stop)", flush=True)
+    stop = threading.Event()
+    try:
+        while not stop.is_set():
+            time.sleep(0.2)
+    except KeyboardInterrupt:
+        print("\nstopping")
+    finally:
+        console.stop()
+        if streamer is not None:
+            streamer.stop()
+        session.close()
+        gamepad.close()
+        if bridge is not None:
+            bridge.close()
+    return 0
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="icenav demo", description=__doc__)
-    parser.add_argument("--headless", action="store_true", help="no browser (the default now)")
-    parser.parse_args(argv)
-    g = CatheterGeometry()
-    print("icenav demo: tip of the image centre frame in the base frame (model, mm)")
-    print(f"{'phi1 deg':>9} {'phi2 deg':>9} {'phi3 deg':>9} {'d4 mm':>7}   x, y, z (mm)")
-    settings = [(0, 0, 0, 0), (30, 0, 0, 0), (0, 60, 0, 0), (45, 45, 90, 10), (90, -90, 0, -20)]
-    for p1, p2, p3, d4 in settings:
-        q = np.array([math.radians(p1), math.radians(p2), math.radians(p3), d4])
-        pos = forward(q, g)[:3, 3]
-        x, y, z = pos
-        print(f"{p1:9.1f} {p2:9.1f} {p3:9.1f} {d4:7.1f}   {x:7.2f} {y:7.2f} {z:7.2f}")
-    return 0
+    parser = _parser()
+    args = parser.parse_args(argv)
+    _check_args(args, parser)
+    try:
+        return run_headless(args) if args.headless else run_console(args)
+    except IcenavError as exc:
+        print(f"icenav demo: {exc}", file=sys.stderr)
+        return 1

@@ -1,0 +1,124 @@
+"""Compensation speed: building F from the dense set; one F evaluation; a batch of 1e6.
+
+Baseline, measured in the same run: scipy's generic interpolator on the same table
+(``RectBivariateSpline.ev``, one call per output; for the batch, the same on 1e6 points).
+Target (issue 4): one evaluation < 20 us, so it fits in a 1 kHz control cycle.
+Also: one hysteresis-compensator command and a 360-sample spin pre-shaped end to end.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+
+import numpy as np
+from scipy.interpolate import RectBivariateSpline
+
+from benchmarks.common import Result, time_per_call
+from icenav.compensation import CalibrationSet, ElasticityMap
+from icenav.hysteresis import HysteresisCompensator, JointHysteresis
+from icenav.kinematics import forward
+from icenav.trajectories import spin_trajectory
+
+
+def _dense_set() -> CalibrationSet:
+    """A synthetic 19 x 19 raster: bending plane turned 8 deg, bend 15 % larger."""
+    ax = np.radians(np.arange(-90.0, 91.0, 10.0))
+    a, b = np.meshgrid(ax, ax, indexing="ij")
+    q = np.zeros((a.size, 4))
+    q[:, 0], q[:, 1] = a.ravel(), b.ravel()
+    c, s = math.cos(math.radians(8)), math.sin(math.radians(8))
+    qe = q.copy()
+    qe[:, 0] = 1.0 * (c * q[:, 0] - s * q[:, 1])
+    qe[:, 1] = 1.0 * (s * q[:, 0] + c * q[:, 1])
+    return CalibrationSet(q_motor=q, tip2base=forward(qe, check=False), method="synthetic")
+
+
+def main() -> list[Result]:
+    cal = _dense_set()
+    t0 = time.perf_counter()
+    fmap = ElasticityMap.build(cal)
+    build = time.perf_counter() - t0
+    builds = [build]
+    for _ in range(2):
+        t0 = time.perf_counter()
+        ElasticityMap.build(cal)
+        builds.append(time.perf_counter() - t0)
+    build = min(builds)
+
+    # baseline: scipy's spline on the same map, sampled on the table's nodes
+    nodes = np.linspace(-math.pi / 2, math.pi / 2, 91)
+    na, nb = np.meshgrid(nodes, nodes, indexing="ij")
+    va, vb = fmap.model_to_motor_knobs(na, nb)
+    sa = RectBivariateSpline(nodes, nodes, va, s=0)
+    sb = RectBivariateSpline(nodes, nodes, vb, s=0)
+    x, y = 0.61, -0.27
+    fast = time_per_call(lambda: fmap.model_to_motor_knobs(x, y, check=False))
+    checked = time_per_call(lambda: fmap.model_to_motor_knobs(x, y))
+    base = time_per_call(lambda: (sa.ev(x, y), sb.ev(x, y)))
+    q = np.array([x, y, 0.3, 2.0])
+    full = time_per_call(lambda: fmap.model_to_motor(q, check=False))
+
+    rng = np.random.default_rng(0)
+    n = 1_000_000
+    pts = rng.uniform(-math.pi / 2, math.pi / 2, (n, 2))
+    best = float("inf")
+    for _ in range(3):
+        t0 = time.perf_counter()
+        fmap.model_to_motor_knobs(pts[:, 0], pts[:, 1], check=False)
+        best = min(best, time.perf_counter() - t0)
+    base_batch = float("inf")
+    for _ in range(3):
+        t0 = time.perf_counter()
+        sa.ev(pts[:, 0], pts[:, 1])
+        sb.ev(pts[:, 0], pts[:, 1])
+        base_batch = min(base_batch, time.perf_counter() - t0)
+    inner = pts[:5000] * (60.0 / 90.0)  # away from the clipped, unreachable corners
+    ga, gb = fmap.model_to_motor_knobs(inner[:, 0], inner[:, 1], check=False)
+    agree = max(
+        float(np.max(np.abs(ga - sa.ev(inner[:, 0], inner[:, 1])))),
+        float(np.max(np.abs(gb - sb.ev(inner[:, 0], inner[:, 1])))),
+    )
+
+    m = JointHysteresis(backlash=0.02, backlash_slope=0.05, dead_zone=0.03)
+    comp = HysteresisCompensator([m, m, m, None], roll_play_per_bend=0.05)
+    qe = np.array([0.5, -0.2, 0.1, 0.0])
+    hyst = time_per_call(lambda: comp.command(qe))
+    sp = spin_trajectory([math.radians(60), 0.0, 0.0, 0.0], 360)
+
+    def spin_chain() -> None:
+        cmd = fmap.model_to_motor(sp.q_model, check=False)
+        comp.reset()
+        comp.command_path(cmd)
+
+    chain = time_per_call(spin_chain, min_time=0.5, repeat=3)
+    us = 1e6
+    return [
+        Result("build F from the dense 19 x 19 set", build, "s"),
+        Result(
+            "F, one evaluation (scalar fast path, check=False)",
+            fast * us,
+            "us",
+            base * us,
+            "scipy RectBivariateSpline.ev x2",
+            target="< 20 us",
+            met=fast * us < 20,
+        ),
+        Result(
+            "F, one evaluation (validated input)",
+            checked * us,
+            "us",
+            base * us,
+            "scipy RectBivariateSpline.ev x2",
+        ),
+        Result("F on a joint vector (model_to_motor, check=False)", full * us, "us"),
+        Result(
+            "F, batch of 1e6, time per evaluation",
+            best / n * 1e9,
+            "ns",
+            base_batch / n * 1e9,
+            f"scipy RectBivariateSpline.ev x2 on 1e6 (max diff within 60 deg {agree:.1e} rad)",
+        ),
+        Result("hysteresis compensator, one command", hyst * us, "us"),
+        Result("360-sample spin: F + hysteresis pre-shaping", chain * 1e3, "ms"),
+    ]

@@ -1,0 +1,189 @@
+"""Make the imaging figures of docs/imaging.md (docs/figures/us_*.png) and print the numbers.
+
+Run: ``.venv/bin/python docs/figures/make_imaging_figures.py`` (about 20 s).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+
+from icenav.eval.metrics import beat_similarity, blurred_ncc, roi_centroid_distance  # noqa: E402
+from icenav.sim.anatomy import (  # noqa: E402
+    BLOOD_LABELS,
+    EXAMPLE_VIEWS,
+    ROI_LABELS,
+    Tissue,
+    default_phantom,
+    tip2anatomy,
+)
+from icenav.sim.ultrasound import UltrasoundRenderer  # noqa: E402
+
+HERE = Path(__file__).parent
+TITLES = {"aortic_valve": "aortic valve", "mitral_valve": "mitral valve", "tricuspid_valve": "tricuspid valve"}  # fmt: skip  # noqa: E501
+
+
+def views_figure(r: UltrasoundRenderer) -> None:
+    period = r.phantom.motion.period_s
+    fig, axes = plt.subplots(2, 3, figsize=(12, 8.4))
+    for col, (view, q) in enumerate(EXAMPLE_VIEWS.items()):
+        pose = tip2anatomy(np.asarray(q))
+        for row, phase in enumerate((0.15, 0.65)):
+            f = r.render(pose, phase * period)
+            ax = axes[row, col]
+            ax.imshow(f.image, cmap="gray", vmin=0, vmax=255)
+            roi = f.labels == ROI_LABELS[view]
+            ax.contour(roi, levels=[0.5], colors="yellow", linewidths=0.8)
+            if f.rois[view].visible:
+                ax.plot(*f.rois[view].centroid_px[::-1], "r+", ms=10)
+            state = "open" if r.phantom.valve_opening(view, f.t) > 0.5 else "closed"
+            qd = np.degrees(q[:3])
+            ax.set_title(
+                f"{TITLES[view]} ({state}), phase {phase:.2f}\n"
+                f"q = ({qd[0]:.0f}, {qd[1]:.0f}, {qd[2]:.0f}) deg, d4 = {q[3]:.0f} mm",
+                fontsize=9,
+            )
+            ax.set_xticks([])
+            ax.set_yticks([])
+            ax.set_ylim(200, 0)
+    fig.suptitle("Simulated ICE views (yellow: ROI label, +: ROI centroid)")
+    fig.tight_layout()
+    fig.savefig(HERE / "us_views.png", dpi=80)
+    plt.close(fig)
+
+
+def anatomy_figure() -> None:
+    ph = default_phantom()
+    fig, axes = plt.subplots(1, 2, figsize=(12, 6))
+    # coronal (x-z) slice through the RA centre and axial (x-y) slice at z = 20 mm
+    xs = np.linspace(-40, 100, 281)
+    zs = np.linspace(-60, 90, 301)
+    X, Z = np.meshgrid(xs, zs)
+    lab = ph.labels_at(np.stack([X, np.zeros_like(X), Z], -1), 0.0)
+    axes[0].imshow(lab, origin="lower", extent=(xs[0], xs[-1], zs[0], zs[-1]), cmap="tab20")
+    axes[0].set_xlabel("x: patient left (mm)")
+    axes[0].set_ylabel("z: superior (mm)")
+    axes[0].set_title("coronal slice y = 0 (anatomy frame, LPS)")
+    ys = np.linspace(-70, 50, 241)
+    X2, Y2 = np.meshgrid(xs, ys)
+    lab2 = ph.labels_at(np.stack([X2, Y2, np.full_like(X2, 20.0)], -1), 0.0)
+    axes[1].imshow(lab2, origin="lower", extent=(xs[0], xs[-1], ys[0], ys[-1]), cmap="tab20")
+    axes[1].set_xlabel("x: patient left (mm)")
+    axes[1].set_ylabel("y: posterior (mm)")
+    axes[1].set_title("axial slice z = 20 mm")
+    knobs = np.radians(np.arange(-30.0, 31.0, 10.0))
+    d4 = np.arange(-20.0, 21.0, 10.0)
+    p1, p2, dd = np.meshgrid(knobs, knobs, d4, indexing="ij")
+    q = np.stack([p1.ravel(), p2.ravel(), np.zeros(p1.size), dd.ravel()], -1)
+    tips = tip2anatomy(q)[:, :3, 3]
+    axes[0].plot(tips[:, 0], tips[:, 2], "k.", ms=2, label="tips, bends <= 30 deg")
+    axes[1].plot(tips[:, 0], tips[:, 1], "k.", ms=2)
+    for view, qv in EXAMPLE_VIEWS.items():
+        t = tip2anatomy(np.asarray(qv))
+        p, d = t[:3, 3], t[:3, 0] * 25.0
+        axes[0].annotate("", p[[0, 2]] + d[[0, 2]], p[[0, 2]], arrowprops={"arrowstyle": "->"})
+        axes[0].plot(*p[[0, 2]], "o", label=f"{TITLES[view]} view")
+        axes[1].plot(*p[[0, 1]], "o")
+    axes[0].legend(fontsize=7, loc="lower right")
+    names = ", ".join(f"{t.value}={t.name.lower()}" for t in Tissue)
+    fig.text(0.01, 0.01, names, fontsize=6)
+    fig.tight_layout(rect=(0, 0.03, 1, 1))
+    fig.savefig(HERE / "us_anatomy.png", dpi=80)
+    plt.close(fig)
+
+
+def similarity_figure(r: UltrasoundRenderer) -> dict[str, dict[str, float]]:
+    period = r.phantom.motion.period_s
+    n = 12
+    numbers: dict[str, dict[str, float]] = {}
+    steps = np.arange(0.0, 6.01, 0.5)
+    fig, ax = plt.subplots(1, 2, figsize=(11, 4))
+    for view, q in EXAMPLE_VIEWS.items():
+        pose = tip2anatomy(np.asarray(q))
+
+        def clip(p: np.ndarray, beat: int) -> tuple[list, list, list]:
+            fr = [r.render(p, (beat + k / n) * period) for k in range(n)]
+            return [f.image for f in fr], [f.cardiac_phase for f in fr], fr
+
+        ref, ref_ph, ref_fr = clip(pose, 0)
+        mask = ref_fr[0].labels >= 0
+        raw, blur = [], []
+        for s in steps:
+            moved = pose.copy()
+            moved[:3, 3] += pose[:3, :3] @ np.array([0.0, s, 0.0])
+            imgs, ph, _ = clip(moved, 1)
+            raw.append(beat_similarity(imgs, ph, ref, ref_ph, mask=mask))
+            blur.append(beat_similarity(imgs, ph, ref, ref_ph, mask=mask, blurred=True))
+        _, _, still = clip(pose, 1)
+        roi = [
+            roi_centroid_distance(a.rois[view].centroid_mm, b.rois[view].centroid_mm)
+            for a, b in zip(ref_fr, still, strict=True)
+            if a.rois[view].visible and b.rois[view].visible
+        ]
+        ax[0].plot(steps, 100 * np.array(raw), "o-", label=TITLES[view])
+        ax[1].plot(steps, 100 * np.array(blur), "o-", label=TITLES[view])
+        numbers[view] = {
+            "ceiling_pct": 100 * raw[0],
+            "moved_2mm_pct": 100 * raw[4],
+            "roi_consecutive_beat_mm": float(np.mean(roi)),
+        }
+        # single-frame blurred NCC against out-of-plane offset at one phase
+        f0 = r.render(pose, 0.3 * period)
+        numbers[view]["blurred_ncc_1mm_same_phase"] = blurred_ncc(
+            f0.image,
+            r.render(pose @ _shift(1.0), 0.3 * period).image,
+            mask=f0.labels >= 0,
+        )
+    for a, title in zip(ax, ("raw NCC (the paper's)", "blurred, down-sampled NCC"), strict=True):
+        a.axhline(89.8, color="k", ls=":", lw=0.8)
+        a.axhline(81.1, color="gray", ls=":", lw=0.8)
+        a.set_xlabel("out-of-plane offset from the view, next beat (mm)")
+        a.set_ylabel("similarity over one beat (%)")
+        a.set_title(title)
+        a.legend(fontsize=8)
+    fig.suptitle("Dotted: the paper's consecutive-beat ceiling (89.8 %) and return mean (81.1 %)")
+    fig.tight_layout()
+    fig.savefig(HERE / "us_similarity.png", dpi=80)
+    plt.close(fig)
+    return numbers
+
+
+def _shift(dy_mm: float) -> np.ndarray:
+    t = np.eye(4)
+    t[1, 3] = dy_mm
+    return t
+
+
+def workspace_numbers() -> dict[str, float]:
+    ph = default_phantom()
+    knobs = np.radians(np.arange(-90.0, 91.0, 10.0))
+    d4 = np.arange(-20.0, 21.0, 5.0)
+    p1, p2, dd = np.meshgrid(knobs, knobs, d4, indexing="ij")
+    q = np.stack([p1.ravel(), p2.ravel(), np.zeros(p1.size), dd.ravel()], -1)
+    bend = np.degrees(np.hypot(q[:, 0], q[:, 1]))
+    lab = ph.labels_at(tip2anatomy(q)[:, :3, 3], 0.0)
+    blood = np.isin(lab, [int(b) for b in BLOOD_LABELS])
+    out = {}
+    for lim in (30, 45, 60, 130):
+        m = bend <= lim
+        out[f"ra_bend_le_{lim}"] = float(np.mean(lab[m] == Tissue.RA_BLOOD))
+        out[f"blood_bend_le_{lim}"] = float(np.mean(blood[m]))
+    return out
+
+
+def main() -> None:
+    r = UltrasoundRenderer()
+    views_figure(r)
+    anatomy_figure()
+    print("workspace fractions:", {k: round(v, 3) for k, v in workspace_numbers().items()})
+    for view, nums in similarity_figure(r).items():
+        print(view, {k: round(v, 3) for k, v in nums.items()})
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,208 @@
+"""Figures and numbers of docs/digital-twin.md (run: python docs/figures/make_twin_figures.py).
+
+- twin_hysteresis.png: AP knob swept up and down, true bend vs knob, per vessel condition.
+- twin_grid.png: model vs true tip positions over the +-90 deg knob grid (the paper's Fig. 4a).
+- twin_spin.png: spin errors without compensation and after a perfect elastic compensation,
+  tuning seeds 0-9 and held-out seeds 100-109, beside the paper's Table I.
+- twin_reference.png: plant vs Cosserat-rod reference backbones for a few tendon tensions.
+Prints the numbers quoted in the document.
+"""
+
+from __future__ import annotations
+
+import math
+import sys
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+
+from icenav.kinematics import forward  # noqa: E402
+from icenav.sim import CatheterPlant, EMTracker, PlantParams  # noqa: E402
+from icenav.sim.bending import Tendons  # noqa: E402
+from icenav.sim.plant import elastic_tip2base_from_tensions  # noqa: E402
+from icenav.sim.reference import solve_tendon_rod  # noqa: E402
+from icenav.sim.tuning import elastic_oracle, run_spin, spin_errors, spin_trajectory  # noqa: E402
+
+HERE = Path(__file__).parent
+DEG = math.pi / 180.0
+TABLE_NONE = {20: (5.5, 10.0), 40: (11.0, 20.5), 60: (14.8, 31.0)}
+TABLE_DENSE = {20: (2.5, 3.0), 40: (4.2, 8.6), 60: (5.0, 10.3)}
+
+
+def hysteresis() -> None:
+    fig, ax = plt.subplots(figsize=(6, 4.5))
+    amp = 60 * DEG
+    for vessel, style in (("straight", "-"), ("moderate", ":"), ("steep", "--")):
+        plant = CatheterPlant(params=PlantParams.nominal(), vessel=vessel)
+        plant.move_along(np.column_stack([np.linspace(0, -amp, 60), np.zeros((60, 3))]))
+        knob = np.concatenate([np.linspace(-amp, amp, 241), np.linspace(amp, -amp, 241)])
+        bends = []
+        for k in knob:
+            plant.move([k, 0, 0, 0])
+            bends.append(plant.state.effective_knobs[0])
+        ax.plot(np.degrees(knob), np.degrees(bends), style, label=vessel)
+    ax.plot([-60, 60], [-60, 60], color="0.7", lw=0.8, label="model (bend = knob)")
+    ax.set_xlabel("AP motor knob phi1 (deg)")
+    ax.set_ylabel("true AP bend as model knob angle (deg)")
+    ax.set_title("Knob swept -60 -> +60 -> -60 deg (nominal catheter)")
+    ax.legend()
+    ax.grid(alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(HERE / "twin_hysteresis.png", dpi=110)
+    plt.close(fig)
+
+
+def grid() -> None:
+    ang = np.arange(-90, 91, 10) * DEG
+    plant = CatheterPlant(seed=0)
+    model, true = [], []
+    for a in ang:
+        for b in ang:
+            q = np.array([a, b, 0.0, 0.0])
+            model.append(forward(q)[:3, 3])
+            plant.reset()
+            true.append(plant.move(q)[:3, 3])
+    m = np.array(model)
+    t = np.array(true)
+    fig, ax = plt.subplots(figsize=(6, 6))
+    ax.plot(m[:, 0], m[:, 1], ".", color="k", ms=4, label="model P_hat (kinematics)")
+    ax.plot(t[:, 0], t[:, 1], ".", color="purple", ms=4, label="true P (twin, seed 0)")
+    for i in range(len(m)):
+        ax.plot([m[i, 0], t[i, 0]], [m[i, 1], t[i, 1]], color="0.8", lw=0.5)
+    ax.set_aspect("equal")
+    ax.set_xlabel("x_tip (mm), AP")
+    ax.set_ylabel("y_tip (mm), RL")
+    ax.set_title("Tip positions over the +-90 deg knob grid (cf. paper Fig. 4a)")
+    ax.legend(loc="upper left")
+    fig.tight_layout()
+    fig.savefig(HERE / "twin_grid.png", dpi=110)
+    plt.close(fig)
+
+
+def spin_table(seeds: range) -> dict[str, np.ndarray]:
+    """Mean over seeds of [pos, rot] per bend: none/oracle x tracked/true."""
+    out: dict[str, list[list[float]]] = {
+        k: [] for k in ("none", "none_true", "oracle", "oracle_true")
+    }
+    for seed in seeds:
+        plant = CatheterPlant(seed=seed)
+        tracker = EMTracker(plant, seed=seed)
+        rows: dict[str, list[float]] = {k: [] for k in out}
+        for bend in (20, 40, 60):
+            q = spin_trajectory(bend * DEG)
+            for name, cmd in (("none", None), ("oracle", elastic_oracle(plant.params, q))):
+                run = run_spin(plant, bend * DEG, q_motor=cmd, tracker=tracker)
+                assert run.tracked_tip2base is not None
+                e = spin_errors(run.tracked_tip2base, q)
+                et = spin_errors(run.true_tip2base, q)
+                rows[name] += [e.position_rmse_mm, e.rotation_rmse_deg]
+                rows[name + "_true"] += [et.position_rmse_mm, et.rotation_rmse_deg]
+        for k in out:
+            out[k].append(rows[k])
+    return {k: np.array(v) for k, v in out.items()}
+
+
+def spin() -> None:
+    results = {
+        "tuning seeds 0-9": spin_table(range(10)),
+        "held-out seeds 100-109": spin_table(range(100, 110)),
+    }
+    for label, res in results.items():
+        print(f"-- {label}: mean (min..max over seeds), EM-tracked [true]")
+        for name in ("none", "oracle"):
+            for j, bend in enumerate((20, 40, 60)):
+                tr = res[name][:, 2 * j : 2 * j + 2]
+                tt = res[name + "_true"][:, 2 * j : 2 * j + 2]
+                print(
+                    f"{name:7s} {bend} deg: pos {tr[:, 0].mean():5.1f} ({tr[:, 0].min():.1f}.."
+                    f"{tr[:, 0].max():.1f}) [{tt[:, 0].mean():.1f}] mm, rot {tr[:, 1].mean():5.1f} "
+                    f"({tr[:, 1].min():.1f}..{tr[:, 1].max():.1f}) [{tt[:, 1].mean():.1f}] deg"
+                )
+    fig, axes = plt.subplots(1, 2, figsize=(10, 4))
+    bends = np.array([20, 40, 60])
+    for k, (ax, unit) in enumerate(
+        zip(axes, ("position RMSE (mm)", "rotation RMSE (deg)"), strict=True)
+    ):
+        ax.plot(
+            bends, [TABLE_NONE[b][k] for b in bends], "ks-", label="paper: without compensation"
+        )
+        ax.plot(
+            bends, [TABLE_DENSE[b][k] for b in bends], "ko--", label="paper: dense compensation"
+        )
+        for (label, res), color in zip(results.items(), ("tab:blue", "tab:red"), strict=True):
+            none = res["none"][:, k::2]
+            orac = res["oracle"][:, k::2]
+            ax.errorbar(
+                bends + 1,
+                none.mean(0),
+                yerr=none.std(0),
+                fmt="s-",
+                color=color,
+                label=f"twin, none ({label})",
+            )
+            ax.errorbar(
+                bends + 1,
+                orac.mean(0),
+                yerr=orac.std(0),
+                fmt="o--",
+                color=color,
+                label=f"twin, perfect elastic comp. ({label})",
+            )
+        ax.set_xlabel("initial AP bend (deg)")
+        ax.set_ylabel(unit)
+        ax.set_xticks(bends)
+        ax.grid(alpha=0.3)
+    axes[0].legend(fontsize=7)
+    fig.suptitle("Image spinning, EM-tracked, straight vessel: twin vs paper Table I")
+    fig.tight_layout()
+    fig.savefig(HERE / "twin_spin.png", dpi=110)
+    plt.close(fig)
+
+
+def reference() -> None:
+    p = PlantParams.nominal()
+    arms = Tendons.from_params(p).arms
+    pos = np.array([[a[1], -a[0]] for a in arms])
+    k = np.array([[p.ei_rl_nmm2, p.ei_coupling_nmm2], [p.ei_coupling_nmm2, p.ei_ap_nmm2]])
+    fig = plt.figure(figsize=(6, 5))
+    ax = fig.add_subplot(projection="3d")
+    worst = 0.0
+    for tens in ((4, 0, 0, 0), (0, 0, 8, 0), (3, 0, 5, 0), (0, 8, 0, 9), (0, 12, 0, 0)):
+        t = np.array(tens, dtype=float)
+        sol = solve_tendon_rod(
+            pos, t, k, 0.7 * p.ei_ap_nmm2, p.stiffening, 60.0 * p.bending_length_scale
+        )
+        tip_ref = sol.positions[-1] + 10.0 * sol.tip_rotation[:, 2]
+        tip = elastic_tip2base_from_tensions(p, t)[:3, 3]
+        worst = max(worst, float(np.linalg.norm(tip - tip_ref)))
+        ax.plot(*sol.positions.T, "k-", lw=2)
+        ax.plot(*tip, "o", color="tab:orange")
+        ax.plot(*tip_ref, "x", color="k")
+    ax.set_title(f"Plant (o) vs Cosserat reference (x, lines); worst tip gap {worst:.1e} mm")
+    ax.set_xlabel("x (mm)")
+    ax.set_ylabel("y (mm)")
+    ax.set_zlabel("z (mm)")
+    fig.tight_layout()
+    fig.savefig(HERE / "twin_reference.png", dpi=110)
+    plt.close(fig)
+    print(f"reference: worst plant-vs-Cosserat tip gap {worst:.2e} mm")
+
+
+def widths() -> None:
+    sys.path.insert(0, str(HERE.parent.parent / "tests"))
+    from sim.test_plant import loop_width_deg  # the test's own measurement
+
+    for v in ("straight", "moderate", "steep"):
+        print(f"loop width {v}: {loop_width_deg(v):.2f} deg of knob")
+
+
+if __name__ == "__main__":
+    hysteresis()
+    grid()
+    reference()
+    widths()
+    spin()

@@ -1,0 +1,696 @@
+"""The operator console: a viser server showing the controller's state and sending its requests.
+
+Threads
+-------
+- The control thread calls the console's listener with each published state; the listener
+  only drops the state into a :class:`~icenav.console.panels.LatestSlot` (never blocks).
+- One refresh thread wakes at ``refresh_hz``, takes the newest state (older ones are
+  coalesced away), updates the scene and panels, and sends a new ICE image when there is one.
+- viser's thread pool runs the GUI callbacks, which only send requests to the controller
+  (each returns at once; the controller executes them at its next cycle).
+
+Several browsers may connect. The E-STOP and Stop buttons, the status, the image, the plot
+and the 3-D scene are shared by all of them; each browser has its own driving controls,
+enabled only while it holds control (``controller.acquire_control(client)``, with the client
+named ``browser-<id>``). The gamepad always wins; the controller enforces that.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import threading
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from icenav.console.panels import (
+    JOG_AXES,
+    MODE_CHOICES,
+    JointHistory,
+    LatestSlot,
+    client_name,
+    control_view,
+    display_factors,
+    display_pixel_map,
+    gray_to_rgb,
+    jog_command,
+    mode_from_choice,
+    progress_percent,
+    status_markdown,
+    summary_markdown,
+    views_markdown,
+)
+from icenav.console.scene import (
+    MM_TO_SCENE,
+    AnatomyMesh,
+    RoadmapTrail,
+    as_anatomy_meshes,
+    catheter_scene,
+    image_plane_pose,
+    subsample,
+    view_marker_positions,
+)
+from icenav.errors import ConfigurationError
+from icenav.io.joystick import JoystickMapping
+from icenav.kinematics import DEFAULT_GEOMETRY, CatheterGeometry
+from icenav.state import ControllerCommands, ControllerState, ImageFrame, Mode
+
+__all__ = ["Console", "ConsoleStats"]
+
+NO_VIEWS = "(no saved views)"
+CALIBRATIONS = {"Dense raster": "dense", "5-point": "five_point"}
+TRUE_RGB = (230, 140, 40)
+MODEL_RGB = (60, 120, 255)
+VIEW_RGB = (40, 200, 90)
+ROADMAP_RGB = (150, 150, 150)
+IMAGE_MAX_WIDTH = 640
+"""Widest ICE image sent (pixels); wider ones are decimated."""
+IMAGE_MIN_WIDTH = 300
+"""Narrower ICE images are enlarged towards this width (the panel is about 320 px wide)."""
+
+
+@dataclass(frozen=True)
+class ConsoleStats:
+    """Counters of the console's work since it was made."""
+
+    states_offered: int
+    """States the controller handed to the listener."""
+    refreshes: int
+    """Refreshes that drew a state (the rest were coalesced)."""
+    images_sent: int
+    """ICE images sent to the browsers."""
+    clients: int
+    """Browsers connected now."""
+
+
+class _ClientPanel:
+    """One browser's own controls (viser handles created on its connection)."""
+
+    def __init__(self, console: Console, client: Any):
+        self.client = client
+        self.name = client_name(client.client_id)
+        self.can_control: bool | None = None
+        self.note_text = ""
+        self.jog_mode: Mode | None = None
+        self.view_options: tuple[str, ...] = ()
+        gui = client.gui
+        c = console
+        self.note = gui.add_markdown("", order=1.0)
+        self.take = gui.add_button("Take control", order=1.1)
+        self.release = gui.add_button("Release control", order=1.2, visible=False)
+        tabs = gui.add_tab_group(order=5.0)
+        with tabs.add_tab("Views"):
+            self.view_name = gui.add_text("View name", initial_value="view-1")
+            self.save = gui.add_button("Save view")
+            self.views = gui.add_dropdown("Saved views", (NO_VIEWS,), initial_value=NO_VIEWS)
+            self.goto = gui.add_button("Go to view", color="green")
+            self.thumb_note = gui.add_markdown("*No thumbnail.*", visible=False)
+            self.thumb = gui.add_image(
+                np.zeros((8, 8, 3), np.uint8), label="Thumbnail", format="jpeg", visible=False
+            )
+            self.delete = gui.add_button("Delete view", color="gray")
+            self.view_list = gui.add_markdown("*No saved views yet.*")
+        with tabs.add_tab("Jog"):
+            self.jog_buttons = []
+            labels = JOG_AXES[Mode.KNOB]
+            for axis in range(4):
+                for sign in (-1, 1):
+                    b = gui.add_button(f"{labels[axis]} {'-' if sign < 0 else '+'}")
+                    b.on_hold(c._jog_callback(self, axis, sign), callback_hz=c.jog_hz)
+                    self.jog_buttons.append((b, axis, sign))
+        with tabs.add_tab("Drive"):
+            self.mode = gui.add_dropdown("Mode", tuple(MODE_CHOICES), initial_value="Idle")
+            self.compensation = gui.add_checkbox("Compensation", initial_value=False)
+            self.reset = gui.add_button("Reset fault", color="yellow")
+            self.spin = gui.add_button("Spin 360")
+            self.calib_kind = gui.add_dropdown(
+                "Calibration", tuple(CALIBRATIONS), initial_value="5-point"
+            )
+            self.calibrate = gui.add_button("Calibrate")
+        self.motion_controls = [
+            self.mode,
+            self.compensation,
+            self.reset,
+            self.spin,
+            self.calib_kind,
+            self.calibrate,
+            self.save,
+            self.goto,
+            self.delete,
+            *(b for b, _, _ in self.jog_buttons),
+        ]
+
+
+class Console:
+    """The browser console of one controller.
+
+    Parameters
+    ----------
+    controller : ControllerCommands
+        The controller to show and drive.
+    host, port : str, int
+        Where to serve (127.0.0.1 unless told otherwise; ``port=0`` picks a free port).
+    anatomy_mesh : sequence of AnatomyMesh or (name, vertices, faces, rgb, opacity), optional
+        Anatomy surfaces in the base frame (mm), drawn translucently; None shows none.
+    refresh_hz : float
+        Scene / panel refresh rate (states in between are coalesced); also the highest
+        rate at which ICE images are sent.
+    geometry : CatheterGeometry
+        Catheter geometry (tube radius; model pose of views loaded with a session).
+    mapping : JoystickMapping, optional
+        Jog speeds of the on-screen buttons (the gamepad's full-stick rates).
+    max_roadmap_points : int
+        The roadmap drawn as at most this many points.
+    jog_hz : float
+        Rate at which a held jog button repeats its jog request.
+    status_hz : float
+        Rate of the status table and the joint plot (at most refresh_hz; also redrawn on
+        each mode change).
+    """
+
+    def __init__(
+        self,
+        controller: ControllerCommands,
+        host: str = "127.0.0.1",
+        port: int = 8080,
+        anatomy_mesh: Sequence[AnatomyMesh | tuple[str, Any, Any, Any, float]] | None = None,
+        *,
+        refresh_hz: float = 25.0,
+        geometry: CatheterGeometry = DEFAULT_GEOMETRY,
+        mapping: JoystickMapping | None = None,
+        max_roadmap_points: int = 5000,
+        jog_hz: float = 20.0,
+        status_hz: float = 10.0,
+    ):
+        if not (0 < refresh_hz <= 120):
+            raise ConfigurationError(f"refresh_hz must be in (0, 120] Hz, got {refresh_hz}")
+        if not (0 < status_hz <= 120):
+            raise ConfigurationError(f"status_hz must be in (0, 120] Hz, got {status_hz}")
+        if not (0 < jog_hz <= 100):
+            raise ConfigurationError(f"jog_hz must be in (0, 100] Hz, got {jog_hz}")
+        if max_roadmap_points < 2:
+            raise ConfigurationError(
+                f"max_roadmap_points must be >= 2 points, got {max_roadmap_points}"
+            )
+        if not 0 <= port <= 65535:
+            raise ConfigurationError(f"port must be in [0, 65535], got {port}")
+        self.controller = controller
+        self.host = host
+        self.requested_port = port
+        self.refresh_hz = refresh_hz
+        self._status_every = max(1, round(refresh_hz / status_hz))
+        self.jog_hz = jog_hz
+        self.geometry = geometry
+        self.mapping = mapping or JoystickMapping()
+        self.max_roadmap_points = max_roadmap_points
+        self.anatomy = as_anatomy_meshes(anatomy_mesh)
+        self._slot = LatestSlot()
+        self._reset_view_state()
+        self._panels: dict[int, _ClientPanel] = {}
+        self._lock = threading.RLock()
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+        self._server: Any = None
+        self._listening = False
+        self._running = False
+        self._refreshes = 0
+        self._images_sent = 0
+        self.last_error = ""
+        """The latest exception text of a refresh ("" after a good one); shown in the page."""
+
+    def _reset_view_state(self) -> None:
+        """What the console has drawn (a fresh start on each start())."""
+        self._history = JointHistory(10.0)
+        self._trail = RoadmapTrail()
+        self._markers: dict[str, np.ndarray] = {}
+        self._marker_handles: dict[str, tuple[Any, Any]] = {}
+        self._first_state = True
+        self._last_state: ControllerState | None = None
+        self._status_mode: Mode | None = None
+        self._last_image_t: float | None = None
+        self._tubes: dict[str, Any] = {}
+        self._tube_faces: dict[str, int] = {}
+        self._scene_image: Any = None
+
+    # ------------------------------------------------------------------ lifecycle
+    @property
+    def url(self) -> str:
+        """http://host:port of the running console."""
+        if self._server is None:
+            raise ConfigurationError("the console is not started; call start() first")
+        return f"http://{self.host}:{self._server.get_port()}"
+
+    @property
+    def port(self) -> int:
+        """The port actually bound (differs from the requested one for port=0)."""
+        if self._server is None:
+            raise ConfigurationError("the console is not started; call start() first")
+        return int(self._server.get_port())
+
+    def stats(self) -> ConsoleStats:
+        """Counters since the console was made."""
+        return ConsoleStats(
+            states_offered=self._slot.offered,
+            refreshes=self._refreshes,
+            images_sent=self._images_sent,
+            clients=len(self._panels),
+        )
+
+    def start(self) -> None:
+        """Serve the console and follow the controller (returns at once)."""
+        if self._running:
+            return
+        import viser  # imported here: the pure parts of the console need no server
+
+        self._server = viser.ViserServer(
+            host=self.host, port=self.requested_port, label="icenav", verbose=False
+        )
+        self._stop.clear()
+        self._reset_view_state()
+        self._build_shared()
+        self._server.on_client_connect(self._on_connect)
+        self._server.on_client_disconnect(self._on_disconnect)
+        self._running = True
+        if not self._listening:  # the protocol has no remove_listener: register once
+            self.controller.add_listener(self._on_state)
+            self._listening = True
+        self._slot.offer(self.controller.snapshot())
+        self._thread = threading.Thread(target=self._run, name="icenav-console", daemon=True)
+        self._thread.start()
+
+    def stop(self) -> None:
+        """Stop refreshing, release control held by browsers and close the server."""
+        if not self._running:
+            return
+        self._running = False
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(timeout=5.0)
+            self._thread = None
+        with self._lock:
+            panels = list(self._panels.values())
+            self._panels.clear()
+        for p in panels:
+            with contextlib.suppress(Exception):
+                self.controller.release_control(p.name)
+        if self._server is not None:
+            self._server.stop()
+            self._server = None
+
+    def __enter__(self) -> Console:
+        self.start()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.stop()
+
+    def _on_state(self, state: ControllerState) -> None:
+        if self._running:
+            self._slot.offer(state)
+
+    def _run(self) -> None:
+        period = 1.0 / self.refresh_hz
+        while not self._stop.wait(period):
+            try:
+                self.refresh_once()
+                error = ""
+            except Exception as exc:  # keep the console alive; show what went wrong
+                error = f"{type(exc).__name__}: {exc}"
+            if error != self.last_error:
+                self.last_error = error
+                with contextlib.suppress(Exception):
+                    self._error_md.content = f"**Console error:** `{error}`" if error else ""
+
+    # ------------------------------------------------------------------ building
+    def _build_shared(self) -> None:
+        s = self._server
+        s.gui.configure_theme(control_width="large", show_share_button=False)
+        self._estop = s.gui.add_button(
+            "E-STOP", color="red", icon=None, order=0.0, hint="Emergency stop (anyone, any mode)"
+        )
+        self._estop.on_click(lambda ev: self.controller.estop(client=self._client_of(ev)))
+        self._stop_btn = s.gui.add_button("Stop", color="orange", order=0.1)
+        self._stop_btn.on_click(lambda ev: self.controller.stop(client=self._client_of(ev)))
+        self._error_md = s.gui.add_markdown("", order=0.2)
+        self._summary = s.gui.add_markdown("*Waiting for the controller...*", order=1.5)
+        self._image_placeholder = s.gui.add_markdown("*No ICE image yet.*", order=2.0)
+        self._image = s.gui.add_image(
+            np.zeros((8, 8, 3), np.uint8),
+            label="ICE image",
+            format="jpeg",
+            jpeg_quality=80,
+            order=2.1,
+            visible=False,
+        )
+        self._progress_label = s.gui.add_markdown("", order=3.0, visible=False)
+        self._progress = s.gui.add_progress_bar(0.0, order=3.1, visible=False, animated=True)
+        with s.gui.add_folder("Status", order=20.0):
+            self._status = s.gui.add_markdown("*Waiting for the controller...*")
+            import viser.uplot as uplot
+
+            empty = tuple(np.zeros(0) for _ in range(5))
+            self._plot = s.gui.add_uplot(
+                empty,
+                (
+                    uplot.Series(label="t (s)"),
+                    uplot.Series(label="phi1 (deg)", stroke="#d9480f", width=2),
+                    uplot.Series(label="phi2 (deg)", stroke="#1971c2", width=2),
+                    uplot.Series(label="phi3 (deg)", stroke="#2f9e44", width=2),
+                    uplot.Series(label="d4 (mm)", stroke="#7048e8", width=2, scale="mm"),
+                ),
+                title="Joint states, last 10 s",
+                scales={"x": uplot.Scale(time=False), "mm": uplot.Scale(auto=True)},
+                axes=(
+                    uplot.Axis(),
+                    uplot.Axis(label="deg"),
+                    uplot.Axis(label="mm", scale="mm", side=1),
+                ),
+                aspect=1.6,
+            )
+
+        cam = s.initial_camera
+        cam.position = (0.09, -0.09, 0.07)  # metres: the 60 mm bending section fills a third
+        cam.look_at = (0.0, 0.0, 0.035)
+        cam.near = 0.001
+        sc = s.scene
+        sc.set_up_direction("+z")
+        sc.configure_default_lights(enabled=True, cast_shadow=False)  # shadows cost frame rate
+        sc.add_frame("/base", axes_length=0.01, axes_radius=0.0005)
+        # the base plane: 1 cm cells, 5 cm sections (a scale for the eye)
+        sc.add_grid(
+            "/grid",
+            width=0.2,
+            height=0.2,
+            cell_size=0.01,
+            section_size=0.05,
+            fade_distance=1.0,
+            shadow_opacity=0.0,
+        )
+        for mesh in self.anatomy:
+            sc.add_mesh_simple(
+                f"/anatomy/{mesh.name}",
+                vertices=(mesh.vertices * MM_TO_SCENE).astype(np.float32),
+                faces=mesh.faces,
+                color=mesh.rgb,
+                opacity=mesh.opacity,
+                side="double",
+                cast_shadow=False,
+                receive_shadow=False,
+            )
+        self._tip_true = sc.add_frame(
+            "/catheter/tip_true", axes_length=0.008, axes_radius=0.0005, visible=False
+        )
+        self._tip_model = sc.add_frame(
+            "/catheter/tip_model", axes_length=0.006, axes_radius=0.0003, visible=False
+        )
+        self._tip_ghost = sc.add_icosphere(
+            "/catheter/tip_model/ghost", radius=0.0025, color=MODEL_RGB, opacity=0.35
+        )
+        self._sensor = sc.add_frame(
+            "/catheter/sensor", axes_length=0.005, axes_radius=0.0004, visible=False
+        )
+        self._roadmap = sc.add_point_cloud(
+            "/roadmap",
+            points=np.zeros((1, 3), np.float32),
+            colors=ROADMAP_RGB,
+            point_size=0.0012,
+            visible=False,
+        )
+
+    def _on_connect(self, client: Any) -> None:
+        panel = _ClientPanel(self, client)
+        c = self.controller
+        name = panel.name
+
+        def ok(ev: Any) -> bool:
+            return ev.client is not None
+
+        @panel.take.on_click
+        def _(ev: Any) -> None:
+            c.acquire_control(name)
+
+        @panel.release.on_click
+        def _(ev: Any) -> None:
+            c.release_control(name)
+
+        @panel.mode.on_update
+        def _(ev: Any) -> None:
+            if ok(ev):
+                c.request_mode(mode_from_choice(panel.mode.value), client=name)
+
+        @panel.compensation.on_update
+        def _(ev: Any) -> None:
+            if ok(ev):
+                c.set_compensation(bool(panel.compensation.value), client=name)
+
+        panel.reset.on_click(lambda ev: c.reset_fault(client=name))
+        panel.spin.on_click(lambda ev: c.start_spin(client=name))
+
+        @panel.calibrate.on_click
+        def _(ev: Any) -> None:
+            kind = CALIBRATIONS[panel.calib_kind.value]
+            c.start_calibration("dense" if kind == "dense" else "five_point", client=name)
+
+        @panel.save.on_click
+        def _(ev: Any) -> None:
+            view = panel.view_name.value.strip()
+            if view:
+                c.save_view(view, client=name)
+                panel.view_name.value = _next_name(view)
+
+        @panel.goto.on_click
+        def _(ev: Any) -> None:
+            if panel.views.value != NO_VIEWS:
+                c.goto_view(panel.views.value, client=name)
+
+        @panel.delete.on_click
+        def _(ev: Any) -> None:
+            if panel.views.value != NO_VIEWS:
+                c.delete_view(panel.views.value, client=name)
+
+        @panel.views.on_update
+        def _(ev: Any) -> None:
+            self._show_thumbnail(panel)
+
+        with self._lock:
+            self._panels[client.client_id] = panel
+            state = self._last_state
+            if state is not None:
+                self._update_panel(panel, state)
+        if state is None or state.control_owner is None:
+            c.acquire_control(name)
+
+    def _on_disconnect(self, client: Any) -> None:
+        with self._lock:
+            panel = self._panels.pop(client.client_id, None)
+            state = self._last_state
+        if panel is not None and state is not None and state.control_owner == panel.name:
+            self.controller.release_control(panel.name)
+
+    def _client_of(self, ev: Any) -> str:
+        return "browser" if ev.client_id is None else client_name(ev.client_id)
+
+    def _jog_callback(self, panel: _ClientPanel, axis: int, sign: int) -> Any:
+        def cb(ev: Any) -> None:
+            state = self._last_state
+            if state is None or not panel.can_control:
+                return
+            # Outside tip mode a jog drives the knobs: the controller wakes from IDLE into
+            # knob mode on it, and it aborts an automatic motion (as gamepad input does).
+            mode = Mode.TIP if state.mode == Mode.TIP else Mode.KNOB
+            vel, frame = jog_command(mode, axis, sign, self.mapping)
+            self.controller.jog(vel, frame, client=panel.name)
+
+        return cb
+
+    # ------------------------------------------------------------------ refreshing
+    def refresh_once(self) -> bool:
+        """Draw the newest state (if a new one came) and the newest image; True if drawn."""
+        drew = False
+        state = self._slot.take()
+        if state is not None:
+            self._draw_state(state)
+            self._refreshes += 1
+            drew = True
+        frame = self.controller.latest_image()
+        if frame is not None and frame.timestamp != self._last_image_t:
+            self._draw_image(frame, state or self._last_state)
+            self._last_image_t = frame.timestamp
+            self._images_sent += 1
+        return drew
+
+    def _draw_state(self, state: ControllerState) -> None:
+        with self._lock:
+            self._last_state = state
+        self._summary.content = summary_markdown(state)
+        self._history.append(state.time, state.q_motor)
+        # the status table and the plot are costly to re-render in the browser: status_hz
+        if self._refreshes % self._status_every == 0 or state.mode != self._status_mode:
+            self._status.content = status_markdown(state)
+            self._plot.data = self._history.uplot_data()
+            self._status_mode = state.mode
+        pct = progress_percent(state.progress)
+        self._progress.visible = pct is not None
+        self._progress_label.visible = pct is not None
+        if pct is not None:
+            self._progress.value = pct
+            self._progress_label.content = f"{state.progress_label or 'Progress'}: {pct:.0f} %"
+        self._draw_scene(state)
+        with self._lock:  # a browser connecting or leaving waits for this
+            for p in self._panels.values():
+                self._update_panel(p, state)
+
+    def _draw_scene(self, state: ControllerState) -> None:
+        cs = catheter_scene(state, self.geometry.catheter_radius)
+        self._set_tube("true", cs.true_tube, TRUE_RGB, None)
+        self._set_tube("model", cs.model_tube, MODEL_RGB, 0.35)
+        self._tip_model.wxyz, self._tip_model.position = cs.tip_model.wxyz, cs.tip_model.position
+        self._tip_model.visible = True
+        if cs.tip_true is not None:
+            self._tip_true.wxyz, self._tip_true.position = cs.tip_true.wxyz, cs.tip_true.position
+        self._tip_true.visible = cs.tip_true is not None
+        if cs.sensor is not None:
+            self._sensor.wxyz, self._sensor.position = cs.sensor.wxyz, cs.sensor.position
+        self._sensor.visible = cs.sensor is not None
+        if self._trail.update(state):
+            pts = subsample(self._trail.points(), self.max_roadmap_points) * MM_TO_SCENE
+            if len(pts):
+                self._roadmap.points = pts.astype(np.float32)
+                self._roadmap.colors = np.tile(np.array(ROADMAP_RGB, np.uint8), (len(pts), 1))
+            self._roadmap.visible = len(pts) > 0
+        tip = state.tip2base_true if state.tip2base_true is not None else state.tip2base_model
+        markers = view_marker_positions(
+            state.views,
+            self._markers,
+            np.asarray(tip)[:3, 3],
+            first=self._first_state,
+            geometry=self.geometry,
+        )
+        self._first_state = False
+        if markers.keys() != self._markers.keys():
+            self._draw_markers(markers)
+        self._markers = markers
+
+    def _set_tube(self, key: str, tube: Any, rgb: tuple[int, int, int], op: float | None) -> None:
+        handle = self._tubes.get(key)
+        if tube is None:
+            if handle is not None:
+                handle.visible = False
+            return
+        vertices, faces = tube
+        if handle is None or self._tube_faces.get(key) != len(faces):
+            if handle is not None:
+                handle.remove()
+            self._tubes[key] = self._server.scene.add_mesh_simple(
+                f"/catheter/{key}",
+                vertices=vertices,
+                faces=faces,
+                color=rgb,
+                opacity=op,
+                cast_shadow=False,
+                receive_shadow=False,
+            )
+            self._tube_faces[key] = len(faces)
+        else:
+            handle.vertices = vertices
+            handle.visible = True
+
+    def _draw_markers(self, markers: dict[str, np.ndarray]) -> None:
+        sc = self._server.scene
+        for name in list(self._marker_handles):
+            if name not in markers:
+                for h in self._marker_handles.pop(name):
+                    h.remove()
+        for i, (name, pos) in enumerate(markers.items()):
+            if name in self._marker_handles:
+                continue
+            key = f"/views/v{i}_{abs(hash(name)) % 10**8}"
+            p = np.asarray(pos) * MM_TO_SCENE
+            sphere = sc.add_icosphere(key, radius=0.002, color=VIEW_RGB, position=p)
+            label = sc.add_label(key + "_label", name, position=p + np.array([0, 0, 0.004]))
+            self._marker_handles[name] = (sphere, label)
+
+    def _draw_image(self, frame: ImageFrame, state: ControllerState | None) -> None:
+        rgb = gray_to_rgb(frame.pixels, IMAGE_MAX_WIDTH, IMAGE_MIN_WIDTH)
+        self._image.image = rgb
+        self._image.visible = True
+        self._image_placeholder.visible = False
+        if state is None or np.array_equal(frame.ijk2tip, np.eye(4)):
+            return  # identity: the imager did not say where its pixels are; panel only
+        tip = state.tip2base_true if state.tip2base_true is not None else state.tip2base_model
+        down, up = display_factors(frame.pixels.shape[1], IMAGE_MAX_WIDTH, IMAGE_MIN_WIDTH)
+        ijk2tip = np.asarray(frame.ijk2tip, dtype=np.float64) @ display_pixel_map(down, up)
+        pose, w, h = image_plane_pose(ijk2tip, tip, (rgb.shape[0], rgb.shape[1]))
+        if self._scene_image is None:
+            self._scene_image = self._server.scene.add_image(
+                "/ice_image",
+                rgb,
+                w,
+                h,
+                format="jpeg",
+                wxyz=pose.wxyz,
+                position=pose.position,
+                cast_shadow=False,
+                receive_shadow=False,
+            )
+        else:
+            self._scene_image.image = rgb
+            self._scene_image.wxyz, self._scene_image.position = pose.wxyz, pose.position
+            self._scene_image.render_width, self._scene_image.render_height = w, h
+
+    def _update_panel(self, p: _ClientPanel, state: ControllerState) -> None:
+        cv = control_view(state.control_owner, p.name)
+        if cv.text != p.note_text:
+            p.note.content = cv.text
+            p.note_text = cv.text
+        if cv.can_control != p.can_control:
+            for h in p.motion_controls:
+                h.disabled = not cv.can_control
+            p.can_control = cv.can_control
+        p.take.visible = not cv.can_control
+        p.take.disabled = not cv.can_take
+        p.release.visible = cv.can_control
+        for choice, mode in MODE_CHOICES.items():
+            if state.mode == mode and p.mode.value != choice:
+                p.mode.value = choice
+        if p.compensation.value != state.compensation_enabled:
+            p.compensation.value = state.compensation_enabled
+        jog_mode = state.mode if state.mode == Mode.TIP else Mode.KNOB
+        if jog_mode != p.jog_mode:
+            labels = JOG_AXES[jog_mode]
+            for b, axis, sign in p.jog_buttons:
+                b.label = f"{labels[axis]} {'-' if sign < 0 else '+'}"
+            p.jog_mode = jog_mode
+        names = tuple(v.name for v in state.views)
+        if names != p.view_options:
+            new = [n for n in names if n not in p.view_options]
+            p.view_options = names
+            p.views.options = names or (NO_VIEWS,)
+            if new:  # select the view just saved
+                p.views.value = new[-1]
+            elif p.views.value not in names:
+                p.views.value = names[0] if names else NO_VIEWS
+            p.view_list.content = views_markdown(state.views)
+            self._show_thumbnail(p)
+
+    def _show_thumbnail(self, p: _ClientPanel) -> None:
+        name = p.views.value
+        frame = None if name == NO_VIEWS else self.controller.view_image(name)
+        if frame is None:
+            p.thumb.visible = False
+            p.thumb_note.content = "*No thumbnail.*" if name != NO_VIEWS else ""
+            p.thumb_note.visible = name != NO_VIEWS
+            return
+        p.thumb.image = gray_to_rgb(frame.pixels, max_width=200)
+        p.thumb.visible = True
+        p.thumb_note.visible = False
+
+
+def _next_name(name: str) -> str:
+    """view-1 -> view-2; apex -> apex-2 (a suggestion for the next view's name)."""
+    head, sep, tail = name.rpartition("-")
+    if sep and tail.isdigit():
+        return f"{head}-{int(tail) + 1}"
+    return f"{name}-2"

@@ -1,0 +1,891 @@
+"""The control loop: inputs -> commands, modes, safety, recording, views, automatic motions.
+
+The :class:`Controller` owns time and state. Its :meth:`Controller.step` runs one control
+cycle; :meth:`Controller.start` runs cycles in a thread at ``rate_hz`` (default 100 Hz).
+Adapters (console, OpenIGTLink bridge, scripts) talk to it through the
+:class:`~icenav.state.ControllerCommands` protocol: requests are queued and executed at the
+start of the next cycle, except the emergency stop, which acts at once from the caller's
+thread.
+
+One cycle:
+
+1. execute queued requests;
+2. read the robot; a FAULT or ESTOP status puts the controller in FAULT / ESTOP (any
+   automatic motion is dropped; motion resumes only after ``reset_fault``);
+3. read the gamepad; stale or non-finite input counts as released (watchdog);
+   operator input during an automatic motion aborts it;
+4. compute the motor command of the mode (knob or tip teleoperation, or the automatic
+   task's next set-point), limited in velocity and to the joint limits (a limit hit is
+   reported, never silent);
+5. command the robot; record the measured state into the roadmap (and the store);
+6. read the twin's truth / tracker / imager as configured, and publish a snapshot.
+
+Modes and the allowed transitions are in :data:`TRANSITIONS`.
+"""
+
+from __future__ import annotations
+
+import math
+import queue
+import threading
+import time
+from collections import deque
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any, Literal, Protocol
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from icenav.errors import ConfigurationError, IcenavError, InvalidValueError, PlanningError
+from icenav.hw.base import RobotBackend, RobotStatus
+from icenav.io.joystick import (
+    InputSource,
+    JoystickMapping,
+    JoystickSample,
+    knob_velocity,
+    tip_twist,
+)
+from icenav.kinematics import DEFAULT_GEOMETRY, CatheterGeometry, backbone, forward, tip_jog
+from icenav.roadmap import Roadmap
+from icenav.state import (
+    CalibrationKind,
+    ControllerState,
+    ImageFrame,
+    Mode,
+    ViewSummary,
+)
+from icenav.validation import check_finite, check_positive
+from icenav.views import ViewLibrary
+
+__all__ = [
+    "TRANSITIONS",
+    "AutomaticTask",
+    "Controller",
+    "ControllerConfig",
+    "KnobMap",
+    "PathTask",
+]
+
+Array = NDArray[np.float64]
+
+_AUTOMATIC = (Mode.GOTO_VIEW, Mode.SPINNING, Mode.CALIBRATING)
+_TELEOP = (Mode.IDLE, Mode.KNOB, Mode.TIP)
+
+TRANSITIONS: dict[Mode, frozenset[Mode]] = {
+    Mode.IDLE: frozenset({Mode.KNOB, Mode.TIP, *_AUTOMATIC, Mode.FAULT, Mode.ESTOP}),
+    Mode.KNOB: frozenset({Mode.IDLE, Mode.TIP, *_AUTOMATIC, Mode.FAULT, Mode.ESTOP}),
+    Mode.TIP: frozenset({Mode.IDLE, Mode.KNOB, *_AUTOMATIC, Mode.FAULT, Mode.ESTOP}),
+    Mode.GOTO_VIEW: frozenset({Mode.IDLE, Mode.KNOB, Mode.TIP, Mode.FAULT, Mode.ESTOP}),
+    Mode.SPINNING: frozenset({Mode.IDLE, Mode.KNOB, Mode.TIP, Mode.FAULT, Mode.ESTOP}),
+    Mode.CALIBRATING: frozenset({Mode.IDLE, Mode.KNOB, Mode.TIP, Mode.FAULT, Mode.ESTOP}),
+    Mode.FAULT: frozenset({Mode.IDLE, Mode.ESTOP}),
+    Mode.ESTOP: frozenset({Mode.IDLE}),
+}
+"""mode -> modes it may go to. FAULT and ESTOP are left only through reset_fault (-> IDLE)."""
+
+
+class KnobMap(Protocol):
+    """A compensation: model knob angles <-> motor knob angles (rad), shape (2,) each."""
+
+    def to_motor(self, phi_model: Array) -> Array:
+        """Motor knob angles that realise the model knob angles (the paper's F)."""
+        ...
+
+    def to_model(self, phi_motor: Array) -> Array:
+        """Model knob angles that the motor knob angles realise (F^-1)."""
+        ...
+
+
+class AutomaticTask(Protocol):
+    """An automatic motion, stepped by the controller once per cycle."""
+
+    mode: Mode
+    """The mode the controller is in while this runs."""
+    label: str
+    """What it is, for the operator ("go to view 'aortic'", "spin 360", ...)."""
+
+    def next_command(self, q_measured: Array, dt: float) -> Array | None:
+        """The next motor set-point (4,), or None when the task has finished."""
+        ...
+
+    @property
+    def progress(self) -> float:
+        """Fraction done, in [0, 1]."""
+        ...
+
+
+@dataclass(frozen=True)
+class ControllerConfig:
+    """Settings of the control loop."""
+
+    rate_hz: float = 100.0
+    """Control rate (Hz); the loop is tested at 100 and 500 Hz."""
+    max_velocity: tuple[float, float, float, float] = (
+        math.radians(60.0),
+        math.radians(60.0),
+        math.radians(90.0),
+        10.0,
+    )
+    """Per-joint speed limit of every command (rad/s, rad/s, rad/s, mm/s)."""
+    watchdog_s: float = 0.25
+    """Operator input older than this counts as released (s)."""
+    publish_every: int = 1
+    """Publish a snapshot every this many cycles."""
+    image_rate_hz: float = 20.0
+    """Rate of the live ICE image (Hz), when an imager is configured."""
+    backbone_points: int = 30
+    """Points per drawn bending section."""
+    geometry: CatheterGeometry = DEFAULT_GEOMETRY
+    """Catheter geometry and joint limits (the motor limits equal the model limits)."""
+
+    def __post_init__(self) -> None:
+        check_positive(self.rate_hz, "rate_hz", "Hz")
+        if self.rate_hz > 2000:
+            raise ConfigurationError(f"rate_hz must be <= 2000 Hz, got {self.rate_hz} Hz")
+        check_positive(self.watchdog_s, "watchdog_s", "s")
+        check_positive(self.image_rate_hz, "image_rate_hz", "Hz")
+        v = check_finite(self.max_velocity, "max_velocity", "rad/s, rad/s, rad/s, mm/s")
+        if v.shape != (4,) or np.any(v <= 0):
+            raise ConfigurationError(
+                f"max_velocity must be 4 positive values (rad/s, rad/s, rad/s, mm/s), got {v}"
+            )
+        if int(self.publish_every) < 1:
+            raise ConfigurationError(f"publish_every must be >= 1 cycle, got {self.publish_every}")
+
+    @property
+    def dt(self) -> float:
+        """Control period (s)."""
+        return 1.0 / self.rate_hz
+
+
+@dataclass
+class PathTask:
+    """Follow a motor-space path at bounded joint speed (a trapezoidal profile per segment).
+
+    The path is followed exactly through its vertices; each segment's duration is the
+    slowest joint's |dq| / v_max, with accelerations limited by easing in and out over the
+    whole path (``accel_time`` s). Used for go-to-view and the spin when no richer motion
+    executor is configured.
+    """
+
+    path: Array
+    """(n, 4) motor states to pass through (rad, rad, rad, mm); path[0] ~ the current state."""
+    max_velocity: Array
+    """(4,) speed limit (rad/s, rad/s, rad/s, mm/s)."""
+    mode: Mode = Mode.GOTO_VIEW
+    label: str = "path"
+    speed_scale: float = 0.5
+    """Fraction of the speed limit used."""
+    on_done: Callable[[], None] | None = None
+    """Called once when the end is reached."""
+    _cum_time: Array = field(init=False, repr=False)
+    _t: float = field(default=0.0, init=False, repr=False)
+
+    def __post_init__(self) -> None:
+        p = np.asarray(self.path, dtype=np.float64)
+        if p.ndim != 2 or p.shape[1] != 4 or len(p) < 1:
+            raise InvalidValueError(f"path must have shape (n >= 1, 4), got {p.shape}")
+        self.path = p
+        v = np.asarray(self.max_velocity, dtype=np.float64) * self.speed_scale
+        seg = np.abs(np.diff(p, axis=0)) / v if len(p) > 1 else np.zeros((0, 4))
+        durations = seg.max(axis=1) if len(seg) else np.zeros(0)
+        self._cum_time = np.concatenate([[0.0], np.cumsum(durations)])
+
+    @property
+    def duration(self) -> float:
+        """Total time of the path (s)."""
+        return float(self._cum_time[-1])
+
+    @property
+    def progress(self) -> float:
+        return 1.0 if self.duration == 0 else min(1.0, self._t / self.duration)
+
+    def next_command(self, q_measured: Array, dt: float) -> Array | None:
+        if self._t >= self.duration:
+            if self.on_done is not None:
+                self.on_done()
+                self.on_done = None
+            return None
+        self._t = min(self.duration, self._t + dt)
+        i = int(np.searchsorted(self._cum_time, self._t, side="right")) - 1
+        i = min(max(i, 0), len(self.path) - 2)
+        t0, t1 = self._cum_time[i], self._cum_time[i + 1]
+        s = 1.0 if t1 <= t0 else (self._t - t0) / (t1 - t0)
+        return np.asarray(self.path[i] + s * (self.path[i + 1] - self.path[i]))
+
+
+@dataclass
+class _Jog:
+    velocity: Array
+    frame: Literal["knob", "tip"]
+    client: str
+    at: float
+
+
+class Controller:
+    """The control loop on a robot backend (simulated or real); see the module docstring.
+
+    Parameters
+    ----------
+    robot : RobotBackend
+        The robot; enabled by the controller at start.
+    config : ControllerConfig
+        Rates, limits, geometry.
+    roadmap : Roadmap, optional
+        Where every visited state is recorded (a new one by default).
+    views : ViewLibrary, optional
+        Saved views (a new, empty one by default).
+    input_source : InputSource, optional
+        The gamepad (or a scripted input). None: on-screen jog only.
+    mapping : JoystickMapping
+        Gamepad mapping.
+    compensation : KnobMap, optional
+        Model <-> motor knob map used by tip mode and the spin (identity when None).
+    truth : callable, optional
+        ``truth() -> (tip2base (4,4), backbone (n,3))`` of the twin (None on hardware).
+    tracker : object, optional
+        A tracker backend (``get_frame()`` -> frame with ``status`` and ``sensor2tracker``)
+        with ``config.tracker2base``; the sensor pose is published in the base frame.
+    imager : callable, optional
+        ``imager(tip2base_true, t) -> (H, W) uint8`` image of the current pose.
+    image_ijk2tip : ndarray, shape (4, 4), optional
+        Maps a pixel (i = column, j = row, k = 0) of the image into the tip frame (mm).
+    recorder : callable, optional
+        ``recorder(event, payload)`` for persistence (the store adapter): events
+        "state", "view_saved", "view_deleted", "event".
+    clock : callable
+        Time source (s) for timestamps of jog requests and the real-time loop.
+    """
+
+    def __init__(
+        self,
+        robot: RobotBackend,
+        config: ControllerConfig | None = None,
+        *,
+        roadmap: Roadmap | None = None,
+        views: ViewLibrary | None = None,
+        input_source: InputSource | None = None,
+        mapping: JoystickMapping | None = None,
+        compensation: KnobMap | None = None,
+        truth: Callable[[], tuple[Array, Array]] | None = None,
+        tracker: Any = None,
+        imager: Callable[[Array, float], NDArray[np.uint8]] | None = None,
+        image_ijk2tip: Array | None = None,
+        recorder: Callable[[str, dict[str, Any]], None] | None = None,
+        clock: Callable[[], float] = time.monotonic,
+    ) -> None:
+        self.robot = robot
+        self.config = config or ControllerConfig()
+        self.roadmap = roadmap if roadmap is not None else Roadmap()
+        self.views = views if views is not None else ViewLibrary()
+        self.input_source = input_source
+        self.mapping = mapping or JoystickMapping()
+        self.compensation = compensation
+        self.compensation_enabled = compensation is not None
+        self._truth = truth
+        self.tracker = tracker
+        self._imager = imager
+        self._ijk2tip = np.eye(4) if image_ijk2tip is None else np.asarray(image_ijk2tip, float)
+        self._recorder = recorder
+        self._clock = clock
+        self._requests: queue.SimpleQueue[Callable[[], None]] = queue.SimpleQueue()
+        self._listeners: list[Callable[[ControllerState], None]] = []
+        self._lock = threading.Lock()
+        self._mode = Mode.IDLE
+        self._task: AutomaticTask | None = None
+        self._jog: _Jog | None = None
+        self._owner: str | None = None
+        self._message = ""
+        self._time = 0.0
+        self._cycle = 0
+        self._prev_buttons: tuple[bool, ...] = ()
+        self._selected_view: str | None = None
+        self._image: ImageFrame | None = None
+        self._next_image_t = 0.0
+        self._view_images: dict[str, ImageFrame] = {}
+        self._thread: threading.Thread | None = None
+        self._image_thread: threading.Thread | None = None
+        self._running = threading.Event()
+        self.cycle_times: deque[float] = deque(maxlen=100_000)
+        """Compute time of the latest cycles (s), for the benchmark."""
+        self.cycle_starts: deque[float] = deque(maxlen=100_000)
+        """perf_counter() at the start of the latest real-time cycles (s), for jitter."""
+        if self.robot.status is RobotStatus.DISABLED:
+            self.robot.enable()
+        q0 = self.robot.read_state().q
+        self._q_cmd = np.array(q0, dtype=np.float64)
+        self._q = np.array(q0, dtype=np.float64)
+        self.roadmap.add(self._q)
+        self._state = self._make_state()
+
+    # --- ControllerCommands: requests -------------------------------------------------
+
+    def _submit(self, fn: Callable[[], None]) -> None:
+        self._requests.put(fn)
+
+    def _may_move(self, client: str) -> bool:
+        if self._owner is None or self._owner == client:
+            return True
+        self._message = f"{client} asked for motion but {self._owner} holds control (view only)"
+        return False
+
+    def request_mode(self, mode: Mode, client: str = "script") -> None:
+        def do() -> None:
+            if mode not in _TELEOP:
+                self._message = f"mode {mode.value} is started by its own command, not by a switch"
+                return
+            if self._may_move(client):
+                self._abort_task(f"switched to {mode.value}")
+                self._jog = None  # a held jog belongs to the mode it was made in
+                self._set_mode(mode)
+
+        self._submit(do)
+
+    def jog(
+        self, velocity: ArrayLike, frame: Literal["knob", "tip"], client: str = "script"
+    ) -> None:
+        v = np.asarray(velocity, dtype=np.float64)
+        expected = 4 if frame == "knob" else 6
+        if frame not in ("knob", "tip") or v.shape != (expected,):
+            raise InvalidValueError(
+                f"jog takes frame 'knob' with 4 velocities (rad/s, rad/s, rad/s, mm/s) or "
+                f"'tip' with 6 (mm/s, rad/s); got frame {frame!r} and shape {v.shape}"
+            )
+        if not np.all(np.isfinite(v)):
+            raise InvalidValueError(f"jog velocity must be finite, got {v}")
+        now = self._clock()
+
+        def do() -> None:
+            if self._may_move(client):
+                self._jog = _Jog(v, frame, client, now)
+
+        self._submit(do)
+
+    def save_view(self, name: str, client: str = "script") -> None:
+        def do() -> None:
+            self._save_view(name)
+
+        self._submit(do)
+
+    def goto_view(self, name: str, client: str = "script") -> None:
+        def do() -> None:
+            if self._may_move(client):
+                self._start_goto(name)
+
+        self._submit(do)
+
+    def delete_view(self, name: str, client: str = "script") -> None:
+        def do() -> None:
+            try:
+                self.views.delete(name)
+                self._view_images.pop(name, None)
+                self._record("view_deleted", {"name": name})
+                self._message = f"view {name!r} deleted"
+            except IcenavError as exc:
+                self._message = str(exc)
+
+        self._submit(do)
+
+    def start_spin(self, client: str = "script") -> None:
+        def do() -> None:
+            if self._may_move(client):
+                self._start_spin()
+
+        self._submit(do)
+
+    def start_calibration(self, kind: CalibrationKind, client: str = "script") -> None:
+        def do() -> None:
+            if self._may_move(client):
+                self._start_calibration(kind)
+
+        self._submit(do)
+
+    def set_compensation(self, enabled: bool, client: str = "script") -> None:
+        def do() -> None:
+            if enabled and self.compensation is None:
+                self._message = "no calibration yet: run Calibrate first"
+                return
+            self.compensation_enabled = bool(enabled)
+            self._message = f"compensation {'on' if enabled else 'off'}"
+
+        self._submit(do)
+
+    def stop(self, client: str = "script") -> None:
+        def do() -> None:
+            self._abort_task(f"stopped by {client}")
+            self._jog = None
+            self._q_cmd = self._q.copy()
+            self.robot.stop()
+            if self._mode not in (Mode.FAULT, Mode.ESTOP):
+                self._set_mode(Mode.IDLE)
+
+        self._submit(do)
+
+    def estop(self, client: str = "script") -> None:
+        """Emergency stop: acts at once from the caller's thread, whatever the loop is doing."""
+        self.robot.estop()
+        with self._lock:
+            self._task = None
+            self._jog = None
+            self._mode = Mode.ESTOP
+            self._message = f"EMERGENCY STOP by {client}: reset to continue"
+        self._record("event", {"text": self._message})
+
+    def reset_fault(self, client: str = "script") -> None:
+        def do() -> None:
+            if self._mode not in (Mode.FAULT, Mode.ESTOP):
+                return
+            self.robot.reset_fault()
+            self.robot.enable()
+            self._q = np.array(self.robot.read_state().q, dtype=np.float64)
+            self._q_cmd = self._q.copy()
+            self._mode = Mode.IDLE
+            self._message = f"reset by {client}; holding position"
+            self._record("event", {"text": self._message})
+
+        self._submit(do)
+
+    def acquire_control(self, client: str) -> bool:
+        with self._lock:
+            if self._owner in (None, client) or client == "gamepad":
+                self._owner = client
+                return True
+            return False
+
+    def release_control(self, client: str) -> None:
+        with self._lock:
+            if self._owner == client:
+                self._owner = None
+                if self._jog is not None and self._jog.client == client:
+                    self._jog = None
+
+    def snapshot(self) -> ControllerState:
+        return self._state
+
+    def latest_image(self) -> ImageFrame | None:
+        return self._image
+
+    def view_image(self, name: str) -> ImageFrame | None:
+        return self._view_images.get(name)
+
+    def add_listener(self, callback: Callable[[ControllerState], None]) -> None:
+        self._listeners.append(callback)
+
+    # --- the cycle ----------------------------------------------------------------------
+
+    @property
+    def mode(self) -> Mode:
+        """Current mode."""
+        return self._mode
+
+    @property
+    def time(self) -> float:
+        """Controller time (s): cycles x period."""
+        return self._time
+
+    def step(self) -> ControllerState:
+        """Run one control cycle (see the module docstring) and return the new state."""
+        t_start = time.perf_counter()
+        dt = self.config.dt
+        self._time += dt
+        self._cycle += 1
+        while True:
+            try:
+                self._requests.get_nowait()()
+            except queue.Empty:
+                break
+        js = self.robot.read_state()
+        self._q = np.array(js.q, dtype=np.float64)
+        if js.status in (RobotStatus.FAULT, RobotStatus.ESTOP) and self._mode not in (
+            Mode.FAULT,
+            Mode.ESTOP,
+        ):
+            self._task = None
+            self._jog = None
+            self._mode = Mode.FAULT if js.status is RobotStatus.FAULT else Mode.ESTOP
+            self._message = f"robot {js.status.value}: {js.message or 'stopped'}; reset to continue"
+            self._record("event", {"text": self._message})
+        sample = self._read_gamepad()
+        if self._mode in (Mode.FAULT, Mode.ESTOP):
+            self._q_cmd = self._q.copy()
+        else:
+            q_next = self._command(sample, dt)
+            if q_next is not None:
+                self._send(q_next, dt)
+        self.roadmap.add(self._q)
+        self._record("state", {"q": self._q, "t": self._time})
+        if self._cycle % self.config.publish_every == 0:
+            self._publish()
+        self.cycle_times.append(time.perf_counter() - t_start)
+        return self._state
+
+    def _read_gamepad(self) -> JoystickSample | None:
+        if self.input_source is None:
+            return None
+        sample = self.input_source.poll()
+        now = self._clock()
+        if not sample.connected:
+            self._prev_buttons = ()
+            return None
+        if now - sample.timestamp > self.config.watchdog_s:
+            self._message = "gamepad input stale: motion stopped"
+            return None
+        m = self.mapping
+        prev = self._prev_buttons
+
+        def pressed(i: int) -> bool:
+            return sample.button(i) and not (0 <= i < len(prev) and prev[i])
+
+        self._prev_buttons = sample.buttons
+        if pressed(m.estop_button):
+            self.estop("gamepad")
+            return None
+        if pressed(m.stop_button):
+            self.stop("gamepad")
+        if pressed(m.mode_button) and self._mode in _TELEOP:
+            self.request_mode(Mode.TIP if self._mode is Mode.KNOB else Mode.KNOB, "gamepad")
+        if pressed(m.save_view_button):
+            self.save_view(f"view {len(self.views) + 1}", "gamepad")
+        if pressed(m.goto_view_button) and self._selected_view is not None:
+            self.goto_view(self._selected_view, "gamepad")
+        if sample.button(m.enable_button):
+            self.acquire_control("gamepad")
+        elif self._owner == "gamepad":
+            # the gamepad holds control while its dead-man button is held, then lets go
+            self.release_control("gamepad")
+        return sample
+
+    def _command(self, sample: JoystickSample | None, dt: float) -> Array | None:
+        gamepad_moving = sample is not None and bool(
+            np.any(knob_velocity(sample, self.mapping) != 0)
+        )
+        jog = self._jog
+        if jog is not None and self._clock() - jog.at > self.config.watchdog_s:
+            self._jog = jog = None
+        if self._task is not None:
+            if gamepad_moving or jog is not None:
+                self._abort_task("aborted by operator input")
+                self._set_mode(Mode.KNOB if self._mode not in (Mode.KNOB, Mode.TIP) else self._mode)
+            else:
+                q_next = self._task.next_command(self._q, dt)
+                if q_next is None:
+                    label = self._task.label
+                    self._task = None
+                    self._set_mode(Mode.IDLE)
+                    self._message = f"{label}: done"
+                return q_next
+        if self._mode not in (Mode.KNOB, Mode.TIP) and (gamepad_moving or jog is not None):
+            # any teleoperation input wakes the controller from IDLE into knob mode
+            self._set_mode(Mode.TIP if jog is not None and jog.frame == "tip" else Mode.KNOB)
+        if self._mode is Mode.KNOB:
+            if gamepad_moving and sample is not None:
+                dq = knob_velocity(sample, self.mapping)
+            elif jog is not None and jog.frame == "knob":
+                dq = jog.velocity
+            else:
+                return self._hold()
+            return self._q_cmd + dq * dt
+        if self._mode is Mode.TIP:
+            if gamepad_moving and sample is not None:
+                twist = tip_twist(sample, self.mapping)
+            elif jog is not None and jog.frame == "tip":
+                twist = jog.velocity
+            else:
+                return self._hold()
+            q_model = self._to_model(self._q_cmd)
+            dq_model = tip_jog(q_model, twist, self.config.geometry, dt=dt, check=False)
+            return self._to_motor(q_model + dq_model * dt)
+        return self._hold()
+
+    def _hold(self) -> Array | None:
+        return None
+
+    def _send(self, q_next: Array, dt: float) -> None:
+        """Limit the command in speed and to the joint limits, then command the robot."""
+        vmax = np.asarray(self.config.max_velocity) * dt
+        step = np.clip(q_next - self._q_cmd, -vmax, vmax)
+        q = self._q_cmd + step
+        lim = self.config.geometry.joint_limits
+        clipped = np.clip(q, lim[:, 0], lim[:, 1])
+        if np.any(clipped != q):
+            names = [
+                n
+                for n, a, b in zip(("phi1", "phi2", "phi3", "d4"), q, clipped, strict=True)
+                if a != b
+            ]
+            self._message = f"joint limit reached: {', '.join(names)} held at its limit"
+        self._q_cmd = clipped
+        try:
+            self.robot.command_position(clipped)
+        except IcenavError as exc:
+            self._task = None
+            self._message = f"command refused: {exc}"
+            self._q_cmd = self._q.copy()
+
+    # --- compensation -------------------------------------------------------------------
+
+    def _to_model(self, q_motor: Array) -> Array:
+        if not self.compensation_enabled or self.compensation is None:
+            return q_motor.copy()
+        q = q_motor.copy()
+        q[:2] = self.compensation.to_model(q_motor[:2])
+        return q
+
+    def _to_motor(self, q_model: Array) -> Array:
+        if not self.compensation_enabled or self.compensation is None:
+            return q_model.copy()
+        q = q_model.copy()
+        q[:2] = self.compensation.to_motor(q_model[:2])
+        return q
+
+    # --- modes and tasks ----------------------------------------------------------------
+
+    def _set_mode(self, mode: Mode) -> None:
+        if mode is self._mode:
+            return
+        if mode not in TRANSITIONS[self._mode]:
+            self._message = f"cannot go from {self._mode.value} to {mode.value}"
+            return
+        self._mode = mode
+        self._record("event", {"text": f"mode {mode.value}"})
+
+    def _abort_task(self, why: str) -> None:
+        if self._task is not None:
+            self._message = f"{self._task.label}: {why}"
+            self._record("event", {"text": self._message})
+            self._task = None
+            self._q_cmd = self._q.copy()
+            self.robot.stop()
+
+    def start_task(self, task: AutomaticTask) -> None:
+        """Run an automatic task (from the loop thread or before the loop starts)."""
+        if self._mode in (Mode.FAULT, Mode.ESTOP):
+            self._message = f"cannot start {task.label}: controller in {self._mode.value}"
+            return
+        self._abort_task("replaced")
+        self._set_mode(task.mode)
+        if self._mode is task.mode:
+            self._task = task
+            self._jog = None
+            self._message = f"{task.label}: started"
+
+    def _save_view(self, name: str) -> None:
+        if name in self.views:
+            self._message = f"a view named {name!r} exists already: choose another name"
+            return
+        tip = forward(self._to_model(self._q), self.config.geometry, check=False)
+        thumb = None if self._image is None else self._image.pixels
+        try:
+            view = self.roadmap.make_view(
+                name, created_s=time.time(), q=self._q, tip2base=tip, thumbnail=thumb
+            )
+            self.views.add(view)
+        except IcenavError as exc:
+            self._message = f"view not saved: {exc}"
+            return
+        if self._image is not None:
+            self._view_images[name] = self._image
+        self._selected_view = name
+        self._record("view_saved", {"view": view})
+        self._message = f"view {name!r} saved"
+
+    def _start_goto(self, name: str) -> None:
+        try:
+            view = self.views.get(name)
+        except IcenavError as exc:
+            self._message = str(exc)
+            return
+        try:
+            path = self.roadmap.plan(self._q, view, approach=True)
+        except (PlanningError, InvalidValueError) as exc:
+            self._message = f"cannot go to {name!r}: {exc}"
+            return
+        self._selected_view = name
+        task = PathTask(
+            path,
+            np.asarray(self.config.max_velocity),
+            mode=Mode.GOTO_VIEW,
+            label=f"go to view {name!r}",
+        )
+        self.start_task(task)
+
+    def _start_spin(self) -> None:
+        from icenav.kinematics import inverse
+
+        q_model = self._to_model(self._q)
+        g = self.config.geometry
+        start = forward(q_model, g, check=False)
+        n = 360
+        path = np.empty((n + 1, 4))
+        for i in range(n + 1):
+            t = 2 * math.pi * i / n
+            # the image plane turns by t about the catheter axis while the tip stays put:
+            # rotate the target about the tip's own z axis, then solve the IK
+            c, s = math.cos(t), math.sin(t)
+            turn = np.array([[c, -s, 0, 0], [s, c, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1.0]])
+            qm = inverse(
+                start @ turn, g, check=False, phi3_near=path[i - 1, 2] if i else q_model[2]
+            )
+            path[i] = self._to_motor(qm)
+        lim = g.joint_limits
+        path = np.clip(path, lim[:, 0], lim[:, 1])
+        task = PathTask(
+            path, np.asarray(self.config.max_velocity), mode=Mode.SPINNING, label="spin 360"
+        )
+        self.start_task(task)
+
+    def _start_calibration(self, kind: CalibrationKind) -> None:
+        self._message = f"calibration ({kind}) is not available in this build"
+
+    # --- publishing -----------------------------------------------------------------------
+
+    def _record(self, event: str, payload: dict[str, Any]) -> None:
+        if self._recorder is None:
+            return
+        try:
+            self._recorder(event, payload)
+        except IcenavError as exc:
+            self._message = f"could not record {event}: {exc}"
+
+    def _make_state(self) -> ControllerState:
+        g = self.config.geometry
+        q_model = self._to_model(self._q)
+        tip_model = forward(q_model, g, check=False)
+        bb_model = backbone(
+            np.clip(q_model, g.joint_limits[:, 0], g.joint_limits[:, 1]),
+            g,
+            self.config.backbone_points,
+        ).points_in_base
+        tip_true = bb_true = None
+        if self._truth is not None:
+            tip_true, bb_true = self._truth()
+        sensor = None
+        tracker_status = "none"
+        if self.tracker is not None:
+            frame = self.tracker.get_frame()
+            tracker_status = frame.status.name
+            if frame.sensor2tracker is not None:
+                sensor = self.tracker.config.tracker2base @ frame.sensor2tracker
+        task = self._task
+        return ControllerState(
+            time=self._time,
+            cycle=self._cycle,
+            mode=self._mode,
+            robot_status=self.robot.status,
+            q_motor=self._q.copy(),
+            q_model=q_model,
+            tip2base_model=tip_model,
+            tip2base_true=tip_true,
+            backbone_model=bb_model,
+            backbone_true=bb_true,
+            sensor2base=sensor,
+            tracker_status=tracker_status,
+            message=self._message,
+            progress=None if task is None else task.progress,
+            progress_label="" if task is None else task.label,
+            n_vertices=self.roadmap.n_vertices,
+            n_edges=self.roadmap.n_edges,
+            views=tuple(
+                ViewSummary(v.name, v.q, v.created_s, v.thumbnail is not None) for v in self.views
+            ),
+            compensation_enabled=self.compensation_enabled,
+            control_owner=self._owner,
+        )
+
+    def _publish(self) -> None:
+        state = self._make_state()
+        self._state = state
+        if self._image_thread is None and self._time >= self._next_image_t:
+            # stepped by hand (simulation, tests): render inline at the image rate
+            self._next_image_t = self._time + 1.0 / self.config.image_rate_hz
+            self.render_image()
+        for cb in list(self._listeners):
+            cb(state)
+
+    def render_image(self) -> ImageFrame | None:
+        """Render the ICE image of the latest state's true pose (None without an imager)."""
+        state = self._state
+        if self._imager is None or state.tip2base_true is None:
+            return None
+        frame = ImageFrame(
+            pixels=self._imager(state.tip2base_true, state.time),
+            timestamp=state.time,
+            ijk2tip=self._ijk2tip,
+        )
+        self._image = frame
+        return frame
+
+    def set_recorder(self, recorder: Callable[[str, dict[str, Any]], None] | None) -> None:
+        """Install the persistence callback (see the class docstring)."""
+        self._recorder = recorder
+
+    # --- running in real time -------------------------------------------------------------
+
+    def start(self) -> None:
+        """Run cycles in a background thread at ``rate_hz`` until :meth:`shutdown`; images
+        (when an imager is configured) are rendered in a thread of their own, so a slow
+        renderer never delays a control cycle."""
+        if self._thread is not None:
+            return
+        self._running.set()
+        self._thread = threading.Thread(target=self._loop, name="icenav-control", daemon=True)
+        self._thread.start()
+        if self._imager is not None:
+            self._image_thread = threading.Thread(
+                target=self._image_loop, name="icenav-imager", daemon=True
+            )
+            self._image_thread.start()
+
+    def _image_loop(self) -> None:
+        period = 1.0 / self.config.image_rate_hz
+        while self._running.is_set():
+            t0 = time.perf_counter()
+            try:
+                self.render_image()
+            except Exception as exc:  # noqa: BLE001 - the imager must not kill the process
+                self._message = f"imaging stopped: {exc}"
+                return
+            time.sleep(max(0.0, period - (time.perf_counter() - t0)))
+
+    def _loop(self) -> None:
+        period = self.config.dt
+        next_t = time.perf_counter()
+        while self._running.is_set():
+            self.cycle_starts.append(time.perf_counter())
+            try:
+                self.step()
+            except IcenavError as exc:  # never let the loop die silently
+                self.estop("controller")
+                self._message = f"controller error: {exc}; e-stopped"
+            next_t += period
+            delay = next_t - time.perf_counter()
+            if delay > 0:
+                time.sleep(delay)
+            else:
+                next_t = time.perf_counter()
+
+    def shutdown(self) -> None:
+        """Stop the loop thread (the robot holds its position)."""
+        self._running.clear()
+        for thread in (self._thread, self._image_thread):
+            if thread is not None:
+                thread.join(timeout=5.0)
+        self._thread = None
+        self._image_thread = None
+
+    def run_cycles(self, n: int) -> ControllerState:
+        """Run ``n`` cycles as fast as possible (simulation, tests)."""
+        for _ in range(int(n)):
+            self.step()
+        return self._state
+
+    def run_until(
+        self, predicate: Callable[[ControllerState], bool], max_cycles: int
+    ) -> ControllerState:
+        """Run cycles until ``predicate(state)`` or ``max_cycles`` (simulation, tests)."""
+        for _ in range(int(max_cycles)):
+            state = self.step()
+            if predicate(state):
+                return state
+        return self._state

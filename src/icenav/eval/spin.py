@@ -1,0 +1,633 @@
+"""``icenav eval spin``: the paper's image-spinning experiment (Table I, Fig. 5, Fig. 7).
+
+On the digital twin: one catheter (``--seed``) is calibrated in the straight vessel -- the
+dense 19 x 19 raster, the simplified 5-point search and (beyond the paper) the hysteresis
+sweeps -- then tested in the chosen vessel (``--vessel``). For each initial AP bend
+(20, 40, 60 deg) and each condition the image plane is spun 360 deg about the tip axis
+(phi1 = a cos t, phi2 = a sin t, phi3 = -t, 360 samples, t from 0 to 2 pi inclusive), the tip
+is measured by the EM tracker after every step, and the RMSE against the intended pose is
+reported (the paper's protocol), together with the RMSE against the twin's true pose.
+
+Conditions:
+
+- ``none``: motor knobs = model knobs.
+- ``dense``: F from the dense raster (smoothing spline), commands smoothed with a quadratic
+  Savitzky-Golay filter, as the paper.
+- ``simplified``: F from the 5-point calibration (thin-plate RBF), smoothed likewise.
+- ``dense+hysteresis``: F built on the *effective* knob angles of the raster (the identified
+  backlash / dead-zone model run along the raster's command path), then the hysteresis
+  compensator pre-shapes the commands, roll included.
+
+Errors: position RMSE = RMS distance between the measured tip and the intended tip (the
+model tip at the start; the model keeps it fixed); rotation RMSE = RMS angle of the rotation
+between the intended orientation ``forward(q_model(t))`` (which includes the intended roll of
+the image plane) and the measured one. Missing tracker samples are left out of the EM
+errors (their count is reported).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from icenav.calibration import (
+    calibrate_dense,
+    calibrate_five_point,
+    identify_hysteresis,
+    raster_grid,
+)
+from icenav.compensation import CalibrationSet, ElasticityMap, grid_subset_indices
+from icenav.hysteresis import HysteresisCompensator
+from icenav.kinematics import DEFAULT_GEOMETRY, forward
+from icenav.trajectories import savgol_smooth, spin_trajectory
+
+__all__ = [
+    "CONDITIONS",
+    "Calibrations",
+    "SpinRecord",
+    "calibrate",
+    "calibration_study",
+    "main",
+    "run_spin",
+    "run_vessel",
+]
+
+Array = NDArray[np.float64]
+
+CONDITIONS = ("none", "dense", "simplified", "dense+hysteresis")
+"""The conditions, in the order of the table."""
+BENDS_DEG = (20, 40, 60)
+"""The paper's initial AP bends (deg)."""
+SAVGOL_WINDOW = 15
+"""Savitzky-Golay window (samples = deg of spin) for the compensated commands."""
+APPROACH_STEPS = 20
+"""Steps of the approach from the relaxed state to the start of the spin."""
+PAPER_RESULTS = Path("/work/shared/paper/results.json")
+"""The paper's numbers (Table I), if present."""
+_PAPER_FALLBACK = {
+    "none": [[5.5, 10.0], [11.0, 20.5], [14.8, 31.0]],
+    "dense": [[2.5, 3.0], [4.2, 8.6], [5.0, 10.3]],
+    "simplified": [[5.2, 5.8], [5.8, 13.6], [5.1, 13.4]],
+}
+
+
+@dataclass(frozen=True)
+class SpinRecord:
+    """One row of the machine-readable output: one bend, one condition."""
+
+    bend_deg: int
+    """Initial AP bend (deg)."""
+    condition: str
+    """``none``, ``dense``, ``simplified`` or ``dense+hysteresis``."""
+    position_rmse_mm: float
+    """Tip position RMSE measured by the EM tracker (mm), the paper's protocol."""
+    rotation_rmse_deg: float
+    """Tip orientation RMSE measured by the EM tracker (deg)."""
+    true_position_rmse_mm: float
+    """Tip position RMSE of the twin's true pose (mm)."""
+    true_rotation_rmse_deg: float
+    """Tip orientation RMSE of the twin's true pose (deg)."""
+    seed: int
+    """Catheter seed."""
+    vessel: str
+    """Test vessel (calibration is always in the straight vessel)."""
+    n_samples: int
+    """Samples of the spin."""
+    em_missing: int
+    """Samples the tracker reported MISSING (left out of the EM errors)."""
+
+
+@dataclass(frozen=True)
+class Calibrations:
+    """Everything calibrated on one catheter in the straight vessel."""
+
+    dense: ElasticityMap
+    """F from the dense raster."""
+    simplified: ElasticityMap
+    """F from the 5-point calibration."""
+    dense_effective: ElasticityMap
+    """F from the dense raster in effective (hysteresis-free) knob angles."""
+    compensator: HysteresisCompensator
+    """The identified hysteresis compensator."""
+    dense_set: CalibrationSet
+    """The raw dense calibration set."""
+    five_set: CalibrationSet
+    """The raw 5-point calibration set."""
+    seconds: float
+    """Wall time of the calibration (s)."""
+
+
+def _make_plant(seed: int, vessel: str) -> tuple[Any, Any]:
+    from icenav.sim import CatheterPlant, EMTracker
+
+    plant = CatheterPlant(seed=seed, vessel=vessel)
+    tracker = EMTracker(plant, seed=seed)
+    return plant, tracker
+
+
+def calibrate(seed: int) -> Calibrations:
+    """Calibrate catheter ``seed`` in the straight vessel (dense, 5-point, hysteresis)."""
+    t0 = time.perf_counter()
+    plant, tracker = _make_plant(seed, "straight")
+    cid = f"sim-seed-{seed}"
+    raster = raster_grid()
+    dense = calibrate_dense(plant.move, tracker, catheter_id=cid).calibration
+    plant.reset()
+    five = calibrate_five_point(plant.move, tracker, catheter_id=cid).calibration
+    plant.reset()
+    hyst = identify_hysteresis(plant.move, tracker)
+    comp = hyst.compensator
+    # effective knob angles along the raster's command path (from the relaxed start)
+    eff = comp.effective_path(np.vstack([np.zeros(4), raster]))[1:]
+    keep = [int(np.argmin(np.max(np.abs(raster - q), axis=1))) for q in dense.q_motor]
+    dense_eff = dense.with_motor_knobs(eff[keep, :2], method="dense-raster-effective")
+    return Calibrations(
+        dense=ElasticityMap.build(dense),
+        simplified=ElasticityMap.build(five),
+        dense_effective=ElasticityMap.build(dense_eff),
+        compensator=comp,
+        dense_set=dense,
+        five_set=five,
+        seconds=time.perf_counter() - t0,
+    )
+
+
+def _rotation_angle(r_a: Array, r_b: Array) -> Array:
+    """Angle (rad) of r_a^T r_b for (..., 3, 3)."""
+    rel = np.swapaxes(r_a, -1, -2) @ r_b
+    tr = np.trace(rel, axis1=-2, axis2=-1)
+    vee = np.stack(
+        [
+            rel[..., 2, 1] - rel[..., 1, 2],
+            rel[..., 0, 2] - rel[..., 2, 0],
+            rel[..., 1, 0] - rel[..., 0, 1],
+        ],
+        axis=-1,
+    )
+    return np.arctan2(0.5 * np.linalg.norm(vee, axis=-1), 0.5 * (tr - 1.0))
+
+
+def _rmse(measured: Array, intended: Array) -> tuple[float, float]:
+    pos = np.linalg.norm(measured[:, :3, 3] - intended[0, :3, 3], axis=-1)
+    rot = _rotation_angle(intended[:, :3, :3], measured[:, :3, :3])
+    return float(np.sqrt(np.mean(pos**2))), math.degrees(float(np.sqrt(np.mean(rot**2))))
+
+
+def _commands(condition: str, q_model: Array, cal: Calibrations | None) -> Array:
+    """Motor commands (APPROACH_STEPS + n, 4): the approach from rest, then the spin."""
+    approach = np.linspace(np.zeros(4), q_model[0], APPROACH_STEPS + 1)[1:]
+    path = np.vstack([approach, q_model])
+    lim = DEFAULT_GEOMETRY.knob_limit
+    if condition == "none":
+        return path
+    if cal is None:
+        raise ValueError(f"condition {condition!r} needs the calibrations")
+    fmap = {
+        "dense": cal.dense,
+        "simplified": cal.simplified,
+        "dense+hysteresis": cal.dense_effective,
+    }[condition]
+    model = path
+    if condition == "dense+hysteresis":  # the distal twist play: turn the image frame ahead
+        model = cal.compensator.preshape_model(path)
+        model[:, :2] = np.clip(model[:, :2], -lim, lim)
+    cmd = fmap.model_to_motor(model, check=False)
+    cmd[APPROACH_STEPS:] = savgol_smooth(cmd[APPROACH_STEPS:], SAVGOL_WINDOW)
+    cmd[:APPROACH_STEPS] = np.linspace(np.zeros(4), cmd[APPROACH_STEPS], APPROACH_STEPS + 1)[1:]
+    if condition == "dense+hysteresis":
+        comp = cal.compensator
+        comp.reset(np.zeros(4))
+        # the roll's play grows with the bend: the intended (model) bend of each sample
+        bends = DEFAULT_GEOMETRY.knob_ratio * np.hypot(path[:, 0], path[:, 1])
+        cmd = comp.command_path(cmd, bends=bends)
+    cmd[:, :2] = np.clip(cmd[:, :2], -lim, lim)
+    return cmd
+
+
+def run_spin(
+    plant: Any,
+    tracker: Any,
+    q_motor: Array,
+    n_skip: int = APPROACH_STEPS,
+) -> tuple[Array, Array]:
+    """Drive ``q_motor`` (m, 4) from a relaxed start; return the true and the EM-tracked
+    poses (m - n_skip, 4, 4) of the samples after the approach (NaN where MISSING)."""
+    plant.reset()
+    true = []
+    em = []
+    for i, q in enumerate(q_motor):
+        pose = plant.move(q)
+        if i < n_skip:
+            continue
+        true.append(pose)
+        m = tracker.measure_tip2base()
+        em.append(np.full((4, 4), np.nan) if m is None else m)
+    return np.array(true), np.array(em)
+
+
+def run_vessel(
+    seed: int,
+    vessel: str,
+    cal: Calibrations,
+    *,
+    bends_deg: Sequence[int] = BENDS_DEG,
+    n_samples: int = 360,
+    conditions: Sequence[str] = CONDITIONS,
+    keep_commands: dict[tuple[int, str], Array] | None = None,
+) -> list[SpinRecord]:
+    """The spins of one catheter in one vessel: a record per bend and condition."""
+    plant, tracker = _make_plant(seed, vessel)
+    records = []
+    for bend in bends_deg:
+        sp = spin_trajectory([math.radians(bend), 0.0, 0.0, 0.0], n_samples, include_end=True)
+        intended = forward(sp.q_model, check=False)
+        for cond in conditions:
+            cmd = _commands(cond, sp.q_model, cal)
+            if keep_commands is not None:
+                keep_commands[(bend, cond)] = cmd[APPROACH_STEPS:]
+            true, em = run_spin(plant, tracker, cmd)
+            ok = np.all(np.isfinite(em.reshape(len(em), -1)), axis=1)
+            tp, tr = _rmse(true, intended)
+            ep, er = _rmse(em[ok], intended[ok]) if np.any(ok) else (math.nan, math.nan)
+            records.append(
+                SpinRecord(
+                    bend_deg=int(bend),
+                    condition=cond,
+                    position_rmse_mm=ep,
+                    rotation_rmse_deg=er,
+                    true_position_rmse_mm=tp,
+                    true_rotation_rmse_deg=tr,
+                    seed=seed,
+                    vessel=vessel,
+                    n_samples=n_samples,
+                    em_missing=int(np.sum(~ok)),
+                )
+            )
+    return records
+
+
+def paper_table() -> dict[str, list[list[float]]]:
+    """The paper's Table I: condition -> [[pos mm, rot deg] per bend 20 / 40 / 60]."""
+    try:
+        doc = json.loads(PAPER_RESULTS.read_text(encoding="utf-8"))
+        t = doc["table_I_spinning_benchtop_straight"]
+        return {k: t[k] for k in ("none", "dense", "simplified")}
+    except (OSError, KeyError, ValueError):
+        return dict(_PAPER_FALLBACK)
+
+
+def format_table(records: Sequence[SpinRecord]) -> str:
+    """The printed table: ours (EM) beside the paper's, and the true-pose errors."""
+    paper = paper_table()
+    bends = sorted({r.bend_deg for r in records})
+    conds = [c for c in CONDITIONS if any(r.condition == c for r in records)]
+    lines = []
+    head = "condition".ljust(18) + "".join(
+        f"{b:>3d} deg: ours EM (paper) | true".ljust(44) for b in bends
+    )
+    lines.append(head)
+    for c in conds:
+        row = c.ljust(18)
+        for b in bends:
+            r = next(x for x in records if x.condition == c and x.bend_deg == b)
+            ref = ""
+            if c in paper and b in BENDS_DEG:
+                pp, pr = paper[c][BENDS_DEG.index(b)]
+                ref = f" ({pp:.1f}, {pr:.1f})"
+            else:
+                ref = " (-)"
+            cell = (
+                f"{r.position_rmse_mm:5.1f} mm {r.rotation_rmse_deg:5.1f} deg{ref}"
+                f" | {r.true_position_rmse_mm:4.1f} {r.true_rotation_rmse_deg:4.1f}"
+            )
+            row += cell.ljust(44)
+        lines.append(row)
+    return "\n".join(lines)
+
+
+# --- plots ---------------------------------------------------------------------------------
+
+
+def _plot_commands(commands: dict[tuple[int, str], Array], bend: int, out: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    conds = [c for c in CONDITIONS if (bend, c) in commands]
+    fig, axes = plt.subplots(1, len(conds), figsize=(3.6 * len(conds), 3.2), sharey=True)
+    for ax, c in zip(np.atleast_1d(axes), conds, strict=True):
+        q = commands[(bend, c)]
+        ax.plot(np.degrees(q[:, 0]), label="phi1 (AP)")
+        ax.plot(np.degrees(q[:, 1]), label="phi2 (RL)")
+        ax.set_title(c)
+        ax.set_xlabel("time step")
+        ax.grid(alpha=0.3)
+    np.atleast_1d(axes)[0].set_ylabel("motor knob angle (deg)")
+    np.atleast_1d(axes)[0].legend(loc="lower left", fontsize=8)
+    fig.suptitle(f"Spin commands from ({bend} deg, 0) (cf. the paper's Fig. 5)")
+    fig.tight_layout()
+    fig.savefig(out, dpi=110)
+    plt.close(fig)
+
+
+def _plot_curvature(records: Sequence[SpinRecord], out_dir: Path, seed: int) -> list[Path]:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    styles = {"straight": "-", "moderate": ":", "steep": "--"}
+    colours = {
+        "dense": "tab:red",
+        "simplified": "tab:blue",
+        "dense+hysteresis": "tab:green",
+        "none": "tab:gray",
+    }
+    paths = []
+    for key, label, name in (
+        ("position_rmse_mm", "position RMSE (mm)", "curvature_position.png"),
+        ("rotation_rmse_deg", "orientation RMSE (deg)", "curvature_rotation.png"),
+    ):
+        fig, ax = plt.subplots(figsize=(5.5, 3.8))
+        for cond in ("dense", "simplified", "dense+hysteresis"):
+            for vessel, ls in styles.items():
+                rs = sorted(
+                    (r for r in records if r.condition == cond and r.vessel == vessel),
+                    key=lambda r: r.bend_deg,
+                )
+                if not rs:
+                    continue
+                ax.plot(
+                    [r.bend_deg for r in rs],
+                    [getattr(r, key) for r in rs],
+                    ls,
+                    color=colours[cond],
+                    marker="o",
+                    ms=3,
+                    label=f"{cond}, {vessel}",
+                )
+        ax.set_xlabel("initial AP bend (deg)")
+        ax.set_ylabel(label + ", EM tracked")
+        ax.set_title(f"Vessel curvature (catheter seed {seed}; cf. the paper's Fig. 7)")
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=6, ncol=3)
+        fig.tight_layout()
+        path = out_dir / name
+        fig.savefig(path, dpi=110)
+        plt.close(fig)
+        paths.append(path)
+    return paths
+
+
+def _plot_tip(records_true: dict[str, Array], bend: int, out: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(4.5, 4.2))
+    for c, pts in records_true.items():
+        ax.plot(pts[:, 0], pts[:, 1], label=c, lw=1)
+    q0 = np.array([math.radians(bend), 0.0, 0.0, 0.0])
+    p0 = forward(q0)[:3, 3]
+    ax.plot([p0[0]], [p0[1]], "k*", ms=10, label="intended")
+    ax.set_aspect("equal")
+    ax.set_xlabel("x (mm)")
+    ax.set_ylabel("y (mm)")
+    ax.set_title(f"True tip during the spin from {bend} deg")
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(out, dpi=110)
+    plt.close(fig)
+
+
+# --- calibration-size study ------------------------------------------------------------------
+
+
+def calibration_study(
+    seed: int, sizes: Sequence[int] = (5, 9, 13, 25, 49, 361), n_test: int = 150
+) -> list[dict[str, Any]]:
+    """Accuracy of F against the number of calibration points (beyond the paper).
+
+    Subsets of the dense raster (5 = the paper's five points taken from the grid, 9, 13,
+    25, 49, all 361) and the 5-point *search*; each F drives the plant from rest to random
+    model knob pairs within +-60 deg, and the true tip's distance from the model tip is
+    measured (RMS, mm). Also compares interpolants on the full set.
+    """
+    plant, tracker = _make_plant(seed, "straight")
+    dense = calibrate_dense(plant.move, tracker).calibration
+    plant.reset()
+    five = calibrate_five_point(plant.move, tracker).calibration
+    rng = np.random.default_rng(seed)
+    k = rng.uniform(-1.0, 1.0, (n_test, 2)) * math.radians(60.0)
+    q = np.zeros((n_test, 4))
+    q[:, :2] = k
+    target = forward(q)[:, :3, 3]
+
+    def accuracy(fn: Callable[[Array, Array], tuple[Array, Array]]) -> float:
+        a, b = fn(k[:, 0], k[:, 1])
+        err = []
+        for i in range(n_test):
+            plant.reset()
+            err.append(np.linalg.norm(plant.move([a[i], b[i], 0.0, 0.0])[:3, 3] - target[i]))
+        return float(np.sqrt(np.mean(np.square(err))))
+
+    rows: list[dict[str, Any]] = [
+        {"set": "none", "n_points": 0, "interpolant": "-", "rms_mm": accuracy(lambda a, b: (a, b))}
+    ]
+    for n in sizes:
+        sub = dense if n == dense.n_samples else dense.subset(grid_subset_indices(dense.q_motor, n))
+        m = ElasticityMap.build(sub)
+        rows.append(
+            {
+                "set": f"grid subset {n}",
+                "n_points": sub.n_samples,
+                "interpolant": m.report.interpolant,
+                "rms_mm": accuracy(m.model_to_motor_knobs),
+            }
+        )
+    m = ElasticityMap.build(five)
+    rows.append(
+        {
+            "set": "5-point search",
+            "n_points": 5,
+            "interpolant": m.report.interpolant,
+            "rms_mm": accuracy(m.model_to_motor_knobs),
+        }
+    )
+    m = ElasticityMap.build(five, relative_to_model=False)
+    rows.append(
+        {
+            "set": "5-point search, raw positions (paper)",
+            "n_points": 5,
+            "interpolant": "rbf",
+            "rms_mm": accuracy(m.model_to_motor_knobs),
+        }
+    )
+    for label, kw in (
+        ("spline s=0", {"interpolant": "spline", "smoothing": 0.0}),
+        ("spline s=n*(0.7 mm)^2 (default)", {"interpolant": "spline"}),
+        ("spline s=n*(1.4 mm)^2", {"interpolant": "spline", "smoothing": 1.96 * dense.n_samples}),
+        ("thin-plate rbf", {"interpolant": "rbf"}),
+        ("clough-tocher", {"interpolant": "clough-tocher"}),
+        ("spline, raw positions (paper)", {"interpolant": "spline", "relative_to_model": False}),
+    ):
+        m = ElasticityMap.build(dense, **kw)
+        rows.append(
+            {
+                "set": f"dense: {label}",
+                "n_points": dense.n_samples,
+                "interpolant": m.report.interpolant,
+                "rms_mm": accuracy(m.model_to_motor_knobs),
+            }
+        )
+    return rows
+
+
+# --- CLI -------------------------------------------------------------------------------------
+
+
+def _parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(
+        prog="icenav eval spin",
+        description="The paper's image-spinning experiment (Table I) on the digital twin.",
+    )
+    p.add_argument(
+        "--seed",
+        type=int,
+        default=100,
+        help="catheter seed (calibrated and tested); seeds 0-9 tuned the twin",
+    )
+    p.add_argument(
+        "--vessel",
+        choices=("straight", "moderate", "steep"),
+        default="straight",
+        help="test vessel (calibration is always in the straight vessel)",
+    )
+    p.add_argument("--json", type=Path, help="write the records (a JSON list) to this file")
+    p.add_argument(
+        "--plots",
+        type=Path,
+        help="write spin_*.png and curvature_*.png (runs all three vessels) here",
+    )
+    p.add_argument("--samples", type=int, default=360, help="samples per spin (default 360)")
+    p.add_argument("--bends", default="20,40,60", help="initial AP bends in deg (default 20,40,60)")
+    p.add_argument(
+        "--conditions",
+        default=",".join(CONDITIONS),
+        help="comma-separated subset of " + ", ".join(CONDITIONS),
+    )
+    p.add_argument(
+        "--study", action="store_true", help="also print the calibration-size / interpolant study"
+    )
+    return p
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """``icenav eval spin [--seed N] [--vessel V] [--json FILE] [--plots DIR]``."""
+    args = _parser().parse_args(list(argv or []))
+    try:
+        bends = [int(b) for b in args.bends.split(",") if b.strip()]
+    except ValueError:
+        print(
+            f"icenav eval spin: --bends must be integers in deg, got {args.bends!r}",
+            file=sys.stderr,
+        )
+        return 2
+    conds = [c.strip() for c in args.conditions.split(",") if c.strip()]
+    bad = [c for c in conds if c not in CONDITIONS]
+    if bad or not conds:
+        print(
+            f"icenav eval spin: unknown condition(s) {bad}; choose from {CONDITIONS}",
+            file=sys.stderr,
+        )
+        return 2
+    if any(not (0 < b <= 90) for b in bends) or args.samples < 10:
+        print("icenav eval spin: bends must be in (0, 90] deg and --samples >= 10", file=sys.stderr)
+        return 2
+    t0 = time.perf_counter()
+    cal = calibrate(args.seed)
+    print(
+        f"catheter seed {args.seed}: calibrated in the straight vessel in {cal.seconds:.1f} s "
+        f"(dense {cal.dense_set.n_samples} samples, 5-point, hysteresis sweeps)"
+    )
+    for name, m in (("phi1", 0), ("phi2", 1), ("phi3", 2)):
+        jm = cal.compensator.joints[m]
+        if jm is not None:
+            print(
+                f"  {name}: backlash {math.degrees(jm.backlash):.2f} deg + "
+                f"{jm.backlash_slope:.3f} |x|, dead-zone {math.degrees(jm.dead_zone):.2f} deg, "
+                f"centre {math.degrees(jm.centre):.2f} deg"
+            )
+    c = cal.compensator
+    print(
+        f"  per rad of bend: roll play {c.roll_play_per_bend:.3f}, twist play "
+        f"{c.twist_play_per_bend:.3f}; knob play per rad of the other knob "
+        f"{c.knob_play_per_bend:.3f}"
+    )
+    commands: dict[tuple[int, str], Array] = {}
+    records = run_vessel(
+        args.seed,
+        args.vessel,
+        cal,
+        bends_deg=bends,
+        n_samples=args.samples,
+        conditions=conds,
+        keep_commands=commands,
+    )
+    print(f"\nspin RMSE, vessel {args.vessel}: EM-tracked (paper's Table I) | true pose (mm deg)")
+    print(format_table(records))
+    if args.json is not None:
+        args.json.write_text(json.dumps([asdict(r) for r in records], indent=1) + "\n")
+        print(f"\nwrote {args.json}")
+    if args.plots is not None:
+        out = args.plots
+        out.mkdir(parents=True, exist_ok=True)
+        bend = max(bends)
+        _plot_commands(commands, bend, out / f"spin_commands_{bend}deg.png")
+        plant, tracker = _make_plant(args.seed, args.vessel)
+        tips = {}
+        for c in conds:
+            if (bend, c) in commands:
+                approach = np.linspace(np.zeros(4), commands[(bend, c)][0], APPROACH_STEPS + 1)
+                true, _ = run_spin(plant, tracker, np.vstack([approach[1:], commands[(bend, c)]]))
+                tips[c] = true[:, :3, 3]
+        _plot_tip(tips, bend, out / f"spin_tip_{args.vessel}_{bend}deg.png")
+        all_records = list(records)
+        for vessel in ("straight", "moderate", "steep"):
+            if vessel != args.vessel:
+                all_records += run_vessel(
+                    args.seed,
+                    vessel,
+                    cal,
+                    bends_deg=bends,
+                    n_samples=args.samples,
+                    conditions=conds,
+                )
+        for p in _plot_curvature(all_records, out, args.seed):
+            print(f"wrote {p}")
+        print(f"wrote {out / f'spin_commands_{bend}deg.png'}")
+    if args.study:
+        print(
+            "\ncalibration study (RMS distance of the true tip from the model tip, "
+            "reaching 150 random targets within +-60 deg from rest):"
+        )
+        for row in calibration_study(args.seed):
+            print(
+                f"  {row['set']:<44s} {row['n_points']:>4d} pts  {row['interpolant']:<14s}"
+                f" {row['rms_mm']:5.2f} mm"
+            )
+    print(f"\ntotal {time.perf_counter() - t0:.1f} s")
+    return 0

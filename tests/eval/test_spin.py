@@ -1,0 +1,72 @@
+"""Tests of ``icenav eval spin`` on a reduced run (36-sample spin, one bend)."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import pytest
+
+from icenav.eval import spin
+
+KEYS = {
+    "bend_deg",
+    "condition",
+    "position_rmse_mm",
+    "rotation_rmse_deg",
+    "true_position_rmse_mm",
+    "true_rotation_rmse_deg",
+}
+
+
+@pytest.fixture(scope="module")
+def records(tmp_path_factory: pytest.TempPathFactory) -> list[dict[str, object]]:
+    out = tmp_path_factory.mktemp("spin") / "spin.json"
+    code = spin.main(["--seed", "101", "--samples", "36", "--bends", "40", "--json", str(out)])
+    assert code == 0
+    data = json.loads(out.read_text())
+    assert isinstance(data, list)
+    return data
+
+
+def test_records_have_the_issue_structure(records: list[dict[str, object]]) -> None:
+    assert len(records) == 4
+    assert {r["condition"] for r in records} == set(spin.CONDITIONS)
+    for r in records:
+        assert set(r) >= KEYS
+        assert r["bend_deg"] == 40
+        assert r["seed"] == 101 and r["vessel"] == "straight" and r["n_samples"] == 36
+        for k in KEYS - {"bend_deg", "condition"}:
+            v = r[k]
+            assert isinstance(v, float) and math.isfinite(v) and v >= 0.0
+
+
+def test_dense_compensation_beats_none(records: list[dict[str, object]]) -> None:
+    by = {r["condition"]: r for r in records}
+    for key in ("true_position_rmse_mm", "position_rmse_mm"):
+        assert by["dense"][key] < 0.6 * by["none"][key]  # type: ignore[operator]
+        assert by["simplified"][key] < by["none"][key]  # type: ignore[operator]
+    # the roll's play is compensated: the orientation error drops
+    assert (
+        by["dense+hysteresis"]["true_rotation_rmse_deg"]
+        < by["dense"][  # type: ignore[operator]
+            "true_rotation_rmse_deg"
+        ]
+    )
+
+
+def test_table_prints_the_papers_numbers(records: list[dict[str, object]]) -> None:
+    recs = [spin.SpinRecord(**r) for r in records]  # type: ignore[arg-type]
+    text = spin.format_table(recs)
+    assert "(11.0, 20.5)" in text and "(4.2, 8.6)" in text and "(5.8, 13.6)" in text
+    assert "dense+hysteresis" in text
+
+
+def test_bad_options_are_refused(capsys: pytest.CaptureFixture[str], tmp_path: Path) -> None:
+    assert spin.main(["--bends", "x"]) == 2
+    assert spin.main(["--conditions", "perfect"]) == 2
+    assert spin.main(["--bends", "120"]) == 2
+    with pytest.raises(SystemExit):
+        spin.main(["--vessel", "curly"])
+    assert "unknown condition" in capsys.readouterr().err

@@ -1,0 +1,319 @@
+"""The control loop: modes, safety (limits, dead-man, watchdog, e-stop, abort), views."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from icenav.controller import TRANSITIONS, Controller, ControllerConfig, PathTask
+from icenav.errors import ConfigurationError, InvalidValueError
+from icenav.hw.base import RobotStatus
+from icenav.hw.sim import IdealPlant, SimulatedRobot
+from icenav.io.joystick import JoystickMapping, Keyframe, ScriptedInput
+from icenav.kinematics import forward
+from icenav.state import Mode
+
+M = JoystickMapping()
+ENABLE = M.enable_button
+
+
+class Clock:
+    """Simulated time, advanced by the controller's cycles."""
+
+    def __init__(self) -> None:
+        self.t = 0.0
+
+    def __call__(self) -> float:
+        return self.t
+
+
+def make(
+    keyframes: list[Keyframe] | None = None, rate_hz: float = 100.0
+) -> tuple[Controller, SimulatedRobot, Clock]:
+    clock = Clock()
+    robot = SimulatedRobot(IdealPlant(), clock=clock)
+    source = None if keyframes is None else ScriptedInput(keyframes, clock=clock)
+    ctrl = Controller(robot, ControllerConfig(rate_hz=rate_hz), input_source=source, clock=clock)
+    return ctrl, robot, clock
+
+
+def run(ctrl: Controller, clock: Clock, seconds: float) -> None:
+    for _ in range(int(round(seconds * ctrl.config.rate_hz))):
+        clock.t += ctrl.config.dt
+        ctrl.step()
+
+
+def test_transition_table_is_closed_and_faults_only_reset_to_idle() -> None:
+    for mode, targets in TRANSITIONS.items():
+        assert mode not in targets or mode in (Mode.IDLE,)
+        assert Mode.ESTOP in targets or mode is Mode.ESTOP
+    assert TRANSITIONS[Mode.ESTOP] == {Mode.IDLE}
+    assert TRANSITIONS[Mode.FAULT] == {Mode.IDLE, Mode.ESTOP}
+
+
+@pytest.mark.parametrize("rate_hz", [100.0, 500.0])
+def test_knob_mode_moves_with_dead_man_held(rate_hz: float) -> None:
+    # stick up on the AP axis, enable held, for 1 s
+    ctrl, robot, clock = make([Keyframe(0.0, (0.0, -1.0), (ENABLE,))], rate_hz)
+    run(ctrl, clock, 1.0)
+    q = robot.read_state().q
+    assert ctrl.mode is Mode.KNOB
+    assert q[0] == pytest.approx(M.knob_rate * 1.0, rel=0.02)
+    assert q[1] == q[2] == q[3] == 0.0
+
+
+def test_no_motion_without_dead_man_and_zero_on_release() -> None:
+    ctrl, robot, clock = make(
+        [
+            Keyframe(0.0, (0.0, -1.0), ()),  # stick pushed, enable not held
+            Keyframe(0.5, (0.0, -1.0), (ENABLE,)),
+            Keyframe(1.0, (0.0, -1.0), ()),  # released
+        ]
+    )
+    run(ctrl, clock, 0.5)
+    assert np.all(robot.read_state().q == 0.0)
+    run(ctrl, clock, 0.5)
+    q_at_release = robot.read_state().q.copy()
+    assert q_at_release[0] > 0.1
+    run(ctrl, clock, 0.5)
+    np.testing.assert_allclose(robot.read_state().q, q_at_release, atol=M.knob_rate / 100 + 1e-12)
+
+
+def test_velocity_and_joint_limits_are_enforced() -> None:
+    ctrl, robot, clock = make()
+    dt = ctrl.config.dt
+    ctrl.request_mode(Mode.KNOB)
+    for _ in range(400):
+        clock.t += dt
+        ctrl.jog([10.0, 0.0, 0.0, 100.0], "knob")  # far beyond the speed limits
+        before = robot.read_state().q.copy()
+        ctrl.step()
+        step = np.abs(robot.read_state().q - before)
+        assert np.all(step <= np.asarray(ctrl.config.max_velocity) * dt + 1e-12)
+    q = robot.read_state().q
+    assert q[0] == pytest.approx(math.pi / 2)  # held at the knob limit
+    assert q[3] <= 50.0
+    assert "joint limit reached" in ctrl.snapshot().message
+
+
+def test_watchdog_stops_a_jog_that_is_not_repeated() -> None:
+    ctrl, robot, clock = make()
+    ctrl.jog([0.5, 0.0, 0.0, 0.0], "knob")
+    run(ctrl, clock, 1.0)
+    moved = robot.read_state().q[0]
+    # the jog holds for one watchdog period only
+    assert 0.0 < moved <= 0.5 * (ctrl.config.watchdog_s + 2 * ctrl.config.dt)
+
+
+def test_stale_gamepad_counts_as_released() -> None:
+    class Frozen:
+        """A gamepad whose driver stopped updating: the same old sample forever."""
+
+        def __init__(self, clock: Clock) -> None:
+            self.clock = clock
+            self.first: object = None
+
+        def poll(self):  # type: ignore[no-untyped-def]
+            from icenav.io.joystick import JoystickSample
+
+            return JoystickSample(
+                axes=(0.0, -1.0, 0.0, 0.0, 0.0, 0.0),
+                buttons=tuple(i == ENABLE for i in range(12)),
+                timestamp=0.0,
+            )
+
+        def close(self) -> None:
+            pass
+
+    clock = Clock()
+    robot = SimulatedRobot(IdealPlant(), clock=clock)
+    ctrl = Controller(robot, input_source=Frozen(clock), clock=clock)
+    run(ctrl, clock, 1.0)
+    assert robot.read_state().q[0] <= M.knob_rate * (ctrl.config.watchdog_s + 0.02)
+    assert "stale" in ctrl.snapshot().message
+
+
+def test_nan_gamepad_axes_give_no_motion() -> None:
+    ctrl, robot, clock = make([Keyframe(0.0, (math.nan, math.nan, math.nan), (ENABLE,))])
+    run(ctrl, clock, 0.5)
+    assert np.all(robot.read_state().q == 0.0)
+
+
+def test_tip_mode_moves_the_tip_along_its_own_axis() -> None:
+    ctrl, robot, clock = make()
+    ctrl.request_mode(Mode.KNOB)
+    for _ in range(60):  # bend 30 deg first
+        ctrl.jog([math.radians(50), 0, 0, 0], "knob")
+        run(ctrl, clock, 0.01)
+    start = forward(robot.read_state().q)
+    ctrl.request_mode(Mode.TIP)
+    for _ in range(100):
+        ctrl.jog([5.0, 0, 0, 0, 0, 0], "tip")
+        run(ctrl, clock, 0.01)
+    end = forward(robot.read_state().q)
+    moved = start[:3, :3].T @ (end[:3, 3] - start[:3, 3])
+    assert moved[0] > 3.0
+    assert abs(moved[1]) < 0.5
+
+
+@pytest.mark.parametrize(
+    "mode", [Mode.IDLE, Mode.KNOB, Mode.TIP, Mode.GOTO_VIEW, Mode.SPINNING, Mode.FAULT]
+)
+def test_estop_from_every_mode(mode: Mode) -> None:
+    ctrl, robot, clock = make()
+    ctrl.request_mode(Mode.KNOB)
+    for _ in range(50):
+        ctrl.jog([0.5, 0.3, 0.0, 1.0], "knob")
+        run(ctrl, clock, 0.01)
+    ctrl.save_view("a")
+    run(ctrl, clock, 0.02)
+    for _ in range(50):
+        ctrl.jog([-0.5, 0.0, 0.5, 0.0], "knob")
+        run(ctrl, clock, 0.01)
+    if mode in (Mode.IDLE, Mode.KNOB, Mode.TIP):
+        ctrl.request_mode(mode)
+    elif mode is Mode.GOTO_VIEW:
+        ctrl.goto_view("a")
+    elif mode is Mode.SPINNING:
+        ctrl.start_spin()
+    elif mode is Mode.FAULT:
+        robot.inject_fault("drive 2 overcurrent")
+    run(ctrl, clock, 0.05)
+    assert ctrl.mode is mode
+    q_before = robot.read_state().q.copy()
+    ctrl.estop("test")
+    assert ctrl.mode is Mode.ESTOP
+    assert robot.status is RobotStatus.ESTOP
+    ctrl.jog([0.5, 0.0, 0.0, 0.0], "knob")
+    run(ctrl, clock, 0.5)
+    np.testing.assert_array_equal(robot.read_state().q, q_before)
+    ctrl.reset_fault()
+    run(ctrl, clock, 0.02)
+    assert ctrl.mode is Mode.IDLE and robot.status is RobotStatus.ENABLED
+
+
+def test_fault_stops_everything_until_reset() -> None:
+    ctrl, robot, clock = make()
+    ctrl.jog([0.5, 0.0, 0.0, 0.0], "knob")
+    run(ctrl, clock, 0.1)
+    robot.inject_fault("heartbeat lost on node 3")
+    run(ctrl, clock, 0.05)
+    assert ctrl.mode is Mode.FAULT
+    assert "heartbeat lost" in ctrl.snapshot().message
+    q = robot.read_state().q.copy()
+    ctrl.jog([0.5, 0.0, 0.0, 0.0], "knob")
+    ctrl.request_mode(Mode.KNOB)
+    run(ctrl, clock, 0.2)
+    np.testing.assert_array_equal(robot.read_state().q, q)
+    assert ctrl.mode is Mode.FAULT
+
+
+def test_save_view_and_go_back_along_the_roadmap() -> None:
+    ctrl, robot, clock = make()
+    for _ in range(80):
+        ctrl.jog([0.6, -0.3, 0.4, 3.0], "knob")
+        run(ctrl, clock, 0.01)
+    ctrl.save_view("aortic")
+    run(ctrl, clock, 0.02)
+    q_view = ctrl.views.get("aortic").q
+    assert np.linalg.norm(robot.read_state().q - q_view) < 0.2  # saved where it was
+    assert [v.name for v in ctrl.snapshot().views] == ["aortic"]
+    for _ in range(120):
+        ctrl.jog([-0.4, 0.5, -0.2, -2.0], "knob")
+        run(ctrl, clock, 0.01)
+    assert np.linalg.norm(robot.read_state().q - q_view) > 0.3
+    ctrl.goto_view("aortic")
+    state = ctrl.run_until(lambda s: s.mode is Mode.IDLE and s.cycle > 2, 2000)
+    np.testing.assert_allclose(robot.read_state().q, q_view, atol=1e-9)
+    assert "done" in state.message
+    # every commanded state lies on the recorded roadmap (within epsilon)
+    for q in robot.commands[-50:]:
+        _, d = ctrl.roadmap.nearest(q)
+        assert d <= ctrl.roadmap.epsilon + 1e-9
+
+
+def test_operator_input_aborts_an_automatic_motion() -> None:
+    ctrl, robot, clock = make()
+    for _ in range(80):
+        ctrl.jog([0.6, 0.0, 0.0, 0.0], "knob")
+        run(ctrl, clock, 0.01)
+    ctrl.save_view("v")
+    for _ in range(80):
+        ctrl.jog([-0.6, 0.0, 0.0, 0.0], "knob")
+        run(ctrl, clock, 0.01)
+    run(ctrl, clock, 0.5)
+    ctrl.goto_view("v")
+    run(ctrl, clock, 0.1)
+    assert ctrl.mode is Mode.GOTO_VIEW
+    ctrl.jog([0.0, 0.1, 0.0, 0.0], "knob")
+    run(ctrl, clock, 0.02)
+    assert ctrl.mode is Mode.KNOB
+    assert "aborted by operator input" in ctrl.snapshot().message
+
+
+def test_spin_keeps_the_model_tip_still_and_turns_the_image_plane() -> None:
+    ctrl, robot, clock = make()
+    for _ in range(70):
+        ctrl.jog([math.radians(60), 0, 0, 0], "knob")
+        run(ctrl, clock, 0.01)
+    start = forward(robot.read_state().q)
+    ctrl.start_spin()
+    tips = []
+    angles = []
+    for _ in range(20000):
+        clock.t += ctrl.config.dt
+        state = ctrl.step()
+        t = forward(robot.read_state().q)
+        tips.append(t[:3, 3])
+        x0 = start[:3, 0]
+        angles.append(math.atan2(np.cross(x0, t[:3, 0]) @ start[:3, 2], x0 @ t[:3, 0]))
+        if state.mode is Mode.IDLE:
+            break
+    assert ctrl.mode is Mode.IDLE
+    dist = np.linalg.norm(np.array(tips) - start[:3, 3], axis=1)
+    assert dist.max() < 0.5  # mm: interpolation between IK samples only
+    turned = np.unwrap(angles)
+    assert abs(turned[-1] - turned[0]) == pytest.approx(2 * math.pi, abs=0.05)
+
+
+def test_control_ownership_and_gamepad_wins() -> None:
+    ctrl, robot, clock = make()
+    assert ctrl.acquire_control("browser-a")
+    assert not ctrl.acquire_control("browser-b")
+    ctrl.jog([0.5, 0, 0, 0], "knob", client="browser-b")
+    run(ctrl, clock, 0.1)
+    assert robot.read_state().q[0] == 0.0
+    assert "holds control" in ctrl.snapshot().message
+    assert ctrl.acquire_control("gamepad")
+    assert ctrl.snapshot().control_owner in ("gamepad", "browser-a")
+    run(ctrl, clock, 0.01)
+    assert ctrl.snapshot().control_owner == "gamepad"
+
+
+def test_bad_requests_and_config_are_rejected() -> None:
+    ctrl, _, _ = make()
+    with pytest.raises(InvalidValueError, match="jog takes frame"):
+        ctrl.jog([1.0, 2.0], "knob")
+    with pytest.raises(InvalidValueError, match="finite"):
+        ctrl.jog([math.nan, 0, 0, 0], "knob")
+    with pytest.raises(ConfigurationError, match="rate_hz"):
+        ControllerConfig(rate_hz=0)
+    with pytest.raises(ConfigurationError, match="max_velocity"):
+        ControllerConfig(max_velocity=(1.0, 1.0, 1.0, -1.0))
+    with pytest.raises(InvalidValueError, match="path"):
+        PathTask(np.zeros((3, 3)), np.ones(4))
+
+
+def test_duplicate_view_names_and_unknown_views_are_reported() -> None:
+    ctrl, _, clock = make()
+    ctrl.save_view("a")
+    run(ctrl, clock, 0.01)
+    ctrl.save_view("a")
+    run(ctrl, clock, 0.01)
+    assert "exists already" in ctrl.snapshot().message
+    ctrl.goto_view("nope")
+    run(ctrl, clock, 0.01)
+    assert "nope" in ctrl.snapshot().message
+    assert ctrl.mode is Mode.IDLE
