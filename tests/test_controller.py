@@ -317,3 +317,72 @@ def test_duplicate_view_names_and_unknown_views_are_reported() -> None:
     run(ctrl, clock, 0.01)
     assert "nope" in ctrl.snapshot().message
     assert ctrl.mode is Mode.IDLE
+
+
+# --- on the digital twin: calibration, compensation, spin ---------------------------------
+
+
+def twin_controller() -> tuple[Controller, object]:
+    from icenav.app import make_sim_controller
+
+    session = make_sim_controller(seed=103, imaging=False)
+    return session.controller, session
+
+
+def test_five_point_calibration_installs_a_compensation_that_helps() -> None:
+    ctrl, session = twin_controller()
+    try:
+        ctrl.start_calibration("five_point")
+        state = ctrl.run_until(lambda s: s.mode is Mode.IDLE and s.cycle > 5, 20000)
+        ctrl.run_cycles(3)  # the map is installed by a queued request
+        assert ctrl.compensation is not None, ctrl.snapshot().message
+        assert ctrl.snapshot().compensation_enabled
+        assert "done" in ctrl.snapshot().message
+        assert ctrl.calibration is not None and ctrl.calibration.n_samples == 5
+        assert state.progress is None
+        # the compensated command puts the true tip nearer the model's intention
+        plant = session.plant  # type: ignore[attr-defined]
+        q_model = np.array([math.radians(50), math.radians(-30), 0.0, 0.0])
+        target = forward(q_model)[:3, 3]
+        errors = []
+        for q in (q_model, ctrl.compensation.model_to_motor(q_model)):
+            plant.reset()
+            errors.append(np.linalg.norm(plant.move(q)[:3, 3] - target))
+        assert errors[1] < errors[0]
+    finally:
+        session.close()  # type: ignore[attr-defined]
+
+
+def test_calibration_progress_is_reported_and_stop_aborts_it() -> None:
+    ctrl, session = twin_controller()
+    try:
+        ctrl.start_calibration("dense")
+        ctrl.run_cycles(900)
+        state = ctrl.snapshot()
+        assert state.mode is Mode.CALIBRATING
+        assert state.progress is not None and 0.0 < state.progress < 0.2
+        assert "361 points" in state.progress_label
+        ctrl.stop()
+        ctrl.run_cycles(2)
+        assert ctrl.mode is Mode.IDLE and ctrl.compensation is None
+    finally:
+        session.close()  # type: ignore[attr-defined]
+
+
+def test_pathtask_accelerations_are_bounded() -> None:
+    path = np.array([[0, 0, 0, 0], [0.5, 0.2, 0.1, 3.0], [0.6, -0.4, 0.0, 5.0]])
+    vmax = np.array([1.0, 1.0, 1.5, 10.0])
+    task = PathTask(path, vmax, speed_scale=0.5, ramp_s=0.3)
+    dt = 0.01
+    q = path[0].copy()
+    qs = [q]
+    while (nxt := task.next_command(q, dt)) is not None:
+        q = nxt
+        qs.append(q)
+    qs_a = np.array(qs)
+    np.testing.assert_allclose(qs_a[-1], path[-1])
+    vel = np.diff(qs_a, axis=0) / dt
+    assert np.all(np.abs(vel) <= 0.5 * vmax + 1e-9)
+    acc = np.diff(vel, axis=0) / dt
+    # within a segment the rate ramps: |a| <= v / ramp_s (corners change direction at once)
+    assert np.abs(acc[:5]).max() <= (0.5 * vmax / 0.3).max() * 1.01

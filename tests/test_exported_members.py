@@ -8,7 +8,38 @@ import pytest
 
 import icenav
 
-MODULES = ["icenav", "icenav.errors", "icenav.kinematics", "icenav.validation", "icenav.hw.base"]
+MODULES = [
+    "icenav",
+    "icenav.app",
+    "icenav.calibration",
+    "icenav.compensation",
+    "icenav.console",
+    "icenav.controller",
+    "icenav.dicom",
+    "icenav.errors",
+    "icenav.eval.metrics",
+    "icenav.hw",
+    "icenav.hw.base",
+    "icenav.hw.canopen_robot",
+    "icenav.hw.sim",
+    "icenav.hysteresis",
+    "icenav.io.igtl",
+    "icenav.io.igtl_stream",
+    "icenav.io.joystick",
+    "icenav.kinematics",
+    "icenav.motion",
+    "icenav.roadmap",
+    "icenav.sim",
+    "icenav.sim.anatomy",
+    "icenav.sim.operator",
+    "icenav.sim.ultrasound",
+    "icenav.state",
+    "icenav.store",
+    "icenav.tracking",
+    "icenav.trajectories",
+    "icenav.validation",
+    "icenav.views",
+]
 
 
 @pytest.mark.parametrize("name", MODULES)

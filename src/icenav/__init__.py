@@ -4,6 +4,8 @@ The core (kinematics, compensation, hysteresis, trajectories, roadmap) is pure c
 the digital twin lives in :mod:`icenav.sim`.
 """
 
+from icenav.compensation import CalibrationSet, ElasticityMap
+from icenav.controller import Controller, ControllerConfig
 from icenav.errors import (
     ConfigurationError,
     FileFormatError,
@@ -28,22 +30,34 @@ from icenav.kinematics import (
     knobs_to_bend,
     tip_jog,
 )
+from icenav.roadmap import Roadmap, RoadmapConfig
+from icenav.store import SessionStore
+from icenav.views import View, ViewLibrary
 
 __version__ = "0.1.0"
 
 __all__ = [
     "Backbone",
+    "CalibrationSet",
     "CatheterGeometry",
     "ConfigurationError",
+    "Controller",
+    "ControllerConfig",
+    "ElasticityMap",
     "FileFormatError",
     "IcenavError",
     "InvalidValueError",
     "InverseSolution",
     "JointLimitError",
     "NonFiniteError",
+    "Roadmap",
+    "RoadmapConfig",
+    "SessionStore",
     "ShapeError",
     "TransformError",
     "UnreachablePoseError",
+    "View",
+    "ViewLibrary",
     "__version__",
     "backbone",
     "bend_to_knobs",

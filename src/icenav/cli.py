@@ -16,6 +16,7 @@ __all__ = ["COMMANDS", "main"]
 COMMANDS: dict[str, tuple[str, str]] = {
     "demo": ("icenav.demo", "start the console on the simulated robot (headless: a scripted run)"),
     "eval": ("icenav.eval", "run an evaluation that reproduces a table of the paper"),
+    "export-view": ("icenav.dicom", "export a view's image clip (one heart beat) as DICOM"),
 }
 """command name -> (module with main(argv), one-line help)."""
 

@@ -60,9 +60,9 @@ from icenav.kinematics import inverse as kin_inverse
 from icenav.validation import check_finite, check_joint_state, check_transform
 
 __all__ = [
+    "BuildReport",
     "CALIBRATION_FORMAT",
     "CALIBRATION_VERSION",
-    "BuildReport",
     "CalibrationSet",
     "ElasticityMap",
     "Interpolant",

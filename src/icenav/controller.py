@@ -37,6 +37,8 @@ from typing import Any, Literal, Protocol
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from icenav.calibration import five_point_targets, raster_grid
+from icenav.compensation import CalibrationSet, ElasticityMap
 from icenav.errors import ConfigurationError, IcenavError, InvalidValueError, PlanningError
 from icenav.hw.base import RobotBackend, RobotStatus
 from icenav.io.joystick import (
@@ -55,16 +57,18 @@ from icenav.state import (
     Mode,
     ViewSummary,
 )
+from icenav.trajectories import spin_trajectory
 from icenav.validation import check_finite, check_positive
 from icenav.views import ViewLibrary
 
 __all__ = [
-    "TRANSITIONS",
     "AutomaticTask",
+    "CalibrationTask",
     "Controller",
     "ControllerConfig",
     "KnobMap",
     "PathTask",
+    "TRANSITIONS",
 ]
 
 Array = NDArray[np.float64]
@@ -86,14 +90,15 @@ TRANSITIONS: dict[Mode, frozenset[Mode]] = {
 
 
 class KnobMap(Protocol):
-    """A compensation: model knob angles <-> motor knob angles (rad), shape (2,) each."""
+    """A compensation between model and motor joint states (the paper's F on the knobs;
+    roll and translation pass through). :class:`icenav.compensation.ElasticityMap` is one."""
 
-    def to_motor(self, phi_model: Array) -> Array:
-        """Motor knob angles that realise the model knob angles (the paper's F)."""
+    def model_to_motor(self, q_model: ArrayLike, *, check: bool = True) -> Array:
+        """Motor joint state(s) (..., 4) that realise the model joint state(s) (F)."""
         ...
 
-    def to_model(self, phi_motor: Array) -> Array:
-        """Model knob angles that the motor knob angles realise (F^-1)."""
+    def motor_to_model(self, q_motor: ArrayLike, *, check: bool = True) -> Array:
+        """Model joint state(s) (..., 4) that the motor joint state(s) realise (F^-1)."""
         ...
 
 
@@ -161,12 +166,15 @@ class ControllerConfig:
 
 @dataclass
 class PathTask:
-    """Follow a motor-space path at bounded joint speed (a trapezoidal profile per segment).
+    """Follow a motor-space path exactly through its vertices at bounded joint speed.
 
-    The path is followed exactly through its vertices; each segment's duration is the
-    slowest joint's |dq| / v_max, with accelerations limited by easing in and out over the
-    whole path (``accel_time`` s). Used for go-to-view and the spin when no richer motion
-    executor is configured.
+    Each segment's duration is the slowest joint's ``|dq| / (speed_scale * v_max)``; the
+    path time is run with a trapezoidal rate (ramping up over ``ramp_s`` and down to a stop
+    at the end), so accelerations stay bounded. The commanded state never leaves the
+    travelled polyline, which is what view recovery promises. (``icenav.motion.PathExecutor``
+    adds jerk limits with ruckig but, following a carrot a quarter epsilon ahead that it
+    must reach at rest, crawls at about 0.1 rad/s on roadmap paths; it is not used here
+    until that is fixed.)
     """
 
     path: Array
@@ -177,10 +185,14 @@ class PathTask:
     label: str = "path"
     speed_scale: float = 0.5
     """Fraction of the speed limit used."""
+    ramp_s: float = 0.3
+    """Time to reach full speed from rest, and to stop (s): bounds the acceleration to
+    about speed / ramp_s (a trapezoidal profile in path time)."""
     on_done: Callable[[], None] | None = None
     """Called once when the end is reached."""
     _cum_time: Array = field(init=False, repr=False)
     _t: float = field(default=0.0, init=False, repr=False)
+    _elapsed: float = field(default=0.0, init=False, repr=False)
 
     def __post_init__(self) -> None:
         p = np.asarray(self.path, dtype=np.float64)
@@ -207,12 +219,93 @@ class PathTask:
                 self.on_done()
                 self.on_done = None
             return None
-        self._t = min(self.duration, self._t + dt)
+        # path-time rate r in (0, 1]: ramps up over ramp_s, and down to stop at the end
+        # (r <= sqrt(2 * remaining / ramp_s)); never 0, so the task always finishes
+        self._elapsed += dt
+        remaining = self.duration - self._t
+        rate = min(1.0, self._elapsed / self.ramp_s, math.sqrt(2.0 * remaining / self.ramp_s))
+        self._t = min(self.duration, self._t + dt * max(rate, 0.02))
         i = int(np.searchsorted(self._cum_time, self._t, side="right")) - 1
         i = min(max(i, 0), len(self.path) - 2)
         t0, t1 = self._cum_time[i], self._cum_time[i + 1]
         s = 1.0 if t1 <= t0 else (self._t - t0) / (t1 - t0)
         return np.asarray(self.path[i] + s * (self.path[i + 1] - self.path[i]))
+
+
+class CalibrationTask:
+    """Drive a calibration raster and measure the tip with the tracker at each point.
+
+    For each motor state of ``points``: move there at bounded speed (a :class:`PathTask`),
+    wait ``settle_s`` for the catheter and the tracker, then average ``n_average`` tracker
+    samples; a MISSING sample is retried ``retries`` times, then skipped (reported). When
+    all points are done, ``on_samples(q_motor (n, 4), tip2base (n, 4, 4), skipped)`` is
+    called (from the control thread) and the task ends.
+    """
+
+    def __init__(
+        self,
+        points: Array,
+        measure: Callable[[], Array | None],
+        on_samples: Callable[[Array, Array, int], None],
+        *,
+        max_velocity: Array,
+        label: str,
+        settle_s: float = 0.3,
+        retries: int = 3,
+    ) -> None:
+        self.mode = Mode.CALIBRATING
+        self.label = label
+        self._points = np.asarray(points, dtype=np.float64)
+        self._measure = measure
+        self._on_samples = on_samples
+        self._vmax = np.asarray(max_velocity, dtype=np.float64)
+        self._settle_s = settle_s
+        self._retries = retries
+        self._i = 0
+        self._move: PathTask | None = None
+        self._wait = 0.0
+        self._tries = 0
+        self._q: list[Array] = []
+        self._t: list[Array] = []
+        self._skipped = 0
+        self._done = False
+
+    @property
+    def progress(self) -> float:
+        return min(1.0, self._i / len(self._points))
+
+    def next_command(self, q_measured: Array, dt: float) -> Array | None:
+        if self._done:
+            return None
+        if self._i >= len(self._points):
+            self._done = True
+            self._on_samples(np.array(self._q), np.array(self._t), self._skipped)
+            return None
+        target = self._points[self._i]
+        if self._move is None:
+            self._move = PathTask(
+                np.vstack([q_measured, target]), self._vmax, mode=self.mode, label=self.label
+            )
+            self._wait = 0.0
+            self._tries = 0
+        q_next = self._move.next_command(q_measured, dt)
+        if q_next is not None:
+            return q_next
+        self._wait += dt
+        if self._wait < self._settle_s:
+            return target
+        pose = self._measure()
+        if pose is None and self._tries < self._retries:
+            self._tries += 1
+            return target
+        if pose is None:
+            self._skipped += 1
+        else:
+            self._q.append(np.array(q_measured, dtype=np.float64))
+            self._t.append(np.asarray(pose, dtype=np.float64))
+        self._i += 1
+        self._move = None
+        return target
 
 
 @dataclass
@@ -283,6 +376,8 @@ class Controller:
         self.mapping = mapping or JoystickMapping()
         self.compensation = compensation
         self.compensation_enabled = compensation is not None
+        self.calibration: CalibrationSet | None = None
+        """The calibration set behind the installed compensation (None: none made here)."""
         self._truth = truth
         self.tracker = tracker
         self._imager = imager
@@ -627,17 +722,13 @@ class Controller:
 
     def _to_model(self, q_motor: Array) -> Array:
         if not self.compensation_enabled or self.compensation is None:
-            return q_motor.copy()
-        q = q_motor.copy()
-        q[:2] = self.compensation.to_model(q_motor[:2])
-        return q
+            return np.array(q_motor, dtype=np.float64)
+        return np.asarray(self.compensation.motor_to_model(q_motor, check=False))
 
     def _to_motor(self, q_model: Array) -> Array:
         if not self.compensation_enabled or self.compensation is None:
-            return q_model.copy()
-        q = q_model.copy()
-        q[:2] = self.compensation.to_motor(q_model[:2])
-        return q
+            return np.array(q_model, dtype=np.float64)
+        return np.asarray(self.compensation.model_to_motor(q_model, check=False))
 
     # --- modes and tasks ----------------------------------------------------------------
 
@@ -711,32 +802,89 @@ class Controller:
         self.start_task(task)
 
     def _start_spin(self) -> None:
-        from icenav.kinematics import inverse
-
-        q_model = self._to_model(self._q)
+        """The image plane turns 360 deg about the catheter axis while the model tip stays
+        put (paper Sec. IV: phi1 = a cos t, phi2 = a sin t, phi3 = -t from an AP bend),
+        mapped to motor states through the compensation when it is on."""
         g = self.config.geometry
-        start = forward(q_model, g, check=False)
-        n = 360
-        path = np.empty((n + 1, 4))
-        for i in range(n + 1):
-            t = 2 * math.pi * i / n
-            # the image plane turns by t about the catheter axis while the tip stays put:
-            # rotate the target about the tip's own z axis, then solve the IK
-            c, s = math.cos(t), math.sin(t)
-            turn = np.array([[c, -s, 0, 0], [s, c, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1.0]])
-            qm = inverse(
-                start @ turn, g, check=False, phi3_near=path[i - 1, 2] if i else q_model[2]
-            )
-            path[i] = self._to_motor(qm)
+        q_model = self._to_model(self._q)
+        try:
+            spin = spin_trajectory(q_model, 360, include_end=True, geometry=g)
+        except IcenavError as exc:
+            self._message = f"cannot spin from here: {exc}"
+            return
+        path = self._to_motor(spin.q_model)
         lim = g.joint_limits
         path = np.clip(path, lim[:, 0], lim[:, 1])
+        path[0] = self._q
         task = PathTask(
             path, np.asarray(self.config.max_velocity), mode=Mode.SPINNING, label="spin 360"
         )
         self.start_task(task)
 
     def _start_calibration(self, kind: CalibrationKind) -> None:
-        self._message = f"calibration ({kind}) is not available in this build"
+        """Dense 10 deg raster (19 x 19 = 361 points over +-90 deg) or the simplified
+        5-point calibration (centre, +-90 deg AP, +-90 deg RL), then build the elasticity
+        map F in a background thread and switch the compensation on when it is ready."""
+        if self.tracker is None:
+            self._message = "calibration needs a tracker"
+            return
+        g = self.config.geometry
+        if kind == "dense":
+            points = raster_grid(math.radians(10.0), g.knob_limit)
+        elif kind == "five_point":
+            knobs, _ = five_point_targets(g)
+            points = np.zeros((5, 4))
+            points[:, :2] = knobs
+        else:
+            self._message = f"unknown calibration {kind!r}: use 'dense' or 'five_point'"
+            return
+        points[:, 2:] = self._q[2:]  # calibrate at the current roll and translation
+        tracker = self.tracker
+
+        def measure() -> Array | None:
+            pose = tracker.measure_tip2base(n_average=4)
+            return None if pose is None else np.asarray(pose, dtype=np.float64)
+
+        def on_samples(q: Array, t: Array, skipped: int) -> None:
+            self._message = (
+                f"calibration ({kind}): {len(q)} samples"
+                + (f", {skipped} skipped (tracker MISSING)" if skipped else "")
+                + "; building the compensation map"
+            )
+            thread = threading.Thread(
+                target=self._build_map, args=(kind, q, t), name="icenav-calibration", daemon=True
+            )
+            thread.start()
+            if self._thread is None:  # stepped by hand: wait here, there is no loop to poll
+                thread.join()
+
+        task = CalibrationTask(
+            points,
+            measure,
+            on_samples,
+            max_velocity=np.asarray(self.config.max_velocity),
+            label=f"calibration ({kind}, {len(points)} points)",
+        )
+        self.start_task(task)
+
+    def _build_map(self, kind: str, q: Array, t: Array) -> None:
+        """Build F from the samples (background thread); install it at the next cycle."""
+        try:
+            cal = CalibrationSet(q_motor=q, tip2base=t, method=kind)
+            emap = ElasticityMap.build(cal, self.config.geometry)
+        except IcenavError as exc:
+            text = f"calibration failed: {exc}"
+            self._submit(lambda: setattr(self, "_message", text))
+            return
+
+        def install() -> None:
+            self.compensation = emap
+            self.compensation_enabled = True
+            self.calibration = cal
+            self._message = f"calibration ({kind}) done: compensation on"
+            self._record("calibration", {"kind": kind, "n_samples": len(q)})
+
+        self._submit(install)
 
     # --- publishing -----------------------------------------------------------------------
 

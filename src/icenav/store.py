@@ -40,7 +40,12 @@ from icenav.errors import FileFormatError, StoreError, UnsupportedVersionError
 from icenav.roadmap import Roadmap, RoadmapConfig, RoadmapMetric
 from icenav.views import View, ViewLibrary
 
-__all__ = ["APPLICATION_ID", "SCHEMA_VERSION", "Event", "SessionStore"]
+__all__ = [
+    "APPLICATION_ID",
+    "Event",
+    "SCHEMA_VERSION",
+    "SessionStore",
+]
 
 SCHEMA_VERSION = 1
 """Version of the session file layout written by this icenav."""

@@ -11,8 +11,13 @@ from collections.abc import Sequence
 
 __all__ = ["EVALUATIONS", "main"]
 
-EVALUATIONS: dict[str, tuple[str, str]] = {}
-"""name -> (module with main(argv), one-line help). Filled as evaluations land."""
+EVALUATIONS: dict[str, tuple[str, str]] = {
+    "spin": (
+        "icenav.eval.spin",
+        "image spinning with elasticity/hysteresis compensation (Table I, Figs. 5 and 7)",
+    ),
+}
+"""name -> (module with main(argv), one-line help)."""
 
 
 def main(argv: Sequence[str] | None = None) -> int:

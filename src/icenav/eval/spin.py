@@ -57,7 +57,9 @@ __all__ = [
     "SpinRecord",
     "calibrate",
     "calibration_study",
+    "format_table",
     "main",
+    "paper_table",
     "run_spin",
     "run_vessel",
 ]

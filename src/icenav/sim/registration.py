@@ -11,9 +11,9 @@ What a lab does before calibrating (docs/digital-twin.md, "Registration"):
    ``forward(q) @ sensor2tip``, and pair it with the tracked pose in the tracker frame.
 4. Solve the paired-point problem (Kabsch-Umeyama, no scale) for ``tracker2base``, each pose
    contributing its position and three points along its axes (the axis line alone cannot fix
-   the roll about it); check the RMS residual (about 1-2 mm with the twin's defaults: the
-   tracker error and the roll play). A residual far above that means a wrong
-   ``sensor2tip`` or a moved field generator.
+   the roll about it); check the RMS residual (0.3-0.8 mm with the twin's defaults: the
+   jitter and the roll play; the smooth field distortion shifts all points alike). A
+   residual far above that means a wrong ``sensor2tip`` or a moved field generator.
 """
 
 from __future__ import annotations
