@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import signal
 import sys
 import threading
 import time
@@ -34,6 +35,11 @@ def _parser() -> argparse.ArgumentParser:
     )
     p.add_argument("--host", default="127.0.0.1", help="address to bind (default 127.0.0.1)")
     p.add_argument("--port", type=int, default=8080, help="console port (default 8080)")
+    p.add_argument(
+        "--allow-remote",
+        action="store_true",
+        help="required with a --host other than loopback: expose the console on the network",
+    )
     p.add_argument("--session", type=Path, default=None, help="SQLite session file to resume")
     p.add_argument("--seed", type=int, default=100, help="catheter seed of the twin (>= 0)")
     p.add_argument(
@@ -54,7 +60,15 @@ def _parser() -> argparse.ArgumentParser:
     return p
 
 
+_LOOPBACK = ("127.0.0.1", "localhost", "::1")
+
+
 def _check_args(args: argparse.Namespace, parser: argparse.ArgumentParser) -> None:
+    if args.host not in _LOOPBACK and not args.allow_remote:  # reliability: part 4 (security)
+        parser.error(
+            f"--host {args.host} exposes the console beyond this machine: "
+            "add --allow-remote to confirm"
+        )
     if not 0 <= args.port <= 65535:
         parser.error(f"--port must be in [0, 65535], got {args.port}")
     if not 0 <= args.igtl_port <= 65535:
@@ -179,6 +193,8 @@ def run_console(args: argparse.Namespace) -> int:
     console.start()
     print(f"icenav console: {console.url}  (Ctrl-C to stop)", flush=True)
     stop = threading.Event()
+    # SIGTERM (a service manager, `kill`) ends the console as cleanly as Ctrl-C
+    signal.signal(signal.SIGTERM, lambda *_: stop.set())
     try:
         while not stop.is_set():
             time.sleep(0.2)

@@ -225,6 +225,9 @@ class Sdl2Gamepad:
         os.environ.setdefault("PYGAME_HIDE_SUPPORT_PROMPT", "1")
         os.environ.setdefault("SDL_VIDEODRIVER", "dummy")
         os.environ.setdefault("SDL_AUDIODRIVER", "dummy")
+        # SDL would take over SIGINT/SIGTERM (turning them into quit events nobody reads),
+        # so Ctrl-C and a service manager's stop would no longer end the console
+        os.environ.setdefault("SDL_NO_SIGNAL_HANDLERS", "1")
         import pygame  # imported here: only a host with a gamepad needs SDL loaded
 
         self._pygame = pygame
