@@ -23,7 +23,7 @@ from icenav.roadmap import Roadmap
 from icenav.store import SessionStore
 from icenav.views import View
 
-__all__ = ["SimSession", "StoreRecorder", "make_sim_controller"]
+__all__ = ["SimSession", "StoreRecorder", "anatomy_meshes", "make_sim_controller"]
 
 Array = NDArray[np.float64]
 
@@ -85,6 +85,15 @@ class SimSession:
         self.controller.robot.close()
 
 
+def _start_new_trace_segment(roadmap: Roadmap) -> None:
+    """A resumed roadmap's next state was not reached from its last one (the process was
+    restarted, the robot may have been moved or re-homed): do not connect them as if the
+    operator had travelled between them. (reliability fix; Roadmap has no public call for
+    this yet, so this resets the two fields that link the next state to the last one.)"""
+    roadmap._current = -1  # noqa: SLF001
+    roadmap._prev_list = None  # noqa: SLF001
+
+
 def make_sim_controller(
     *,
     seed: int = 100,
@@ -123,6 +132,7 @@ def make_sim_controller(
     if session is not None:
         store = SessionStore(session, clock=clock)
         roadmap = store.load_roadmap()
+        _start_new_trace_segment(roadmap)
         views = store.load_views()
     renderer = None
     imager = None
@@ -165,3 +175,51 @@ def make_sim_controller(
         recorder = StoreRecorder(store, controller.roadmap)
         controller.set_recorder(recorder)
     return SimSession(controller, plant, tracker, renderer, store, recorder)
+
+
+_CHAMBER_RGB = {"ra": (70, 130, 220), "rv": (60, 90, 200), "la": (220, 90, 90), "lv": (200, 60, 60)}
+
+
+def anatomy_meshes(phantom: Any = None) -> list[Any]:
+    """Translucent surfaces of the heart phantom's chambers and vessels for the console.
+
+    Each chamber is its ellipsoid (an icosphere scaled by the semi-axes), each vessel its
+    cylinder, mapped from the anatomy frame into the robot base frame (mm) through the
+    phantom's registration (``BASE2ANATOMY``). The beating motion is not drawn.
+    """
+    import trimesh
+
+    from icenav.console import AnatomyMesh
+    from icenav.sim.anatomy import BASE2ANATOMY, default_phantom
+
+    ph = phantom if phantom is not None else default_phantom()
+    anatomy2base = np.linalg.inv(BASE2ANATOMY)
+    out: list[Any] = []
+    for ch in ph.chambers:
+        sphere = trimesh.creation.icosphere(subdivisions=3)
+        local = np.asarray(sphere.vertices) * np.asarray(ch.semi_axes)
+        pts = local @ np.asarray(ch.rotation).T + np.asarray(ch.centre)
+        out.append(
+            AnatomyMesh(
+                name=f"anatomy-{ch.name}",
+                vertices=pts @ anatomy2base[:3, :3].T + anatomy2base[:3, 3],
+                faces=np.asarray(sphere.faces, dtype=np.uint32),
+                rgb=_CHAMBER_RGB.get(ch.name, (180, 180, 180)),
+                opacity=0.18,
+            )
+        )
+    for v in ph.vessels:
+        cyl = trimesh.creation.cylinder(
+            radius=float(v.radius_mm), segment=np.array([v.start, v.end], dtype=np.float64)
+        )
+        pts = np.asarray(cyl.vertices)
+        out.append(
+            AnatomyMesh(
+                name=f"anatomy-{v.name}",
+                vertices=pts @ anatomy2base[:3, :3].T + anatomy2base[:3, 3],
+                faces=np.asarray(cyl.faces, dtype=np.uint32),
+                rgb=(150, 150, 200),
+                opacity=0.15,
+            )
+        )
+    return out

@@ -26,6 +26,7 @@ from typing import Any
 import numpy as np
 import pytest
 
+from icenav.app import anatomy_meshes
 from icenav.console import Console
 from icenav.state import ControllerState, Mode
 
@@ -160,7 +161,7 @@ def test_console_on_the_real_controller(browser: Any, tmp_path: Path) -> None:
     waiter = StateWaiter(ctl)
     ctl.start()
     try:
-        with Console(ctl, port=0) as console:
+        with Console(ctl, port=0, anatomy_mesh=anatomy_meshes()) as console:
             page = _open(browser, console.url)
             expect(page.get_by_text("You have control")).to_be_visible()
             expect(page.locator("canvas[data-engine]")).to_be_visible()
