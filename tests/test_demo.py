@@ -76,3 +76,10 @@ def test_console_process_starts_prints_its_url_and_stops_on_sigterm(tmp_path: Pa
         if proc.stdout is not None:
             proc.stdout.close()
     assert (tmp_path / "s.icenav").exists()
+
+
+@pytest.mark.slow
+def test_headless_demo_on_emulated_canopen_drives() -> None:
+    # the same scripted procedure through CANopenRobot and five emulated CiA 402 drives on
+    # a virtual CAN bus (real time: about 20 s)
+    assert main(["--headless", "--robot", "emulated-canopen", "--duration", "8"]) == 0
