@@ -427,3 +427,32 @@ def test_approach_reproduces_the_arrival_direction(seed: int) -> None:
     # without the approach, these seeded returns arrive from the wrong side of some joint
     without = rm.plan(rm.current_state, view, approach=False)
     assert direction_tracker(without, thr) != view.arrival_direction
+
+
+def test_tree_job_from_a_snapshot_plans_exactly_after_more_driving() -> None:
+    # the tree is computed from a snapshot while the roadmap keeps growing (as the
+    # controller does in a background thread after a view is saved); once installed and
+    # repaired, plans equal a fresh Dijkstra's
+    rng = np.random.default_rng(11)
+    rm = Roadmap(epsilon=1.0)
+    q = np.zeros(4)
+    for _ in range(3000):
+        q = q + rng.normal(scale=[0.004, 0.004, 0.004, 0.2])
+        rm.add(q)
+    view = rm.make_view("v", created_s=0.0)
+    job = rm.tree_job(view)
+    for _ in range(2000):  # the operator drives on while the job runs
+        q = q + rng.normal(scale=[0.004, 0.004, 0.004, 0.2])
+        rm.add(q)
+    rm.install_tree(view, job())
+    fast = rm.plan(q, view)
+    fresh = Roadmap.from_arrays(
+        rm.vertices(), *rm.edges(), rm.trace(), config=rm.config
+    ).plan(q, view.vertex)
+    metric = rm.config.metric
+
+    def length(path: np.ndarray) -> float:
+        return float(np.sum(metric.distance(path[:-1], path[1:])))
+
+    assert length(fast) == pytest.approx(length(fresh), rel=1e-9)
+    np.testing.assert_array_equal(fast[-1], view.q)
