@@ -128,8 +128,25 @@ def literal_extrapolated(trace: np.ndarray, states: int, n_vertices: int) -> flo
 def plan_results(rm: Roadmap, view: View, trace: np.ndarray, k: int, n: int) -> list[Result]:
     """Plans from the end of the trace back to a view saved near its start."""
     out = []
+    # what the controller does when a view is saved on a large roadmap: snapshot the graph,
+    # compute the tree in a background thread while the operator drives on (5 s here),
+    # install it; the first return then only repairs the tree
+    t0 = time.perf_counter()
+    job = rm.tree_job(view)
+    snapshot = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    tree = job()
+    background = time.perf_counter() - t0
+    for q in trace[k : k + 500]:
+        rm.add(q, check=False)
+    rm.install_tree(view, tree)
     start = rm.current_state
     assert start is not None
+    t0 = time.perf_counter()
+    rm.plan(start, view)
+    prepared = time.perf_counter() - t0
+    rm._trees.clear()  # forget it, to time an unprepared first plan below
+    k += 500
     t0 = time.perf_counter()
     rm.plan(start, view)
     first = time.perf_counter() - t0  # full Dijkstra from the view
@@ -176,7 +193,20 @@ def plan_results(rm: Roadmap, view: View, trace: np.ndarray, k: int, n: int) -> 
 
     out.append(
         Result(
-            f"{name}: first plan to a new view (scipy Dijkstra)",
+            f"{name}: first plan to a new view, tree prepared in the background "
+            f"(snapshot {snapshot * 1e3:.1f} ms in the loop, Dijkstra {background:.2f} s "
+            "in a thread)",
+            prepared * 1e3,
+            "ms",
+            base_ms,
+            "networkx astar_path",
+            tgt,
+            met(prepared),
+        )
+    )
+    out.append(
+        Result(
+            f"{name}: first plan to a new view, unprepared (scipy Dijkstra)",
             first * 1e3,
             "ms",
             base_ms,

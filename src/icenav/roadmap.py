@@ -727,33 +727,48 @@ class Roadmap:
             raise PlanningError(f"goal vertex {gv} is not in the roadmap (0..{self._n - 1})")
         self._tree(gv)
 
-    def tree_job(self, goal: View | int) -> Callable[[], _Tree]:
+    def tree_job(self, goal: View | int) -> Callable[[], _PreparedTree]:
         """Snapshot the graph now and return a job that computes the shortest-path tree to
         ``goal`` from the snapshot, safe to run in another thread while :meth:`add` goes on;
-        hand its result to :meth:`install_tree` (in the thread that owns the roadmap). The
-        snapshot copies the edge arrays (a few ms at 1e6 edges); the Dijkstra (about a
-        second at 1e6 vertices) runs in the job, so the control loop never waits for it.
+        hand its result to :meth:`install_tree` (in the thread that owns the roadmap).
+
+        The snapshot is free (views of the append-only edge arrays: entries below the
+        current edge count are never written again); the job builds the CSR and runs the
+        Dijkstra (about half a second at 1e6 vertices), so the control loop never waits
+        for either.
         """
         gv = goal.vertex if isinstance(goal, View) else int(goal)
         if not 0 <= gv < self._n:
             raise PlanningError(f"goal vertex {gv} is not in the roadmap (0..{self._n - 1})")
         n, m = self._n, self._m
-        u, v, w = self._eu[:m].copy(), self._ev[:m].copy(), self._ew[:m].copy()
+        u, v, w = self._eu[:m], self._ev[:m], self._ew[:m]
 
-        def job() -> _Tree:
+        def job() -> _PreparedTree:
             half = sp.coo_matrix((w, (u, v)), shape=(n, n)).tocsr()
             dist, pred = dijkstra(half, directed=False, indices=gv, return_predecessors=True)
-            return _Tree(m=m, dist=dist, pred=pred.astype(np.int64))
+            tree = _Tree(m=m, dist=dist, pred=pred.astype(np.int64))
+            return _PreparedTree(goal=gv, tree=tree, half=half, half_t=half.T.tocsr())
 
         return job
 
-    def install_tree(self, goal: View | int, tree: _Tree) -> None:
-        """Cache a tree from :meth:`tree_job` (repaired for later edges at the next plan);
-        a cached tree that already covers more edges is kept."""
+    def install_tree(self, goal: View | int, prepared: _PreparedTree) -> None:
+        """Cache a tree from :meth:`tree_job` (repaired for later edges at the next plan),
+        and its CSR when it is newer than the roadmap's own; a cached tree that already
+        covers more edges is kept."""
         gv = goal.vertex if isinstance(goal, View) else int(goal)
+        if gv != prepared.goal:
+            raise PlanningError(f"the prepared tree is for vertex {prepared.goal}, not {gv}")
+        tree = prepared.tree
         old = self._trees.get(gv)
         if old is None or old.m < tree.m:
             self._trees[gv] = tree
+        if self._csr is None or self._csr_m < tree.m:
+            self._csr = prepared.half
+            self._csr_t = prepared.half_t
+            self._csr_m = tree.m
+            self._csr_version = -1  # older than the graph: _half() rebuilds when asked
+            self._delta_adj = {}
+            self._delta_upto = tree.m
 
     def shortest_path_ids(
         self, start: int, goal: int, method: Literal["tree", "astar"] = "tree"
@@ -963,6 +978,16 @@ class _Tree:
     m: int
     dist: Array
     pred: IntArray
+
+
+@dataclass
+class _PreparedTree:
+    """A tree computed off the control thread, with the CSR halves it was computed on."""
+
+    goal: int
+    tree: _Tree
+    half: sp.csr_matrix
+    half_t: sp.csr_matrix
 
 
 def _grow(a: NDArray[Any], size: int | None = None) -> NDArray[Any]:
