@@ -24,5 +24,6 @@ for q in spin.q_model:  # no compensation: model knob angles sent to the motors
     if measured is not None:  # MISSING samples are skipped, never used stale
         errors.append(np.linalg.norm(measured[:3, 3] - intended))
 print(f"model tip (mm): {np.round(intended, 1)}")
-print(f"EM-tracked tip position RMSE during the spin: {np.sqrt(np.mean(np.square(errors))):.1f} mm")
+rmse = np.sqrt(np.mean(np.square(errors)))
+print(f"EM-tracked tip position RMSE during the spin: {rmse:.1f} mm")
 print("(the paper measured 11.0 mm at 40 deg without compensation)")
