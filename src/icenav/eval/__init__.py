@@ -16,6 +16,11 @@ EVALUATIONS: dict[str, tuple[str, str]] = {
         "icenav.eval.spin",
         "image spinning with elasticity/hysteresis compensation (Table I, Figs. 5 and 7)",
     ),
+    "recovery": (
+        "icenav.eval.recovery",
+        "view recovery to the aortic, mitral and tricuspid valve views, open loop and "
+        "image-refined (Table II, Figs. 8-10)",
+    ),
 }
 """name -> (module with main(argv), one-line help)."""
 

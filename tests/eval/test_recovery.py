@@ -1,0 +1,103 @@
+"""Tests of ``icenav eval recovery`` (the paper's Table II on the twin), in --quick mode."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from icenav.eval.metrics import rotation_angle
+from icenav.eval.recovery import (
+    MODES,
+    TARGETS,
+    RecoveryRun,
+    _parser,
+    config_from_args,
+    format_table,
+    main,
+    run_recovery,
+)
+
+KEYS = {
+    "target",
+    "mode",
+    "tip_error_mm_mean",
+    "tip_error_mm_sd",
+    "true_tip_error_mm_mean",
+    "orientation_error_deg_mean",
+    "similarity_pct_mean",
+    "similarity_ceiling_pct",
+    "roi_error_mm_mean",
+}
+
+
+@pytest.fixture(scope="module")
+def quick_run() -> RecoveryRun:
+    return run_recovery(config_from_args(_parser().parse_args(["--quick", "--seed", "101"])))
+
+
+def test_records_are_complete(quick_run: RecoveryRun) -> None:
+    pairs = {(r.target, r.mode) for r in quick_run.records}
+    assert pairs == {(t, m) for t in TARGETS for m in MODES}
+    for r in quick_run.records:
+        assert r.n_returns == quick_run.config.rounds
+        assert r.tip_error_mm_mean >= 0 and r.tip_error_mm_sd >= 0
+        assert 0 <= r.true_tip_error_mm_mean < 20 and 0 <= r.orientation_error_deg_mean < 30
+        assert 0 < r.similarity_pct_mean <= 100 and 0 < r.similarity_ceiling_pct <= 100
+        assert r.roi_error_mm_mean is None or r.roi_error_mm_mean >= 0
+        assert (r.refine_evaluations_mean >= 1) == (r.mode == "refined")
+
+
+def test_open_loop_returns_are_close_to_the_saved_views(quick_run: RecoveryRun) -> None:
+    """The motors end exactly at the view; the true pose within 1 mm / 1 deg of the saved
+    one (only the transmission's play differs); the image close to the saved beat."""
+    for s in quick_run.returns:
+        if s.mode != "open_loop":
+            continue
+        view = quick_run.views[s.target]
+        np.testing.assert_allclose(s.q, view.q, atol=1e-12)
+        saved = quick_run.saved_tip2base[s.target]
+        assert np.linalg.norm(s.true_tip2base[:3, 3] - saved[:3, 3]) < 1.0
+        assert math.degrees(float(rotation_angle(s.true_tip2base[:3, :3], saved[:3, :3]))) < 1.0
+    for r in quick_run.records:
+        if r.mode == "open_loop":
+            assert r.similarity_pct_mean > r.similarity_ceiling_pct - 10.0
+
+
+def test_refined_returns_stay_in_the_neighbourhood(quick_run: RecoveryRun) -> None:
+    radius = np.array(quick_run.config.refinement.radius)
+    for s in quick_run.returns:
+        if s.mode == "refined":
+            assert np.all(np.abs(s.q - quick_run.views[s.target].q) <= radius + 1e-12)
+            assert 1 <= s.refine_evaluations == len(s.refine_trace)
+
+
+def test_table_prints_the_papers_numbers(quick_run: RecoveryRun) -> None:
+    text = format_table(quick_run.records)
+    assert "0.67" in text and "89.8" in text and "81.4" in text
+    assert all(t in text for t in TARGETS)
+
+
+def test_main_writes_json_and_plots(tmp_path: Path) -> None:
+    out = tmp_path / "r.json"
+    plots = tmp_path / "plots"
+    assert main(["--quick", "--open-loop-only", "--json", str(out), "--plots", str(plots)]) == 0
+    records = json.loads(out.read_text())
+    assert len(records) == len(TARGETS)
+    for rec in records:
+        assert set(rec) >= KEYS
+        assert rec["mode"] == "open_loop"
+    assert sorted(p.name for p in plots.glob("recovery_*.png")) == [
+        "recovery_images.png",
+        "recovery_refinement_traces.png",
+        "recovery_spread.png",
+    ]
+
+
+def test_bad_arguments_are_refused() -> None:
+    assert main(["--rounds", "1"]) == 2
+    with pytest.raises(SystemExit):
+        main(["--vessel", "tortuous"])
