@@ -42,7 +42,7 @@ independent of the respiratory phase (and, by the same token, blind to translati
 the catheter axis within the respiratory excursion). A trial that looks better is measured
 a second time before it is accepted (``confirm``).
 
-Limits (measured on the twin, see ``docs/results-recovery.md``): about 0.004-0.009 NCC per
+Limits (measured on the twin, see ``docs/results.md, Table II``): about 0.004-0.009 NCC per
 degree of knob or roll offset against a beat-to-beat noise of about 0.002; sub-millimetre
 translation is below the noise; a roll/twist play wider than the neighbourhood makes trial
 moves irreversible, hence the gate in step 1.

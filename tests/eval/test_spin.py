@@ -70,3 +70,14 @@ def test_bad_options_are_refused(capsys: pytest.CaptureFixture[str], tmp_path: P
     with pytest.raises(SystemExit):
         spin.main(["--vessel", "curly"])
     assert "unknown condition" in capsys.readouterr().err
+
+
+def test_in_situ_identification_sees_the_vessels_wider_roll_play() -> None:
+    """The sweeps repeated in a curved vessel find the wider play the capstan wrap gives."""
+    straight = spin.identify_in_situ(101, "straight")
+    steep = spin.identify_in_situ(101, "steep")
+    m0, m1 = straight.joints[2], steep.joints[2]
+    assert m0 is not None and m1 is not None
+    # twin: roll play x exp(mu Theta_vessel), about 2.4 for the steep vessel
+    assert 1.5 < m1.backlash / m0.backlash < 3.5
+    assert steep.roll_play_per_bend > straight.roll_play_per_bend

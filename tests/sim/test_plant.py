@@ -18,7 +18,7 @@ DEG = math.pi / 180.0
 # Loop widths documented in docs/digital-twin.md ("Hysteresis and dead-zone"), nominal
 # catheter, AP knob swept 0 -> +60 -> -60 -> +60 deg: widest horizontal gap between the
 # rising and falling branches of bend angle vs knob angle (deg of knob).
-DOCUMENTED_LOOP_WIDTH_DEG = {"straight": 6.1, "moderate": 9.1, "steep": 10.4}
+DOCUMENTED_LOOP_WIDTH_DEG = {"straight": 6.1, "moderate": 9.0, "steep": 10.3}
 
 
 def sweep(vessel: str, amplitude: float = 60 * DEG, n: int = 241) -> tuple[np.ndarray, ...]:
@@ -243,3 +243,26 @@ def test_custom_vessel_and_geometry() -> None:
     np.testing.assert_allclose(
         pose[:3, 3], [0, 0, 60.0 * plant.params.bending_length_scale], atol=1e-3
     )
+
+
+@pytest.mark.parametrize("seed", [100, 105, 111])
+def test_both_planes_reach_a_full_deflection_at_the_knob_limit(seed: int) -> None:
+    """An AcuNav-like catheter is steered in four directions with comparable reach
+    (docs/digital-twin.md, section 2.1): from rest, each 90 deg knob bends the section past
+    75 deg in its own plane, and AP does not out-reach RL by more than half."""
+    bends = {}
+    for name, q in (
+        ("ap+", [math.pi / 2, 0.0, 0.0, 0.0]),
+        ("ap-", [-math.pi / 2, 0.0, 0.0, 0.0]),
+        ("rl+", [0.0, math.pi / 2, 0.0, 0.0]),
+        ("rl-", [0.0, -math.pi / 2, 0.0, 0.0]),
+    ):
+        plant = CatheterPlant(seed=seed)
+        plant.move(q)
+        bends[name] = plant.state.bend_angle
+        plane = plant.state.bend_plane
+        want = {"ap+": 0.0, "ap-": math.pi, "rl+": math.pi / 2, "rl-": -math.pi / 2}[name]
+        assert abs(math.remainder(plane - want, 2 * math.pi)) < 15 * DEG, name
+    assert min(bends.values()) > 75 * DEG
+    ratio = max(bends["ap+"], bends["ap-"]) / min(bends["rl+"], bends["rl-"])
+    assert 1.0 < ratio < 1.5

@@ -16,7 +16,9 @@ Conditions:
 - ``simplified``: F from the 5-point calibration (thin-plate RBF), smoothed likewise.
 - ``dense+hysteresis``: F built on the *effective* knob angles of the raster (the identified
   backlash / dead-zone model run along the raster's command path), then the hysteresis
-  compensator pre-shapes the commands, roll included.
+  compensator pre-shapes the commands, roll included. Optionally (``--in-situ``) the
+  hysteresis sweeps (no raster) are repeated in a curved test vessel first; measured on the
+  development catheters it does not help (docs/calibration.md), so it is off by default.
 
 Errors: position RMSE = RMS distance between the measured tip and the intended tip (the
 model tip at the start; the model keeps it fixed); rotation RMSE = RMS angle of the rotation
@@ -33,7 +35,7 @@ import math
 import sys
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -58,6 +60,7 @@ __all__ = [
     "calibrate",
     "calibration_study",
     "format_table",
+    "identify_in_situ",
     "main",
     "paper_table",
     "run_spin",
@@ -164,6 +167,17 @@ def calibrate(seed: int) -> Calibrations:
     )
 
 
+def identify_in_situ(seed: int, vessel: str) -> HysteresisCompensator:
+    """The hysteresis sweeps of :func:`calibrate` repeated on catheter ``seed`` in the test
+    ``vessel`` (a robot can run them before a procedure: about 1000 small moves, no raster).
+
+    The shaft's path through the vessel widens the knob and roll plays (capstan friction);
+    the bending section's elasticity, hence F, stays as calibrated in the straight vessel.
+    """
+    plant, tracker = _make_plant(seed, vessel)
+    return identify_hysteresis(plant.move, tracker).compensator
+
+
 def _rotation_angle(r_a: Array, r_b: Array) -> Array:
     """Angle (rad) of r_a^T r_b for (..., 3, 3)."""
     rel = np.swapaxes(r_a, -1, -2) @ r_b
@@ -246,8 +260,14 @@ def run_vessel(
     n_samples: int = 360,
     conditions: Sequence[str] = CONDITIONS,
     keep_commands: dict[tuple[int, str], Array] | None = None,
+    in_situ: bool = False,
 ) -> list[SpinRecord]:
-    """The spins of one catheter in one vessel: a record per bend and condition."""
+    """The spins of one catheter in one vessel: a record per bend and condition.
+
+    With ``in_situ`` and a vessel other than the straight one, the hysteresis compensator of
+    ``dense+hysteresis`` is re-identified in the test vessel (:func:`identify_in_situ`)."""
+    if in_situ and vessel != "straight" and "dense+hysteresis" in conditions:
+        cal = replace(cal, compensator=identify_in_situ(seed, vessel))
     plant, tracker = _make_plant(seed, vessel)
     records = []
     for bend in bends_deg:
@@ -532,6 +552,11 @@ def _parser() -> argparse.ArgumentParser:
         help="comma-separated subset of " + ", ".join(CONDITIONS),
     )
     p.add_argument(
+        "--in-situ",
+        action="store_true",
+        help="re-identify the hysteresis in the curved test vessel (default: the straight one)",
+    )
+    p.add_argument(
         "--study", action="store_true", help="also print the calibration-size / interpolant study"
     )
     return p
@@ -588,6 +613,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         n_samples=args.samples,
         conditions=conds,
         keep_commands=commands,
+        in_situ=args.in_situ,
     )
     print(f"\nspin RMSE, vessel {args.vessel}: EM-tracked (paper's Table I) | true pose (mm deg)")
     print(format_table(records))
@@ -617,6 +643,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                     bends_deg=bends,
                     n_samples=args.samples,
                     conditions=conds,
+                    in_situ=args.in_situ,
                 )
         for p in _plot_curvature(all_records, out, args.seed):
             print(f"wrote {p}")

@@ -71,8 +71,9 @@ class PlantParams:
 
     handle_radius_ap_mm: float = 2.4
     """Radius of the AP knob's handle pulley that turns knob rotation into tendon pull (mm)."""
-    handle_radius_rl_mm: float = 1.65
-    """Radius of the RL knob's handle pulley (mm); the handle's two knobs differ."""
+    handle_radius_rl_mm: float = 2.2
+    """Radius of the RL knob's handle pulley (mm); the handle's two knobs differ (sized so the
+    stiffer RL plane reaches a full deflection comparable to AP's, as a real handle is)."""
     tendon_offset_ap_mm: float = 1.27
     """Distance of the AP tendons from the catheter axis in the bending section (mm)."""
     tendon_offset_rl_mm: float = 1.15
@@ -95,11 +96,11 @@ class PlantParams:
     """Compliance of one tendon over its whole length (handle to tip), mm per N."""
     ei_ap_nmm2: float = 340.0
     """Bending stiffness for bending in the AP plane (x-z), N mm^2, at zero curvature."""
-    ei_rl_nmm2: float = 1290.0
+    ei_rl_nmm2: float = 700.0
     """Bending stiffness for bending in the RL plane (y-z), N mm^2 (the array stiffens it)."""
-    ei_coupling_nmm2: float = 190.0
+    ei_coupling_nmm2: float = 140.0
     """Product-of-inertia coupling between the planes, N mm^2 (non-symmetric cross-section)."""
-    stiffening: float = 0.16
+    stiffening: float = 0.08
     """Strain stiffening beta: EI grows by (1 + beta * bend_angle^2), dimensionless."""
     friction_coefficient: float = 0.6
     """Tendon-sheath Coulomb friction coefficient mu (dimensionless)."""
