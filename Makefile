@@ -4,7 +4,7 @@ VENV := .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
 
-.PHONY: install browser test lint typecheck pytest bench demo docs clean
+.PHONY: install browser test lint typecheck pytest bench soak demo docs clean
 
 $(STAMP): pyproject.toml
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
@@ -19,8 +19,8 @@ browser: $(STAMP)
 	bash scripts/install-browser.sh $(PY)
 
 lint: $(STAMP)
-	$(VENV)/bin/ruff check src tests benchmarks examples docs/make_figures.py docs/figures
-	$(VENV)/bin/ruff format --check src tests benchmarks examples docs/make_figures.py docs/figures
+	$(VENV)/bin/ruff check src tests benchmarks examples fuzz docs/make_figures.py docs/figures
+	$(VENV)/bin/ruff format --check src tests benchmarks examples fuzz docs/make_figures.py docs/figures
 
 typecheck: $(STAMP)
 	$(VENV)/bin/mypy
@@ -32,6 +32,11 @@ test: lint typecheck pytest
 
 bench: $(STAMP)
 	$(PY) -m benchmarks
+
+# the full soak: a simulated 4-hour procedure at 100 Hz (about 20 minutes; make test runs a
+# 2-minute one)
+soak: $(STAMP)
+	$(PY) -m icenav.soak --hours 4 --json soak-4h.json
 
 demo: $(STAMP)
 	$(VENV)/bin/icenav demo

@@ -446,9 +446,9 @@ def test_tree_job_from_a_snapshot_plans_exactly_after_more_driving() -> None:
         rm.add(q)
     rm.install_tree(view, job())
     fast = rm.plan(q, view)
-    fresh = Roadmap.from_arrays(
-        rm.vertices(), *rm.edges(), rm.trace(), config=rm.config
-    ).plan(q, view.vertex)
+    fresh = Roadmap.from_arrays(rm.vertices(), *rm.edges(), rm.trace(), config=rm.config).plan(
+        q, view.vertex
+    )
     metric = rm.config.metric
 
     def length(path: np.ndarray) -> float:

@@ -18,6 +18,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from icenav.controller import Controller, ControllerConfig
+from icenav.errors import ConfigurationError
 from icenav.io.joystick import InputSource
 from icenav.roadmap import Roadmap
 from icenav.store import SessionStore
@@ -74,6 +75,8 @@ class SimSession:
     renderer: Any
     store: SessionStore | None
     recorder: StoreRecorder | None
+    drives: Any = None
+    """The emulated CANopen drives, when the robot is "emulated-canopen"."""
 
     def close(self) -> None:
         """Stop the loop and flush the store."""
@@ -83,15 +86,8 @@ class SimSession:
         if self.store is not None:
             self.store.close()
         self.controller.robot.close()
-
-
-def _start_new_trace_segment(roadmap: Roadmap) -> None:
-    """A resumed roadmap's next state was not reached from its last one (the process was
-    restarted, the robot may have been moved or re-homed): do not connect them as if the
-    operator had travelled between them. (reliability fix; Roadmap has no public call for
-    this yet, so this resets the two fields that link the next state to the last one.)"""
-    roadmap._current = -1  # noqa: SLF001
-    roadmap._prev_list = None  # noqa: SLF001
+        if self.drives is not None:
+            self.drives.close()
 
 
 def make_sim_controller(
@@ -102,6 +98,7 @@ def make_sim_controller(
     config: ControllerConfig | None = None,
     input_source: InputSource | None = None,
     imaging: bool = True,
+    robot: str = "sim",
     clock: Callable[[], float] = time.monotonic,
 ) -> SimSession:
     """A controller on the digital twin.
@@ -118,13 +115,27 @@ def make_sim_controller(
     imaging : bool
         Render the live ICE image (about 15-40 ms a frame, in its own thread when the
         controller runs in real time).
+    robot : {"sim", "emulated-canopen"}
+        "sim": the simulated robot moves the twin directly. "emulated-canopen": five
+        emulated CiA 402 drives on a virtual CAN bus behind :class:`CANopenRobot` (the code
+        path of real drives); the twin follows the drives' encoder positions.
     """
     from icenav.hw.sim import SimulatedRobot
     from icenav.sim import CatheterPlant, EMTracker
 
     plant = CatheterPlant(seed=seed, vessel=vessel)
-    robot = SimulatedRobot(plant, clock=clock, on_excess="clip")
-    robot.record_commands = False
+    drives: Any = None
+    backend: Any
+    if robot == "sim":
+        backend = SimulatedRobot(plant, clock=clock, on_excess="clip")
+        backend.record_commands = False
+    elif robot == "emulated-canopen":
+        from icenav.hw.emulated_drive import open_emulated_robot
+
+        backend, drives = open_emulated_robot()
+        backend.home()
+    else:
+        raise ConfigurationError(f"robot must be 'sim' or 'emulated-canopen', got {robot!r}")
     tracker = EMTracker(plant, seed=seed, clock=clock)
     tracker.start()
     store = recorder = None
@@ -132,7 +143,7 @@ def make_sim_controller(
     if session is not None:
         store = SessionStore(session, clock=clock)
         roadmap = store.load_roadmap()
-        _start_new_trace_segment(roadmap)
+        roadmap.break_trace()  # the restart was not a travelled motion
         views = store.load_views()
     renderer = None
     imager = None
@@ -157,10 +168,12 @@ def make_sim_controller(
             return renderer.render(BASE2ANATOMY @ tip2base, t, check=False).image
 
     def truth() -> tuple[Array, Array]:
+        if drives is not None:  # the twin follows the emulated drives' encoders
+            plant.move(backend.read_state().q)
         return plant.state.tip2base, plant.backbone(30)
 
     controller = Controller(
-        robot,
+        backend,
         config,
         roadmap=roadmap,
         views=views,
@@ -174,7 +187,7 @@ def make_sim_controller(
     if store is not None:
         recorder = StoreRecorder(store, controller.roadmap)
         controller.set_recorder(recorder)
-    return SimSession(controller, plant, tracker, renderer, store, recorder)
+    return SimSession(controller, plant, tracker, renderer, store, recorder, drives)
 
 
 _CHAMBER_RGB = {"ra": (70, 130, 220), "rv": (60, 90, 200), "la": (220, 90, 90), "lv": (200, 60, 60)}

@@ -59,7 +59,7 @@ from icenav.state import (
 )
 from icenav.trajectories import spin_trajectory
 from icenav.validation import check_finite, check_positive
-from icenav.views import ViewLibrary
+from icenav.views import View, ViewLibrary
 
 __all__ = [
     "AutomaticTask",
@@ -392,6 +392,7 @@ class Controller:
         self._jog: _Jog | None = None
         self._owner: str | None = None
         self._message = ""
+        self._fault_message = ""  # reliability: the FAULT / ESTOP cause, shown until reset
         self._time = 0.0
         self._cycle = 0
         self._prev_buttons: tuple[bool, ...] = ()
@@ -525,6 +526,7 @@ class Controller:
             self._jog = None
             self._mode = Mode.ESTOP
             self._message = f"EMERGENCY STOP by {client}: reset to continue"
+            self._fault_message = self._message
         self._record("event", {"text": self._message})
 
     def reset_fault(self, client: str = "script") -> None:
@@ -536,6 +538,7 @@ class Controller:
             self._q = np.array(self.robot.read_state().q, dtype=np.float64)
             self._q_cmd = self._q.copy()
             self._mode = Mode.IDLE
+            self._fault_message = ""
             self._message = f"reset by {client}; holding position"
             self._record("event", {"text": self._message})
 
@@ -600,6 +603,7 @@ class Controller:
             self._jog = None
             self._mode = Mode.FAULT if js.status is RobotStatus.FAULT else Mode.ESTOP
             self._message = f"robot {js.status.value}: {js.message or 'stopped'}; reset to continue"
+            self._fault_message = self._message
             self._record("event", {"text": self._message})
         sample = self._read_gamepad()
         if self._mode in (Mode.FAULT, Mode.ESTOP):
@@ -644,6 +648,10 @@ class Controller:
             self.save_view(f"view {len(self.views) + 1}", "gamepad")
         if pressed(m.goto_view_button) and self._selected_view is not None:
             self.goto_view(self._selected_view, "gamepad")
+        if not all(math.isfinite(a) for a in sample.axes):  # reliability: never half-apply
+            self._message = "gamepad input not finite (NaN / inf axis): treated as released"
+            self.release_control("gamepad")
+            return None
         if sample.button(m.enable_button):
             self.acquire_control("gamepad")
         elif self._owner == "gamepad":
@@ -778,8 +786,25 @@ class Controller:
         if self._image is not None:
             self._view_images[name] = self._image
         self._selected_view = name
-        self._record("view_saved", {"view": view})
-        self._message = f"view {name!r} saved"
+        self._prepare_plans_to(view)
+        if self._record("view_saved", {"view": view}):
+            self._message = f"view {name!r} saved"
+        else:  # reliability: the operator must know the view is not on disk
+            self._message = f"view {name!r} saved in memory only, NOT on disk: {self._message}"
+
+    def _prepare_plans_to(self, view: View) -> None:
+        """On a large roadmap, compute the shortest-path tree to a new view in a background
+        thread (from a snapshot; about a second at 1e6 vertices), so that the first return
+        to it plans in milliseconds and the control loop never waits for a full search."""
+        if self.roadmap.n_vertices < 20_000:
+            return  # a first plan is fast enough on a small roadmap
+        job = self.roadmap.tree_job(view)
+
+        def run() -> None:
+            tree = job()
+            self._submit(lambda: self.roadmap.install_tree(view, tree))
+
+        threading.Thread(target=run, name="icenav-plan-prepare", daemon=True).start()
 
     def _start_goto(self, name: str) -> None:
         try:
@@ -888,13 +913,23 @@ class Controller:
 
     # --- publishing -----------------------------------------------------------------------
 
-    def _record(self, event: str, payload: dict[str, Any]) -> None:
+    def _record(self, event: str, payload: dict[str, Any]) -> bool:
+        """Hand ``event`` to the recorder; False (and a message) when it failed."""
         if self._recorder is None:
-            return
+            return True
         try:
             self._recorder(event, payload)
         except IcenavError as exc:
             self._message = f"could not record {event}: {exc}"
+            return False
+        return True
+
+    def _operator_message(self) -> str:
+        """The latest message; in FAULT / ESTOP the cause stays in front until reset."""
+        fault = self._fault_message
+        if self._mode not in (Mode.FAULT, Mode.ESTOP) or not fault or self._message == fault:
+            return self._message
+        return f"{fault} (then: {self._message})"
 
     def _make_state(self) -> ControllerState:
         g = self.config.geometry
@@ -911,10 +946,16 @@ class Controller:
         sensor = None
         tracker_status = "none"
         if self.tracker is not None:
-            frame = self.tracker.get_frame()
-            tracker_status = frame.status.name
-            if frame.sensor2tracker is not None:
-                sensor = self.tracker.config.tracker2base @ frame.sensor2tracker
+            try:
+                frame = self.tracker.get_frame()
+            except IcenavError as exc:  # reliability: the tracker is not in the control path
+                frame = None
+                tracker_status = "ERROR"
+                self._message = f"tracker error: {exc}"
+            if frame is not None:
+                tracker_status = frame.status.name
+                if frame.sensor2tracker is not None:
+                    sensor = self.tracker.config.tracker2base @ frame.sensor2tracker
         task = self._task
         return ControllerState(
             time=self._time,
@@ -929,7 +970,7 @@ class Controller:
             backbone_true=bb_true,
             sensor2base=sensor,
             tracker_status=tracker_status,
-            message=self._message,
+            message=self._operator_message(),
             progress=None if task is None else task.progress,
             progress_label="" if task is None else task.label,
             n_vertices=self.roadmap.n_vertices,

@@ -727,6 +727,13 @@ class Roadmap:
             raise PlanningError(f"goal vertex {gv} is not in the roadmap (0..{self._n - 1})")
         self._tree(gv)
 
+    def break_trace(self) -> None:
+        """The next state was not reached from the last one (a restart, a re-homed or moved
+        robot): :meth:`add` will not connect them as if the operator had travelled between
+        them; it connects the next state only to recorded states within epsilon."""
+        self._current = -1
+        self._prev_list = None
+
     def tree_job(self, goal: View | int) -> Callable[[], _PreparedTree]:
         """Snapshot the graph now and return a job that computes the shortest-path tree to
         ``goal`` from the snapshot, safe to run in another thread while :meth:`add` goes on;

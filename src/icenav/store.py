@@ -23,6 +23,7 @@ Schema (``PRAGMA user_version`` = :data:`SCHEMA_VERSION`, ``PRAGMA application_i
 
 from __future__ import annotations
 
+import functools
 import io
 import json
 import os
@@ -31,12 +32,18 @@ import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from icenav.errors import FileFormatError, StoreError, UnsupportedVersionError
+from icenav.errors import (
+    FileFormatError,
+    IcenavError,
+    PlanningError,
+    StoreError,
+    UnsupportedVersionError,
+)
 from icenav.roadmap import Roadmap, RoadmapConfig, RoadmapMetric
 from icenav.views import View, ViewLibrary
 
@@ -85,6 +92,35 @@ class Event:
     """What happened: "input", "command", "fault", "view_saved", ..."""
     data: dict[str, Any]
     """Details (JSON-serialisable)."""
+
+
+_F = TypeVar("_F", bound=Callable[..., Any])
+
+
+def _rows_checked(what: str) -> Callable[[_F], _F]:
+    """Reading ``what`` from a file whose rows were damaged (edited, half-written by another
+    tool) raises FileFormatError naming the file, not a bare ValueError / KeyError / ...
+    (reliability fix, found by fuzz/fuzz_store_rows.py)."""
+
+    def wrap(fn: _F) -> _F:
+        @functools.wraps(fn)
+        def inner(self: SessionStore, *args: Any, **kwargs: Any) -> Any:
+            try:
+                with np.errstate(invalid="raise", over="raise", divide="raise"):
+                    return fn(self, *args, **kwargs)
+            except (FileFormatError, StoreError):
+                raise
+            except (IcenavError, ValueError, TypeError, LookupError, ArithmeticError) as e:
+                if isinstance(e, IcenavError) and not isinstance(e, ValueError | PlanningError):
+                    raise
+                raise FileFormatError(f"{self.path}: the stored {what} are corrupt: {e}") from e
+            except sqlite3.Error as exc:
+                self._raise(exc, "read")
+                raise  # unreachable: _raise always raises
+
+        return inner  # type: ignore[return-value]
+
+    return wrap
 
 
 def _npy_bytes(a: NDArray[Any] | None) -> bytes | None:
@@ -173,6 +209,9 @@ class SessionStore:
         except sqlite3.DatabaseError as exc:
             self._db.close()
             self._raise(exc, "open")
+        except UnicodeDecodeError as exc:  # reliability fix: a damaged schema (fuzz_store.py)
+            self._db.close()
+            raise FileFormatError(f"{self.path} is a corrupt session file: {exc}") from exc
         self._synced_vertices = self._count("vertices")
         self._synced_edges = self._count("edges")
         self._synced_trace = self._count("trace")
@@ -249,6 +288,7 @@ class SessionStore:
         return int(row[0])
 
     @property
+    @_rows_checked("roadmap settings")
     def config(self) -> RoadmapConfig:
         """The roadmap settings stored in the file."""
         row = self._db.execute("SELECT value FROM meta WHERE key='roadmap_config'").fetchone()
@@ -269,7 +309,26 @@ class SessionStore:
         try:
             self._db.executemany(sql, rows)
         except sqlite3.Error as exc:
+            self._restart_batch()
             self._raise(exc, "write")
+
+    def _restart_batch(self) -> None:
+        """After a failed write or commit (disk full, read-only), SQLite may have rolled the
+        batch back on its own: roll back what is left, start a new batch and sync again from
+        what is on disk, so the next sync rewrites the lost rows instead of leaving a gap.
+        (reliability fix: before it, every later commit failed with "no transaction is
+        active" and the rolled-back rows were counted as synced.)"""
+        try:
+            if self._db.in_transaction:
+                self._db.execute("ROLLBACK")
+            self._db.execute("BEGIN")
+            self._synced_vertices = self._count("vertices")
+            self._synced_edges = self._count("edges")
+            self._synced_trace = self._count("trace")
+        except sqlite3.Error:
+            pass  # the original error is what the caller reports
+        self._pending = 0
+        self._pending_since = None
 
     def _queue(self, k: int) -> None:
         if k > 0:
@@ -347,6 +406,7 @@ class SessionStore:
             self._db.execute("COMMIT")
             self._db.execute("BEGIN")
         except sqlite3.Error as exc:
+            self._restart_batch()
             self._raise(exc, "commit to")
         self._pending = 0
         self._pending_since = None
@@ -407,6 +467,7 @@ class SessionStore:
 
     # --- reading --------------------------------------------------------------------------
 
+    @_rows_checked("roadmap rows")
     def load_roadmap(self) -> Roadmap:
         """Rebuild the roadmap from the committed (and pending) rows."""
         try:
@@ -423,8 +484,11 @@ class SessionStore:
         uv = np.array([(a, b) for a, b, _ in e], np.int64).reshape(-1, 2)
         w = np.array([c for _, _, c in e], np.float64)
         tr = np.array([r[0] for r in t], np.int64)
+        if not (np.all(np.isfinite(v)) and np.all(np.isfinite(w))):  # reliability fix
+            raise FileFormatError(f"{self.path}: a stored vertex or edge is not finite")
         return Roadmap.from_arrays(v, uv, w, tr, config=self.config)
 
+    @_rows_checked("views")
     def load_views(self) -> ViewLibrary:
         """All stored views, in the order they were saved."""
         lib = ViewLibrary()
@@ -448,11 +512,13 @@ class SessionStore:
             )
         return lib
 
+    @_rows_checked("calibrations")
     def calibrations(self) -> dict[str, tuple[str, dict[str, Any], float]]:
         """Stored calibrations: name -> (kind, data, created_s)."""
         rows = self._db.execute("SELECT name, kind, data, created_s FROM calibrations").fetchall()
         return {r[0]: (r[1], json.loads(r[2]), r[3]) for r in rows}
 
+    @_rows_checked("events")
     def events(self, kind: str | None = None) -> list[Event]:
         """The event log in order (optionally of one kind)."""
         sql = "SELECT seq, t, kind, data FROM events"

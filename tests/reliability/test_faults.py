@@ -8,7 +8,6 @@ what was recorded stays readable.
 
 from __future__ import annotations
 
-import sqlite3
 import threading
 import time
 import uuid
@@ -334,6 +333,7 @@ def test_store_failure_is_reported_robot_stays_safe_file_stays_consistent(
     ctrl.save_view("during")
     clock.t += ctrl.config.dt
     state = ctrl.step()
+    assert "view 'during' saved in memory only, NOT on disk" in state.message
     assert "could not record" in state.message
     assert ("full" in state.message) if fault == "disk_full" else ("read-only" in state.message)
     assert state.mode in (Mode.KNOB, Mode.IDLE)
@@ -386,17 +386,15 @@ def test_store_recovers_after_a_transient_disk_full(tmp_path: Path) -> None:
         assert [v.name for v in reopened.load_views()] == ["after"]
 
 
-def test_session_file_that_is_not_writable_at_start_is_a_clear_error(tmp_path: Path) -> None:
+def test_session_file_that_cannot_be_opened_is_a_clear_error(tmp_path: Path) -> None:
     from icenav.errors import StoreError
 
-    d = tmp_path / "ro"
-    d.mkdir()
-    path = d / "s.icenav"
-    SessionStore(path).close()
-    with sqlite3.connect(path) as db:
-        db.execute("PRAGMA user_version=1")
-    with pytest.raises(StoreError, match="does not exist"):
-        SessionStore(d / "missing.icenav", read_only=True)
+    with pytest.raises(StoreError, match="cannot open session file .* read-only: it does not"):
+        SessionStore(tmp_path / "missing.icenav", read_only=True)
+    with pytest.raises(StoreError, match="cannot open session file"):
+        SessionStore(tmp_path / "no such dir" / "s.icenav")
+    with pytest.raises(StoreError, match="cannot open session file"):
+        make_sim_controller(imaging=False, session=tmp_path / "no such dir" / "s.icenav")
 
 
 # ------------------------------------------------------------------ emulated CANopen drives

@@ -18,6 +18,7 @@ named ``browser-<id>``). The gamepad always wins; the controller enforces that.
 from __future__ import annotations
 
 import contextlib
+import hmac
 import threading
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -98,6 +99,10 @@ class _ClientPanel:
         gui = client.gui
         c = console
         self.note = gui.add_markdown("", order=1.0)
+        self.authorised = console.control_token is None
+        self.token = None
+        if console.control_token is not None:  # reliability: part 4 (security)
+            self.token = gui.add_text("Control token", initial_value="", order=1.05)
         self.take = gui.add_button("Take control", order=1.1)
         self.release = gui.add_button("Release control", order=1.2, visible=False)
         tabs = gui.add_tab_group(order=5.0)
@@ -183,6 +188,7 @@ class Console:
         max_roadmap_points: int = 5000,
         jog_hz: float = 20.0,
         status_hz: float = 10.0,
+        control_token: str | None = None,
     ):
         if not (0 < refresh_hz <= 120):
             raise ConfigurationError(f"refresh_hz must be in (0, 120] Hz, got {refresh_hz}")
@@ -197,6 +203,9 @@ class Console:
         if not 0 <= port <= 65535:
             raise ConfigurationError(f"port must be in [0, 65535], got {port}")
         self.controller = controller
+        self.control_token = control_token
+        """When set, a browser controls (moves, saves, ...) only after entering it; viewing,
+        Stop and E-STOP need no token."""
         self.host = host
         self.requested_port = port
         self.refresh_hz = refresh_hz
@@ -421,7 +430,7 @@ class Console:
 
     def _on_connect(self, client: Any) -> None:
         panel = _ClientPanel(self, client)
-        c = self.controller
+        c: Any = self.controller if panel.authorised else _TokenGate(self.controller, panel)
         name = panel.name
 
         def ok(ev: Any) -> bool:
@@ -429,6 +438,12 @@ class Console:
 
         @panel.take.on_click
         def _(ev: Any) -> None:
+            if not panel.authorised and panel.token is not None and self.control_token:
+                given = str(panel.token.value).strip().encode()
+                panel.authorised = hmac.compare_digest(given, self.control_token.encode())
+                if not panel.authorised:
+                    panel.note.content = "**Wrong control token**: viewing only."
+                    return
             c.acquire_control(name)
 
         @panel.release.on_click
@@ -479,7 +494,7 @@ class Console:
             state = self._last_state
             if state is not None:
                 self._update_panel(panel, state)
-        if state is None or state.control_owner is None:
+        if panel.authorised and (state is None or state.control_owner is None):
             c.acquire_control(name)
 
     def _on_disconnect(self, client: Any) -> None:
@@ -686,6 +701,30 @@ class Console:
         p.thumb.image = gray_to_rgb(frame.pixels, max_width=200)
         p.thumb.visible = True
         p.thumb_note.visible = False
+
+
+class _TokenGate:
+    """The controller as a browser without the control token sees it: every request that
+    moves or changes something is dropped until the browser entered the token; Stop and
+    E-STOP always pass (reliability: part 4, security)."""
+
+    _ANYONE = frozenset({"stop", "estop", "snapshot", "latest_image", "view_image"})
+
+    def __init__(self, controller: ControllerCommands, panel: _ClientPanel):
+        self._controller = controller
+        self._panel = panel
+
+    def __getattr__(self, name: str) -> Any:
+        target = getattr(self._controller, name)
+        if name in self._ANYONE or not callable(target):
+            return target
+
+        def gated(*args: Any, **kwargs: Any) -> Any:
+            if self._panel.authorised:
+                return target(*args, **kwargs)
+            return False
+
+        return gated
 
 
 def _next_name(name: str) -> str:

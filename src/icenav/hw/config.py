@@ -324,8 +324,10 @@ def load_robot_config(path: str | Path) -> RobotConfig:
     try:
         with p.open("rb") as fh:
             data = tomllib.load(fh)
-    except tomllib.TOMLDecodeError as exc:
-        raise FileFormatError(f"{p}: not a valid TOML file: {exc}") from exc
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+        raise FileFormatError(f"{p}: not a valid TOML file (UTF-8): {exc}") from exc
+    except OSError as exc:
+        raise FileFormatError(f"cannot read robot configuration {p}: {exc}") from exc
     return RobotConfig.from_mapping(data, base_dir=p.parent)
 
 

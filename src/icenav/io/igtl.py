@@ -31,6 +31,7 @@ pyigtl's behaviour that shapes this design:
 from __future__ import annotations
 
 import enum
+import hmac
 import json
 import logging
 import signal
@@ -122,12 +123,21 @@ class IgtlConfig:
     """Commands accepted from clients; the empty default accepts none."""
     poll_period_s: float = 0.01
     """How often incoming commands are polled (s)."""
+    token: str = ""
+    """When set, a command is accepted only as ``<token> <command> [argument]`` (required
+    when the bridge is exposed beyond loopback)."""
 
     def __post_init__(self) -> None:
         if not 0 <= self.port <= 65535:
             raise InvalidValueError(f"port must be in [0, 65535], got {self.port}")
         if not self.poll_period_s > 0:
             raise InvalidValueError(f"poll_period_s must be > 0 s, got {self.poll_period_s} s")
+        if not self.local_only and self.accepted_commands and len(self.token) < 16:
+            raise InvalidValueError(
+                "commands on an exposed OpenIGTLink bridge need a token of >= 16 characters"
+            )
+        if any(c.isspace() for c in self.token):
+            raise InvalidValueError("the OpenIGTLink command token must not contain spaces")
 
 
 def check_device_name(name: str) -> str:
@@ -287,6 +297,12 @@ class IgtlBridge:
                 logger.exception("OpenIGTLink command handling failed")
 
     def _handle_command(self, text: str, timestamp: float) -> None:
+        if self.config.token:  # reliability: part 4 (security); the token is never echoed
+            given, _, rest = text.strip().partition(" ")
+            if not hmac.compare_digest(given.encode(), self.config.token.encode()):
+                self._reject("<redacted>", "missing or wrong token")
+                return
+            text = rest
         word, _, argument = text.strip().partition(" ")
         try:
             command = IgtlCommand(word.lower())

@@ -152,20 +152,36 @@ def load_mapping(path: str | Path) -> JoystickMapping:
         data = tomllib.loads(p.read_text(encoding="utf-8"))
     except OSError as exc:
         raise FileFormatError(f"cannot read joystick mapping {p}: {exc}") from exc
-    except tomllib.TOMLDecodeError as exc:
-        raise FileFormatError(f"joystick mapping {p} is not valid TOML: {exc}") from exc
-    table: dict[str, Any] = data.get("joystick", data)
-    known = {f.name for f in fields(JoystickMapping)}
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+        raise FileFormatError(f"joystick mapping {p} is not valid TOML (UTF-8): {exc}") from exc
+    table = data.get("joystick", data)
+    if not isinstance(table, dict):
+        raise FileFormatError(f"joystick mapping {p}: [joystick] must be a table, got {table!r}")
+    types = {f.name: f.type for f in fields(JoystickMapping)}
     kwargs: dict[str, Any] = {}
     for key, value in table.items():
         name = key
         if key.endswith("_deg") and key[:-4] in ("knob_rate", "roll_rate"):
-            name, value = key[:-4], math.radians(float(value))
-        if name not in known:
+            name = key[:-4]
+            if isinstance(value, bool) or not isinstance(value, int | float):
+                raise FileFormatError(f"joystick mapping {p}: {key} must be a number (deg/s)")
+            value = math.radians(float(value))
+        if name not in types:
             raise FileFormatError(
-                f"joystick mapping {p}: unknown key {key!r}; known keys: {sorted(known)}"
+                f"joystick mapping {p}: unknown key {key!r}; known keys: {sorted(types)}"
             )
-        kwargs[name] = tuple(value) if name == "invert" else value
+        expected = types[name]
+        if name == "invert":
+            if not (isinstance(value, list) and all(isinstance(v, bool) for v in value)):
+                raise FileFormatError(f"joystick mapping {p}: invert must be 4 booleans")
+            value = tuple(value)
+        elif expected == "int" and (isinstance(value, bool) or not isinstance(value, int)):
+            raise FileFormatError(f"joystick mapping {p}: {key} must be an integer index")
+        elif expected == "float" and (
+            isinstance(value, bool) or not isinstance(value, int | float)
+        ):
+            raise FileFormatError(f"joystick mapping {p}: {key} must be a number")
+        kwargs[name] = value
     return JoystickMapping(**kwargs)
 
 

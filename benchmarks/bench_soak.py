@@ -1,0 +1,67 @@
+"""The soak, shortened to 10 simulated minutes (issue 9; the full 4 h is `make soak`).
+
+Baseline, in the same run: the controller's cycle without a session store (the same
+operator for 30 simulated seconds), to show what recording costs per cycle.
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from benchmarks.common import Result
+from icenav.soak import CYCLE_TARGET_S, PLAN_TARGET_S, SoakConfig, run_soak
+
+
+def _cycle_without_store(seconds: float = 30.0) -> float:
+    from icenav.app import make_sim_controller
+
+    t = [0.0]
+    built = make_sim_controller(imaging=False, clock=lambda: t[0])
+    ctrl = built.controller
+    rng = np.random.default_rng(0)
+    times = []
+    v = np.zeros(4)
+    for _ in range(int(seconds * ctrl.config.rate_hz)):
+        v = np.clip(0.98 * v + 0.05 * rng.normal(0, 1, 4), -1, 1)
+        ctrl.jog(v * [0.4, 0.4, 0.6, 4.0], "knob")
+        t[0] += ctrl.config.dt
+        t0 = time.perf_counter()
+        ctrl.step()
+        times.append(time.perf_counter() - t0)
+    built.close()
+    return float(np.percentile(times, 99)) * 1e3
+
+
+def main() -> list[Result]:
+    r = run_soak(SoakConfig(duration_s=600.0, view_every_s=60.0, return_every_s=90.0))
+    base = _cycle_without_store()
+    return [
+        Result(
+            "soak 10 min: cycle p99 (no plan)",
+            r.cycle_p99_no_plan_ms,
+            "ms",
+            base,
+            "same operator, no store (p99)",
+            f"<= {CYCLE_TARGET_S * 1e3:g} ms",
+            r.cycle_within_target,
+        ),
+        Result("soak 10 min: cycle max (no plan)", r.cycle_max_no_plan_ms, "ms"),
+        Result(
+            "soak 10 min: plan max",
+            r.plan_max_ms,
+            "ms",
+            target=f"<= {PLAN_TARGET_S * 1e3:g} ms",
+            met=r.plan_within_target,
+        ),
+        Result("soak 10 min: speed-up over real time", r.simulated_s / r.wall_s, "x"),
+        Result("soak 10 min: RSS growth after 1 min", r.rss_end_mb - r.rss_start_mb, "MB"),
+        Result("soak 10 min: roadmap vertices", float(r.roadmap_vertices), "vertices"),
+        Result(
+            "soak 10 min: store consistent",
+            float(r.store_consistent),
+            "bool",
+            met=r.store_consistent,
+        ),
+    ]

@@ -1,0 +1,366 @@
+"""Fuzz targets for icenav's loaders and parsers, shared by the atheris harnesses
+(``fuzz/fuzz_*.py``) and by the seeded-mutation test (``tests/reliability/``).
+
+Each target takes raw bytes, feeds them to one loader or parser the way a file or a client
+would, and returns normally when the input was accepted or rejected with an
+:class:`~icenav.errors.IcenavError`. Anything else (another exception, a crash, a hang) is a
+bug the fuzzer reports. Accepted results are also checked for the loader's own invariants.
+
+``SEEDS`` holds valid inputs of each kind; :func:`mutate` derives inputs from them the way
+a byte-level fuzzer does (flips, insertions, deletions, truncation, splices, interesting
+values), so the corpus test needs no atheris.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import math
+import os
+import random
+import sqlite3
+import tempfile
+from collections.abc import Callable
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from icenav.errors import IcenavError
+
+if TYPE_CHECKING:
+    from icenav.io.igtl import IgtlBridge
+
+__all__ = ["SEEDS", "TARGETS", "mutate", "seed_inputs"]
+
+_EXAMPLES = Path(__file__).resolve().parent.parent / "examples"
+
+
+def _tmp(data: bytes, suffix: str) -> Path:
+    fd, name = tempfile.mkstemp(suffix=suffix, prefix="icenav-fuzz-")
+    with os.fdopen(fd, "wb") as fh:
+        fh.write(data)
+    return Path(name)
+
+
+def _remove(path: Path) -> None:
+    for p in (path, Path(str(path) + "-wal"), Path(str(path) + "-shm")):
+        p.unlink(missing_ok=True)
+
+
+# ------------------------------------------------------------------ targets
+
+
+def target_store(data: bytes) -> None:
+    """A session file from disk: open, load roadmap, views, calibrations and events."""
+    from icenav.store import SessionStore
+
+    path = _tmp(data, ".icenav")
+    try:
+        try:
+            with SessionStore(path) as store:
+                rm = store.load_roadmap()
+                views = store.load_views()
+                store.calibrations()
+                store.events()
+        except IcenavError:
+            return
+        # accepted: the roadmap refers only to its own vertices, views hold finite states
+        uv, w = rm.edges()
+        assert uv.size == 0 or (uv.min() >= 0 and uv.max() < rm.n_vertices)
+        assert np.all(np.isfinite(rm.vertices()))
+        for v in views:
+            assert np.all(np.isfinite(v.q)) and v.name.strip()
+    finally:
+        _remove(path)
+
+
+_COLUMNS = {
+    "vertices": ("id", "phi1", "phi2", "phi3", "d4"),
+    "edges": ("u", "v", "w"),
+    "trace": ("seq", "vertex"),
+    "views": (
+        "name",
+        "vertex",
+        "phi1",
+        "d4",
+        "created_s",
+        "arrival",
+        "approach",
+        "tip2base",
+        "thumbnail",
+        "notes",
+        "ordinal",
+    ),
+    "meta": ("key", "value"),
+    "events": ("t", "kind", "data"),
+    "calibrations": ("kind", "data", "created_s"),
+}
+_VALUES: tuple[object, ...] = (
+    None,
+    -1,
+    0,
+    2**62,
+    1e308,
+    -1e308,
+    "x",
+    "",
+    "[1, 2",
+    "{}",
+    "[]",
+    "[0, 0, 0]",
+    b"\x00",
+    b"\x93NUMPY",
+    "\u202e",
+    3.5,
+    "inf",
+    '{"epsilon": -1}',
+    "nan",
+)
+
+
+def target_store_rows(data: bytes) -> None:
+    """A well-formed SQLite session whose rows were edited: every byte triple of ``data``
+    sets one cell (table, column, row) to an awkward value, then the file is loaded."""
+    path = _tmp(_store_seed_cached(), ".icenav")
+    try:
+        with sqlite3.connect(path) as db:
+            tables = list(_COLUMNS)
+            for i in range(0, len(data) - 2, 3):
+                table = tables[data[i] % len(tables)]
+                cols = _COLUMNS[table]
+                col = cols[data[i + 1] % len(cols)]
+                value = _VALUES[data[i + 2] % len(_VALUES)]
+                offset = data[i + 2] // len(_VALUES)
+                # NOT NULL / WITHOUT ROWID / unique refused: the file keeps its old cell
+                with contextlib.suppress(sqlite3.DatabaseError):
+                    db.execute(
+                        f"UPDATE {table} SET {col}=? WHERE rowid = "
+                        f"(SELECT rowid FROM {table} LIMIT 1 OFFSET ?)",
+                        (value, offset),
+                    )
+        target_store(path.read_bytes())
+    finally:
+        _remove(path)
+
+
+_STORE_SEED: list[bytes] = []
+
+
+def _store_seed_cached() -> bytes:
+    if not _STORE_SEED:
+        _STORE_SEED.append(_store_seed())
+    return _STORE_SEED[0]
+
+
+def target_robot_config(data: bytes) -> None:
+    """A robot configuration TOML file (hw.config.load_robot_config)."""
+    from icenav.hw.config import load_robot_config
+
+    path = _tmp(data, ".toml")
+    try:
+        try:
+            cfg = load_robot_config(path)
+        except IcenavError:
+            return
+        assert len(cfg.joints) == 4 and len(cfg.motors) >= 4
+    finally:
+        _remove(path)
+
+
+def target_joystick_mapping(data: bytes) -> None:
+    """A gamepad mapping TOML file (io.joystick.load_mapping)."""
+    from icenav.io.joystick import load_mapping
+
+    path = _tmp(data, ".toml")
+    try:
+        try:
+            m = load_mapping(path)
+        except IcenavError:
+            return
+        assert 0.0 <= m.deadzone < 1.0 and math.isfinite(m.knob_rate) and m.knob_rate > 0
+    finally:
+        _remove(path)
+
+
+def target_calibration(data: bytes) -> None:
+    """A calibration file (compensation.CalibrationSet.load)."""
+    from icenav.compensation import CalibrationSet
+
+    path = _tmp(data, ".json")
+    try:
+        try:
+            cal = CalibrationSet.load(path)
+        except IcenavError:
+            return
+        assert np.all(np.isfinite(cal.q_motor)) and np.all(np.isfinite(cal.tip2base))
+    finally:
+        _remove(path)
+
+
+def target_igtl_command(data: bytes) -> None:
+    """An OpenIGTLink command STRING as a client sends it (io.igtl IgtlBridge)."""
+    from icenav.io.igtl import IgtlCommand, IgtlRequest
+
+    text = data.decode("utf-8", errors="replace")
+    got: list[IgtlRequest] = []
+    bridge = _offline_bridge(got.append)
+    bridge._handle_command(text, 0.0)  # noqa: SLF001 - the parser without a socket
+    assert len(got) + len(bridge.rejected) == 1
+    for req in got:
+        assert isinstance(req.command, IgtlCommand)
+        assert req.argument == req.argument.strip()
+        assert req.command is IgtlCommand.STOP or req.argument
+
+
+def _offline_bridge(on_command: Callable[..., None]) -> IgtlBridge:
+    """An IgtlBridge with every command enabled and no server: only its parser runs."""
+    from icenav.io.igtl import IgtlBridge, IgtlCommand, IgtlConfig
+
+    bridge = IgtlBridge.__new__(IgtlBridge)
+    bridge.config = IgtlConfig(accepted_commands=frozenset(IgtlCommand))
+    bridge.rejected = []
+    bridge._closed = True  # noqa: SLF001 - no server to acknowledge on
+    bridge._on_command = on_command  # noqa: SLF001
+    return bridge
+
+
+TARGETS: dict[str, Callable[[bytes], None]] = {
+    "store": target_store,
+    "store_rows": target_store_rows,
+    "robot_config": target_robot_config,
+    "joystick_mapping": target_joystick_mapping,
+    "calibration": target_calibration,
+    "igtl_command": target_igtl_command,
+}
+"""name -> target; ``fuzz/fuzz_<name>.py`` runs each under atheris."""
+
+
+# ------------------------------------------------------------------ seeds
+
+
+def _store_seed() -> bytes:
+    from icenav.roadmap import Roadmap
+    from icenav.store import SessionStore
+
+    rng = np.random.default_rng(7)
+    rm = Roadmap(epsilon=2.0)
+    q = np.zeros(4)
+    for _ in range(60):
+        q = q + rng.normal(0, [0.02, 0.02, 0.03, 0.4])
+        rm.add(np.clip(q, [-1.5, -1.5, -6, -45], [1.5, 1.5, 6, 45]))
+    view = rm.make_view("apex", created_s=1.0, q=rm.vertices()[-1])
+    fd, name = tempfile.mkstemp(suffix=".icenav", prefix="icenav-seed-")
+    os.close(fd)
+    path = Path(name)
+    path.unlink()
+    try:
+        with SessionStore(path) as store:
+            store.sync_roadmap(rm)
+            store.add_view(view, rm)
+            store.log_event(1.0, "fault", {"text": "drive 2"})
+            store.save_calibration("c", "dense", {"n": 1}, 2.0)
+        with sqlite3.connect(path) as db:  # one self-contained file, no WAL beside it
+            db.execute("PRAGMA journal_mode=DELETE")
+        return path.read_bytes()
+    finally:
+        _remove(path)
+
+
+def _calibration_seed() -> bytes:
+    from icenav.kinematics import forward
+
+    q = np.array([[0.1, 0.0, 0.0, 0.0], [0.0, 0.2, 0.1, 1.0], [0.3, -0.2, 0.0, 2.0]])
+    doc = {
+        "format": "icenav.calibration",
+        "version": 1,
+        "catheter_id": "seed",
+        "vessel": "straight",
+        "created": "2026-01-01",
+        "method": "dense",
+        "notes": "",
+        "q_motor": q.tolist(),
+        "tip2base": forward(q).tolist(),
+    }
+    return json.dumps(doc, indent=1).encode()
+
+
+_JOYSTICK_SEED = b"""[joystick]
+axis_phi1 = 1
+axis_phi2 = 0
+invert = [true, false, false, true]
+deadzone = 0.1
+knob_rate_deg = 30
+roll_rate_deg = 45.0
+translation_rate = 5.0
+enable_button = 4
+"""
+
+_IGTL_SEEDS = [b"stop", b"save_view aortic valve", b"go_to_view apex", b"GO_TO_VIEW  x "]
+
+
+def seed_inputs(name: str) -> list[bytes]:
+    """Valid inputs for target ``name``."""
+    if name == "store":
+        return [_store_seed_cached()]
+    if name == "store_rows":
+        return [bytes([0, 1, 200]), bytes([3, 5, 6, 3, 6, 7]), bytes(range(0, 60, 1))]
+    if name == "robot_config":
+        return [(_EXAMPLES / "robot.toml").read_bytes()]
+    if name == "joystick_mapping":
+        return [_JOYSTICK_SEED, b""]
+    if name == "calibration":
+        return [_calibration_seed()]
+    if name == "igtl_command":
+        return list(_IGTL_SEEDS)
+    raise KeyError(name)
+
+
+SEEDS = tuple(TARGETS)
+"""Names of the targets that have seeds (all)."""
+
+_INTERESTING = [
+    b"\x00",
+    b"\xff",
+    b"nan",
+    b"inf",
+    b"-1",
+    b"1e309",
+    b"9" * 30,
+    b'"',
+    b"[",
+    b"]]",
+    b"{",
+    b"=",
+    b"\n",
+    b"\x1b[2J",
+    b"../../etc/passwd",
+    "\u202e".encode(),
+]
+
+
+def mutate(data: bytes, rng: random.Random, n_ops: int = 3) -> bytes:
+    """``data`` after ``n_ops`` random byte-level mutations."""
+    b = bytearray(data)
+    for _ in range(n_ops):
+        op = rng.randrange(7)
+        pos = rng.randrange(len(b) + 1)
+        if op == 0 and b:  # flip bits
+            i = min(pos, len(b) - 1)
+            b[i] ^= 1 << rng.randrange(8)
+        elif op == 1:  # insert random bytes
+            b[pos:pos] = bytes(rng.randrange(256) for _ in range(rng.randrange(1, 8)))
+        elif op == 2 and b:  # delete a run
+            del b[pos : pos + rng.randrange(1, 16)]
+        elif op == 3:  # truncate
+            del b[pos:]
+        elif op == 4:  # interesting token
+            b[pos:pos] = rng.choice(_INTERESTING)
+        elif op == 5 and b:  # duplicate a chunk elsewhere (splice)
+            j = rng.randrange(len(b))
+            chunk = bytes(b[j : j + rng.randrange(1, 64)])
+            b[pos:pos] = chunk
+        elif b:  # overwrite a byte with a boundary value
+            i = min(pos, len(b) - 1)
+            b[i] = rng.choice([0, 1, 0x7F, 0x80, 0xFF, ord("0"), ord("-")])
+    return bytes(b)

@@ -1,0 +1,196 @@
+"""Security defaults: loopback binding, OpenIGTLink commands off unless enabled, a token for
+commands when exposed, and client strings that never become paths."""
+
+from __future__ import annotations
+
+import inspect
+
+import pytest
+
+from icenav.errors import InvalidValueError
+from icenav.io.igtl import IgtlBridge, IgtlCommand, IgtlConfig, IgtlRequest
+
+TOKEN = "s3cret-token-0123456789"
+
+
+def _bridge(config: IgtlConfig) -> tuple[IgtlBridge, list[IgtlRequest]]:
+    got: list[IgtlRequest] = []
+    bridge = IgtlBridge.__new__(IgtlBridge)
+    bridge.config = config
+    bridge.rejected = []
+    bridge._closed = True  # noqa: SLF001 - the parser only, no socket
+    bridge._on_command = got.append  # noqa: SLF001
+    return bridge, got
+
+
+def test_defaults_bind_loopback_and_accept_no_commands() -> None:
+    from icenav.console.app import Console
+    from icenav.demo import _parser
+
+    cfg = IgtlConfig()
+    assert cfg.local_only and cfg.accepted_commands == frozenset() and cfg.token == ""
+    assert inspect.signature(Console).parameters["host"].default == "127.0.0.1"
+    assert _parser().parse_args([]).host == "127.0.0.1"
+
+
+def test_real_bridge_listens_on_loopback_only() -> None:
+    with IgtlBridge(IgtlConfig(port=0)) as bridge:
+        assert bridge.host == "127.0.0.1"
+        bridge._handle_command("stop", 0.0)  # noqa: SLF001
+        assert bridge.rejected == ["stop"]  # commands are off by default
+
+
+def test_commands_need_the_token_when_one_is_set() -> None:
+    bridge, got = _bridge(IgtlConfig(accepted_commands=frozenset(IgtlCommand), token=TOKEN))
+    for text in ["stop", "wrong stop", f"{TOKEN}x stop", f" {TOKEN[:-1]} stop", ""]:
+        bridge._handle_command(text, 0.0)  # noqa: SLF001
+    assert got == []
+    assert all(r == "<redacted>" for r in bridge.rejected)  # the guess is not logged
+    bridge._handle_command(f"{TOKEN} go_to_view apex", 1.0)  # noqa: SLF001
+    assert got == [IgtlRequest(IgtlCommand.GO_TO_VIEW, "apex", 1.0)]
+
+
+def test_exposed_bridge_with_commands_needs_a_strong_token() -> None:
+    cmds = frozenset({IgtlCommand.STOP})
+    with pytest.raises(InvalidValueError, match="need a token of >= 16 characters"):
+        IgtlConfig(local_only=False, accepted_commands=cmds)
+    with pytest.raises(InvalidValueError, match="need a token"):
+        IgtlConfig(local_only=False, accepted_commands=cmds, token="short")
+    with pytest.raises(InvalidValueError, match="must not contain spaces"):
+        IgtlConfig(token="two words here!!")
+    IgtlConfig(local_only=False, accepted_commands=cmds, token=TOKEN)  # accepted
+    IgtlConfig(local_only=False)  # streaming only, no commands: no token needed
+
+
+def test_view_names_from_igtl_are_passed_as_data() -> None:
+    bridge, got = _bridge(IgtlConfig(accepted_commands=frozenset(IgtlCommand)))
+    bridge._handle_command("save_view ../../../tmp/evil", 0.0)  # noqa: SLF001
+    assert got[0].argument == "../../../tmp/evil"  # a name; the controller never opens it
+
+
+# ------------------------------------------------------------------ the console's token
+
+
+class _Handle:
+    """Stands in for a viser GUI handle: keeps its value and the callbacks given to it."""
+
+    def __init__(self, *args: object, **kwargs: object) -> None:
+        self.value = kwargs.get("initial_value", "")
+        self.callbacks: list[object] = []
+
+    def on_click(self, fn: object) -> object:
+        self.callbacks.append(fn)
+        return fn
+
+    on_update = on_click
+
+    def on_hold(self, fn: object, callback_hz: float = 0.0) -> object:
+        return self.on_click(fn)
+
+    def click(self) -> None:
+        class Ev:
+            client = object()
+            client_id = 1
+
+        for fn in self.callbacks:
+            fn(Ev())  # type: ignore[operator]
+
+    def add_tab(self, *args: object, **kwargs: object) -> _Tab:
+        return _Tab()
+
+
+class _Tab:
+    def __enter__(self) -> None:
+        return None
+
+    def __exit__(self, *exc: object) -> None:
+        return None
+
+
+class _Gui:
+    def __getattr__(self, name: str) -> object:
+        return _Handle
+
+
+class _Client:
+    def __init__(self, client_id: int) -> None:
+        self.client_id = client_id
+        self.gui = _Gui()
+
+
+def test_console_browser_needs_the_token_to_control_but_not_to_stop() -> None:
+    from icenav.console.app import Console, _TokenGate
+    from icenav.controller import Controller, ControllerConfig
+    from icenav.hw.sim import IdealPlant, SimulatedRobot
+    from icenav.state import Mode
+
+    ctrl = Controller(SimulatedRobot(IdealPlant()), ControllerConfig())
+    console = Console(ctrl, host="0.0.0.0", port=0, control_token=TOKEN)
+    console._on_connect(_Client(1))  # noqa: SLF001 - the connection handler, no server
+    panel = console._panels[1]  # noqa: SLF001
+    ctrl.step()
+    assert ctrl.snapshot().control_owner is None  # not taken on connect without the token
+    panel.spin.click()
+    panel.save.click()
+    assert ctrl.step().mode is Mode.IDLE and ctrl.snapshot().views == ()
+    assert panel.token is not None
+    panel.token.value = "guess"
+    panel.take.click()
+    assert ctrl.step().control_owner is None and "Wrong control token" in panel.note.content
+    panel.token.value = TOKEN
+    panel.take.click()
+    state = ctrl.step()
+    assert state.control_owner == panel.name
+    panel.save.click()
+    assert len(ctrl.step().views) == 1  # the name field moved on after the refused save
+    # a second browser without the token can still stop everything
+    console._on_connect(_Client(2))  # noqa: SLF001
+    other = console._panels[2]  # noqa: SLF001
+    assert not other.authorised
+    gate = _TokenGate(ctrl, other)
+    assert gate.acquire_control(other.name) is False
+    gate.estop(client=other.name)
+    assert ctrl.step().mode is Mode.ESTOP
+
+
+def test_console_on_loopback_needs_no_token() -> None:
+    from icenav.console.app import Console
+    from icenav.controller import Controller, ControllerConfig
+    from icenav.demo import control_token_for
+    from icenav.hw.sim import IdealPlant, SimulatedRobot
+
+    assert control_token_for("127.0.0.1") is None
+    t1, t2 = control_token_for("0.0.0.0"), control_token_for("0.0.0.0")
+    assert t1 and t2 and t1 != t2 and len(t1) >= 16
+    ctrl = Controller(SimulatedRobot(IdealPlant()), ControllerConfig())
+    console = Console(ctrl, port=0)
+    console._on_connect(_Client(1))  # noqa: SLF001
+    assert console._panels[1].token is None and console._panels[1].authorised  # noqa: SLF001
+    assert ctrl.step().control_owner == console._panels[1].name  # noqa: SLF001
+
+
+def test_console_disconnect_mid_jog_releases_control_and_the_robot_stops() -> None:
+    """(A fault test, here beside the fake viser client it needs.)"""
+    import numpy as np
+
+    from icenav.console.app import Console
+    from icenav.controller import Controller, ControllerConfig
+    from icenav.hw.sim import IdealPlant, SimulatedRobot
+
+    ctrl = Controller(SimulatedRobot(IdealPlant()), ControllerConfig())
+    console = Console(ctrl, port=0)
+    client = _Client(7)
+    console._on_connect(client)  # noqa: SLF001
+    panel = console._panels[7]  # noqa: SLF001
+    assert ctrl.step().control_owner == panel.name
+    q0 = ctrl.snapshot().q_motor.copy()
+    ctrl.jog([0.0, 0.0, 0.0, 2.0], "knob", client=panel.name)  # what a held jog button sends
+    ctrl.run_cycles(2)  # the encoders show the command one cycle later
+    assert not np.array_equal(ctrl.snapshot().q_motor, q0)
+    console._last_state = ctrl.snapshot()  # noqa: SLF001 - what the refresh thread keeps
+    console._on_disconnect(client)  # noqa: SLF001 - the browser tab is closed mid-jog
+    ctrl.step()
+    held = ctrl.step().q_motor.copy()
+    for _ in range(30):
+        np.testing.assert_array_equal(ctrl.step().q_motor, held)
+    assert ctrl.snapshot().control_owner is None and 7 not in console._panels  # noqa: SLF001

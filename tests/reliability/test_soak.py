@@ -1,0 +1,41 @@
+"""The shortened soak (2 simulated minutes; the full 4 h runs in `make soak`)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from icenav.errors import ConfigurationError
+from icenav.soak import SoakConfig, main, run_soak
+
+
+@pytest.mark.slow
+def test_short_soak_keeps_store_consistent_and_memory_bounded(tmp_path: Path) -> None:
+    cfg = SoakConfig(duration_s=120.0, view_every_s=15.0, return_every_s=25.0, seed=3)
+    report = run_soak(cfg, tmp_path / "soak.icenav")
+    assert report.states == 12000
+    assert report.faults == 0
+    assert report.store_consistent
+    assert report.views_saved >= 4
+    assert report.returns_done >= 3 and report.returns_failed == 0
+    assert report.max_return_error < 1e-6  # returns end exactly on the view's motor state
+    # bounded: the deques keep at most their maxlen, the roadmap merges revisited states
+    assert report.max_deque_len <= 100_000
+    assert report.roadmap_vertices < report.states
+    assert report.roadmap_edges > report.roadmap_vertices  # a connected roadmap, not a chain
+
+
+def test_soak_settings_are_checked() -> None:
+    with pytest.raises(ConfigurationError, match="duration_s must be finite and > 0 s"):
+        SoakConfig(duration_s=float("nan"))
+    with pytest.raises(ConfigurationError, match="rate_hz"):
+        SoakConfig(rate_hz=0.0)
+
+
+@pytest.mark.parametrize("argv", [["--hours", "-1"], ["--minutes", "nan"], ["--hours", "x"]])
+def test_soak_cli_rejects_bad_durations(argv: list[str], capsys: pytest.CaptureFixture) -> None:
+    with pytest.raises(SystemExit) as info:
+        main(argv)
+    assert info.value.code == 2
+    assert "usage" in capsys.readouterr().err
