@@ -386,3 +386,32 @@ def test_pathtask_accelerations_are_bounded() -> None:
     acc = np.diff(vel, axis=0) / dt
     # within a segment the rate ramps: |a| <= v / ramp_s (corners change direction at once)
     assert np.abs(acc[:5]).max() <= (0.5 * vmax / 0.3).max() * 1.01
+
+
+def test_large_roadmap_plans_in_the_background_while_holding() -> None:
+    clock = Clock()
+    robot = SimulatedRobot(IdealPlant(), clock=clock)
+    ctrl = Controller(robot, ControllerConfig(background_plan_vertices=0), clock=clock)
+    for _ in range(80):
+        ctrl.jog([0.6, -0.3, 0.4, 3.0], "knob")
+        run(ctrl, clock, 0.01)
+    ctrl.save_view("v")
+    for _ in range(100):
+        ctrl.jog([-0.4, 0.5, -0.2, -2.0], "knob")
+        run(ctrl, clock, 0.01)
+    run(ctrl, clock, 0.5)
+    held = robot.read_state().q.copy()
+    ctrl.goto_view("v")
+    run(ctrl, clock, 0.01)
+    assert ctrl.mode is Mode.GOTO_VIEW
+    # while the thread plans, the robot holds; then it returns exactly to the view
+    state = ctrl.snapshot()
+    if state.progress == 0.0:
+        np.testing.assert_array_equal(robot.read_state().q, held)
+    for _ in range(5000):
+        clock.t += ctrl.config.dt
+        state = ctrl.step()
+        if state.mode is Mode.IDLE:
+            break
+    np.testing.assert_allclose(robot.read_state().q, ctrl.views.get("v").q, atol=1e-12)
+    assert "done" in state.message

@@ -141,6 +141,9 @@ class ControllerConfig:
     """Rate of the live ICE image (Hz), when an imager is configured."""
     backbone_points: int = 30
     """Points per drawn bending section."""
+    background_plan_vertices: int = 20_000
+    """From this roadmap size on, go-to-view plans in a background thread (the robot holds
+    meanwhile) and a new view's shortest-path tree is prepared in the background."""
     geometry: CatheterGeometry = DEFAULT_GEOMETRY
     """Catheter geometry and joint limits (the motor limits equal the model limits)."""
 
@@ -306,6 +309,54 @@ class CalibrationTask:
         self._i += 1
         self._move = None
         return target
+
+
+class _PlanningTask:
+    """Go to a view on a large roadmap: hold while a thread computes the shortest-path tree
+    on a snapshot of the graph (scipy Dijkstra, about half a second at 1e6 vertices), then
+    install it in the loop (repairing only the edges added meanwhile), plan, and follow the
+    path (a :class:`PathTask`)."""
+
+    def __init__(self, ctrl: Controller, view: View) -> None:
+        self.mode = Mode.GOTO_VIEW
+        self.label = f"go to view {view.name!r}"
+        self._ctrl = ctrl
+        self._view = view
+        self._path: PathTask | None = None
+        self.failed = False
+        """True when no path could be planned (the message says why)."""
+        self._hold = ctrl._q_cmd.copy()
+        job = ctrl.roadmap.tree_job(view)
+
+        def run() -> None:
+            prepared = job()
+            ctrl._submit(lambda: self._ready(prepared))
+
+        threading.Thread(target=run, name="icenav-plan", daemon=True).start()
+
+    def _ready(self, prepared: Any) -> None:
+        ctrl = self._ctrl
+        ctrl.roadmap.install_tree(self._view, prepared)
+        if ctrl._task is not self:
+            return  # aborted meanwhile: the tree stays cached for the next return
+        try:
+            path = ctrl.roadmap.plan(ctrl._q, self._view, approach=True)
+        except (PlanningError, InvalidValueError) as exc:
+            ctrl._message = f"cannot go to {self._view.name!r}: {exc}"
+            self.failed = True
+            return
+        self._path = ctrl._goto_task(self._view, path)
+
+    @property
+    def progress(self) -> float:
+        return 0.0 if self._path is None else self._path.progress
+
+    def next_command(self, q_measured: Array, dt: float) -> Array | None:
+        if self.failed:
+            return None
+        if self._path is None:
+            return self._hold  # planning: hold position
+        return self._path.next_command(q_measured, dt)
 
 
 @dataclass
@@ -674,9 +725,11 @@ class Controller:
                 q_next = self._task.next_command(self._q, dt)
                 if q_next is None:
                     label = self._task.label
+                    failed = bool(getattr(self._task, "failed", False))
                     self._task = None
                     self._set_mode(Mode.IDLE)
-                    self._message = f"{label}: done"
+                    if not failed:  # a failed task has said why already
+                        self._message = f"{label}: done"
                 return q_next
         if self._mode not in (Mode.KNOB, Mode.TIP) and (gamepad_moving or jog is not None):
             # any teleoperation input wakes the controller from IDLE into knob mode
@@ -792,11 +845,19 @@ class Controller:
         else:  # reliability: the operator must know the view is not on disk
             self._message = f"view {name!r} saved in memory only, NOT on disk: {self._message}"
 
+    def _goto_task(self, view: View, path: Array) -> PathTask:
+        return PathTask(
+            path,
+            np.asarray(self.config.max_velocity),
+            mode=Mode.GOTO_VIEW,
+            label=f"go to view {view.name!r}",
+        )
+
     def _prepare_plans_to(self, view: View) -> None:
         """On a large roadmap, compute the shortest-path tree to a new view in a background
         thread (from a snapshot; about a second at 1e6 vertices), so that the first return
         to it plans in milliseconds and the control loop never waits for a full search."""
-        if self.roadmap.n_vertices < 20_000:
+        if self.roadmap.n_vertices < self.config.background_plan_vertices:
             return  # a first plan is fast enough on a small roadmap
         job = self.roadmap.tree_job(view)
 
@@ -812,19 +873,19 @@ class Controller:
         except IcenavError as exc:
             self._message = str(exc)
             return
+        if self.roadmap.n_vertices >= self.config.background_plan_vertices:
+            # a large roadmap: the search runs in a thread on a snapshot while the robot
+            # holds; the control loop never waits for it
+            self._selected_view = name
+            self.start_task(_PlanningTask(self, view))
+            return
         try:
             path = self.roadmap.plan(self._q, view, approach=True)
         except (PlanningError, InvalidValueError) as exc:
             self._message = f"cannot go to {name!r}: {exc}"
             return
         self._selected_view = name
-        task = PathTask(
-            path,
-            np.asarray(self.config.max_velocity),
-            mode=Mode.GOTO_VIEW,
-            label=f"go to view {name!r}",
-        )
-        self.start_task(task)
+        self.start_task(self._goto_task(view, path))
 
     def _start_spin(self) -> None:
         """The image plane turns 360 deg about the catheter axis while the model tip stays
