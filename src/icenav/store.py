@@ -100,7 +100,7 @@ _F = TypeVar("_F", bound=Callable[..., Any])
 def _rows_checked(what: str) -> Callable[[_F], _F]:
     """Reading ``what`` from a file whose rows were damaged (edited, half-written by another
     tool) raises FileFormatError naming the file, not a bare ValueError / KeyError / ...
-    (reliability fix, found by fuzz/fuzz_store_rows.py)."""
+    (reliability fix, found by fuzz target store_rows)."""
 
     def wrap(fn: _F) -> _F:
         @functools.wraps(fn)
@@ -209,7 +209,7 @@ class SessionStore:
         except sqlite3.DatabaseError as exc:
             self._db.close()
             self._raise(exc, "open")
-        except UnicodeDecodeError as exc:  # reliability fix: a damaged schema (fuzz_store.py)
+        except UnicodeDecodeError as exc:  # reliability fix: a damaged schema (fuzz target store)
             self._db.close()
             raise FileFormatError(f"{self.path} is a corrupt session file: {exc}") from exc
         self._synced_vertices = self._count("vertices")
