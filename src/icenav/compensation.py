@@ -706,40 +706,19 @@ class ElasticityMap:
             where the real catheter cannot reach the model tip within them, F returns the
             nearest reachable pair; see ``report.unreachable_fraction``).
         """
-        lim = self._lim
-        if (
-            type(phi1) is float
-            and type(phi2) is float
-            and (
-                not check
-                or (
-                    math.isfinite(phi1)
-                    and math.isfinite(phi2)
-                    and abs(phi1) <= lim + 1e-9
-                    and abs(phi2) <= lim + 1e-9
-                )
-            )
-        ):
-            x, y = self._fwd.eval_scalar(phi1, phi2)
-            return min(max(x, -lim), lim), min(max(y, -lim), lim)
-        a, b = (
-            self._check_knobs(phi1, phi2, "model")
-            if check
-            else (
-                np.asarray(phi1, np.float64),
-                np.asarray(phi2, np.float64),
-            )
-        )
-        if a.ndim == 0 and b.ndim == 0:
-            x, y = self._fwd.eval_scalar(float(a), float(b))
-            return min(max(x, -lim), lim), min(max(y, -lim), lim)
-        xa, ya = self._fwd.eval_batch(a, b)
-        return np.clip(xa, -lim, lim), np.clip(ya, -lim, lim)
+        return self._eval(self._fwd, phi1, phi2, check, "model")
 
     def motor_to_model_knobs(
         self, phi1: ArrayLike, phi2: ArrayLike, *, check: bool = True
     ) -> tuple[Any, Any]:
         """F^-1: motor knob angles -> the model knob angles the real tip corresponds to."""
+        return self._eval(self._inv, phi1, phi2, check, "motor")
+
+    def _eval(
+        self, table: Any, phi1: ArrayLike, phi2: ArrayLike, check: bool, space: str
+    ) -> tuple[Any, Any]:
+        """Evaluate F (``self._fwd``) or F^-1 (``self._inv``), clipped to the knob limits;
+        Python floats that pass (or skip) the check take the scalar fast path."""
         lim = self._lim
         if (
             type(phi1) is float
@@ -754,20 +733,17 @@ class ElasticityMap:
                 )
             )
         ):
-            x, y = self._inv.eval_scalar(phi1, phi2)
+            x, y = table.eval_scalar(phi1, phi2)
             return min(max(x, -lim), lim), min(max(y, -lim), lim)
         a, b = (
-            self._check_knobs(phi1, phi2, "motor")
+            self._check_knobs(phi1, phi2, space)
             if check
-            else (
-                np.asarray(phi1, np.float64),
-                np.asarray(phi2, np.float64),
-            )
+            else (np.asarray(phi1, np.float64), np.asarray(phi2, np.float64))
         )
         if a.ndim == 0 and b.ndim == 0:
-            x, y = self._inv.eval_scalar(float(a), float(b))
+            x, y = table.eval_scalar(float(a), float(b))
             return min(max(x, -lim), lim), min(max(y, -lim), lim)
-        xa, ya = self._inv.eval_batch(a, b)
+        xa, ya = table.eval_batch(a, b)
         return np.clip(xa, -lim, lim), np.clip(ya, -lim, lim)
 
     def model_to_motor(self, q_model: ArrayLike, *, check: bool = True) -> Array:

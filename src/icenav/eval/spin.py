@@ -49,6 +49,7 @@ from icenav.calibration import (
     raster_grid,
 )
 from icenav.compensation import CalibrationSet, ElasticityMap, grid_subset_indices
+from icenav.eval.metrics import rotation_angle
 from icenav.hysteresis import HysteresisCompensator
 from icenav.kinematics import DEFAULT_GEOMETRY, forward
 from icenav.trajectories import savgol_smooth, spin_trajectory
@@ -178,24 +179,9 @@ def identify_in_situ(seed: int, vessel: str) -> HysteresisCompensator:
     return identify_hysteresis(plant.move, tracker).compensator
 
 
-def _rotation_angle(r_a: Array, r_b: Array) -> Array:
-    """Angle (rad) of r_a^T r_b for (..., 3, 3)."""
-    rel = np.swapaxes(r_a, -1, -2) @ r_b
-    tr = np.trace(rel, axis1=-2, axis2=-1)
-    vee = np.stack(
-        [
-            rel[..., 2, 1] - rel[..., 1, 2],
-            rel[..., 0, 2] - rel[..., 2, 0],
-            rel[..., 1, 0] - rel[..., 0, 1],
-        ],
-        axis=-1,
-    )
-    return np.arctan2(0.5 * np.linalg.norm(vee, axis=-1), 0.5 * (tr - 1.0))
-
-
 def _rmse(measured: Array, intended: Array) -> tuple[float, float]:
     pos = np.linalg.norm(measured[:, :3, 3] - intended[0, :3, 3], axis=-1)
-    rot = _rotation_angle(intended[:, :3, :3], measured[:, :3, :3])
+    rot = rotation_angle(intended[:, :3, :3], measured[:, :3, :3])
     return float(np.sqrt(np.mean(pos**2))), math.degrees(float(np.sqrt(np.mean(rot**2))))
 
 

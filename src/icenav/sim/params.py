@@ -138,6 +138,21 @@ class PlantParams:
                 )
             object.__setattr__(self, f.name, v)
 
+    def elastic_only(self) -> PlantParams:
+        """The same catheter without slack, friction or play: only its elastic statics
+        (the part the paper's compensation F can remove)."""
+        return replace(
+            self,
+            slack_ap_mm=0.0,
+            slack_rl_mm=0.0,
+            friction_coefficient=0.0,
+            seal_play_mm=0.0,
+            roll_play_rad=0.0,
+            roll_play_per_bend=0.0,
+            twist_play_per_bend=0.0,
+            translation_play_mm=0.0,
+        )
+
     @classmethod
     def nominal(cls) -> PlantParams:
         """The documented defaults (see docs/digital-twin.md)."""

@@ -344,20 +344,7 @@ def elastic_tip2base(
     elasticity (T5)-(T8). The tuning oracle (``icenav.sim.tuning``) inverts this map.
     Returns the (4, 4) tip2base (mm).
     """
-    from dataclasses import replace
-
-    p0 = replace(
-        params,
-        slack_ap_mm=0.0,
-        slack_rl_mm=0.0,
-        friction_coefficient=0.0,
-        seal_play_mm=0.0,
-        roll_play_rad=0.0,
-        roll_play_per_bend=0.0,
-        twist_play_per_bend=0.0,
-        translation_play_mm=0.0,
-    )
-    plant = CatheterPlant(params=p0, geometry=geometry)
+    plant = CatheterPlant(params=params.elastic_only(), geometry=geometry)
     plant.reset(np.array([phi1, phi2, 0.0, 0.0]))
     return plant.state.tip2base.copy()
 

@@ -16,12 +16,13 @@ These are the checks behind the twin's calibration (docs/digital-twin.md, "Calib
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
 from scipy.optimize import least_squares
 
+from icenav.eval.metrics import rotation_angle
 from icenav.kinematics import DEFAULT_GEOMETRY, CatheterGeometry, forward
 from icenav.sim.params import PlantParams
 from icenav.sim.plant import CatheterPlant
@@ -60,20 +61,6 @@ def spin_trajectory(bend_rad: float, n: int = 360) -> Array:
     return np.stack([a * np.cos(t), a * np.sin(t), -t, np.zeros_like(t)], axis=-1)
 
 
-def _angle(r_a: Array, r_b: Array) -> Array:
-    rel = np.swapaxes(r_a, -1, -2) @ r_b
-    tr = np.trace(rel, axis1=-2, axis2=-1)
-    vee = np.stack(
-        [
-            rel[..., 2, 1] - rel[..., 1, 2],
-            rel[..., 0, 2] - rel[..., 2, 0],
-            rel[..., 1, 0] - rel[..., 0, 1],
-        ],
-        axis=-1,
-    )
-    return np.arctan2(0.5 * np.linalg.norm(vee, axis=-1), 0.5 * (tr - 1.0))
-
-
 def spin_errors(
     measured_tip2base: Array,
     q_model: Array,
@@ -95,7 +82,7 @@ def spin_errors(
     m = measured_tip2base[ok]
     p0 = intended[0, :3, 3]
     pos = np.linalg.norm(m[:, :3, 3] - p0, axis=-1)
-    rot = _angle(intended[ok, :3, :3], m[:, :3, :3])
+    rot = rotation_angle(intended[ok, :3, :3], m[:, :3, :3])
     return SpinErrors(
         position_rmse_mm=float(np.sqrt(np.mean(pos**2))),
         rotation_rmse_deg=float(np.degrees(np.sqrt(np.mean(rot**2)))),
@@ -103,18 +90,7 @@ def spin_errors(
 
 
 def _elastic_plant(params: PlantParams, geometry: CatheterGeometry) -> CatheterPlant:
-    p0 = replace(
-        params,
-        slack_ap_mm=0.0,
-        slack_rl_mm=0.0,
-        friction_coefficient=0.0,
-        seal_play_mm=0.0,
-        roll_play_rad=0.0,
-        roll_play_per_bend=0.0,
-        twist_play_per_bend=0.0,
-        translation_play_mm=0.0,
-    )
-    return CatheterPlant(params=p0, geometry=geometry)
+    return CatheterPlant(params=params.elastic_only(), geometry=geometry)
 
 
 def elastic_oracle(
