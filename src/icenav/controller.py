@@ -740,7 +740,7 @@ class Controller:
             elif jog is not None and jog.frame == "knob":
                 dq = jog.velocity
             else:
-                return self._hold()
+                return None  # no input: hold (nothing is commanded)
             return self._q_cmd + dq * dt
         if self._mode is Mode.TIP:
             if gamepad_moving and sample is not None:
@@ -748,13 +748,10 @@ class Controller:
             elif jog is not None and jog.frame == "tip":
                 twist = jog.velocity
             else:
-                return self._hold()
+                return None  # no input: hold (nothing is commanded)
             q_model = self._to_model(self._q_cmd)
             dq_model = tip_jog(q_model, twist, self.config.geometry, dt=dt, check=False)
             return self._to_motor(q_model + dq_model * dt)
-        return self._hold()
-
-    def _hold(self) -> Array | None:
         return None
 
     def _send(self, q_next: Array, dt: float) -> None:
