@@ -81,6 +81,49 @@ def test_compensator_cancels_the_model() -> None:
     assert comp.direction.tolist()[:2] in ([1.0, 1.0], [1.0, -1.0], [-1.0, 1.0], [-1.0, -1.0])
 
 
+@pytest.mark.parametrize("seed", range(6))
+def test_reversal_threshold_bounds_the_error_and_ignores_wiggles(seed: int) -> None:
+    """With a reversal threshold delta the compensated play output stays within delta (+ the
+    dead-zone ramp) of the wanted one, and a wiggle smaller than delta on a still target
+    makes no jump across the play (the exact inverse jumps 2 r on each)."""
+    rng = np.random.default_rng(seed)
+    m = JointHysteresis(
+        backlash=rng.uniform(1, 5) * DEG,
+        backlash_slope=rng.uniform(0.0, 0.1),
+        dead_zone=rng.uniform(0.5, 3) * DEG,
+        smoothing=0.2 * DEG,
+    )
+    delta = rng.uniform(0.3, 2.0) * DEG
+    t = np.linspace(0, 4 * math.pi, 600)
+    want = np.zeros((t.size, 4))
+    want[:, 0] = 40 * DEG * np.sin(t) + 10 * DEG
+    want[:, 0] += rng.uniform(-0.2 * delta, 0.2 * delta, t.size)  # jitter well below delta
+    exact = HysteresisCompensator([m, None, None, None])
+    shaped = exact.with_reversal_threshold(delta)
+    results = []
+    for comp in (exact, shaped):
+        comp.reset(want[0], direction=[1, 0, 0, 0])
+        cmd, dirs = [], []
+        for row in want:
+            cmd.append(comp.command(row)[0])
+            dirs.append(comp.direction[0])
+        got = m.simulate(np.array(cmd), p0=float(m.dead_zone_inverse(want[0, 0])))
+        flips = int(np.sum(np.diff(dirs) != 0))  # each flip jumps the command across the play
+        results.append((np.max(np.abs(got - want[:, 0])), flips))
+    (err_exact, jumps_exact), (err_shaped, jumps_shaped) = results
+    assert err_exact < m.smoothing
+    assert err_shaped < delta + m.smoothing + 1e-9
+    # the sine reverses 4 times; the exact inverse also flips on the jitter
+    assert jumps_shaped == 4 < jumps_exact
+
+
+def test_reversal_threshold_is_validated() -> None:
+    with pytest.raises(ConfigurationError, match="reversal_threshold"):
+        HysteresisCompensator([None] * 4, reversal_threshold=-0.1)
+    with pytest.raises(ConfigurationError, match="reversal_threshold"):
+        HysteresisCompensator([None] * 4, reversal_threshold=math.nan)
+
+
 def test_without_compensation_the_error_is_the_backlash() -> None:
     m = JointHysteresis(backlash=3 * DEG)
     x = 40 * DEG * np.sin(np.linspace(0, 4 * math.pi, 400))

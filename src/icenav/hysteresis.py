@@ -161,6 +161,7 @@ class HysteresisCompensator:
         roll_play_per_bend: float = 0.0,
         knob_play_per_bend: float = 0.0,
         twist_play_per_bend: float = 0.0,
+        reversal_threshold: float = 0.0,
     ) -> None:
         if len(joints) != 4:
             raise ConfigurationError(f"joints must have 4 entries (phi1..d4), got {len(joints)}")
@@ -172,6 +173,19 @@ class HysteresisCompensator:
             fv = float(v)
             if not math.isfinite(fv) or fv < 0.0 or fv > 0.5:
                 raise ConfigurationError(f"{name} must be in [0, 0.5] rad/rad, got {v!r}")
+        rt = float(reversal_threshold)
+        if not math.isfinite(rt) or rt < 0.0 or rt > math.radians(10.0):
+            raise ConfigurationError(
+                f"reversal_threshold must be in [0, {math.radians(10.0):.4f}] rad ([0, 10] deg), "
+                f"got {reversal_threshold!r}"
+            )
+        self.reversal_threshold = rt
+        """delta (rad): the wanted play output must come back by more than this from its
+        furthest point before the compensator treats it as a reversal and jumps the command
+        across the play. 0 is the exact inverse, which jumps the full play width (2 r) on every
+        wiggle of a nearly still target; since the model's width is never exactly the
+        plant's, each such jump moves the tip. With delta > 0, a small reversal is left to the
+        play (error at most delta) instead."""
         k = float(roll_play_per_bend)
         self.joints: tuple[JointHysteresis | None, ...] = tuple(joints)
         """Model of each joint, or None."""
@@ -185,6 +199,7 @@ class HysteresisCompensator:
         its own axis without moving the tip; see :meth:`preshape_model`."""
         self._p = [0.0, 0.0, 0.0, 0.0]
         self._dir = [0.0, 0.0, 0.0, 0.0]
+        self._ext = [0.0, 0.0, 0.0, 0.0]
 
     def reset(
         self, q_effective: ArrayLike | None = None, direction: ArrayLike | None = None
@@ -198,6 +213,18 @@ class HysteresisCompensator:
         for j, m in enumerate(self.joints):
             self._p[j] = float(z[j]) if m is None else float(m.dead_zone_inverse(z[j]))
             self._dir[j] = float(np.sign(d[j]))
+            self._ext[j] = self._p[j]
+
+    def with_reversal_threshold(self, delta: float) -> HysteresisCompensator:
+        """A fresh compensator (state reset) with the same models and ``reversal_threshold``
+        = ``delta`` (rad)."""
+        return HysteresisCompensator(
+            list(self.joints),
+            roll_play_per_bend=self.roll_play_per_bend,
+            knob_play_per_bend=self.knob_play_per_bend,
+            twist_play_per_bend=self.twist_play_per_bend,
+            reversal_threshold=delta,
+        )
 
     @property
     def direction(self) -> Array:
@@ -217,11 +244,7 @@ class HysteresisCompensator:
                 out[j] = zj
                 continue
             p = float(m.dead_zone_inverse(zj))
-            dp = p - self._p[j]
-            if dp > 1e-12:
-                self._dir[j] = 1.0
-            elif dp < -1e-12:
-                self._dir[j] = -1.0
+            self._update_direction(j, p)
             self._p[j] = p
             if j == 2:
                 b = math.hypot(z[0], z[1]) if bend is None else float(bend)
@@ -232,6 +255,25 @@ class HysteresisCompensator:
                 extra = 0.0
             out[j] = m.play_inverse(p, self._dir[j], extra)
         return out
+
+    def _update_direction(self, j: int, p: float) -> None:
+        """Direction of motion of joint j's play output, with the reversal threshold: the
+        furthest point reached in the current direction is kept, and the direction flips
+        only when ``p`` comes back from it by more than ``reversal_threshold``."""
+        d = self._dir[j]
+        delta = self.reversal_threshold
+        if d == 0.0:
+            dp = p - self._p[j]
+            if dp > 1e-12:
+                self._dir[j] = 1.0
+            elif dp < -1e-12:
+                self._dir[j] = -1.0
+            self._ext[j] = p
+        elif d * (p - self._ext[j]) > 0.0:
+            self._ext[j] = p  # further along the current direction
+        elif d * (self._ext[j] - p) > max(delta, 1e-12):
+            self._dir[j] = -d
+            self._ext[j] = p
 
     def preshape_model(self, q_model_path: ArrayLike) -> Array:
         """Pre-shape a *model* joint path (n, 4) against the distal twist play.

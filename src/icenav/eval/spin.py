@@ -50,6 +50,7 @@ from icenav.calibration import (
 )
 from icenav.compensation import CalibrationSet, ElasticityMap, grid_subset_indices
 from icenav.eval.metrics import rotation_angle
+from icenav.feedback import TipPoseServo
 from icenav.hysteresis import HysteresisCompensator
 from icenav.kinematics import DEFAULT_GEOMETRY, forward
 from icenav.trajectories import savgol_smooth, spin_trajectory
@@ -65,13 +66,25 @@ __all__ = [
     "main",
     "paper_table",
     "run_spin",
+    "run_spin_closed_loop",
     "run_vessel",
 ]
 
 Array = NDArray[np.float64]
 
-CONDITIONS = ("none", "dense", "simplified", "dense+hysteresis")
-"""The conditions, in the order of the table."""
+CONDITIONS = ("none", "dense", "simplified", "dense+hysteresis", "dense+hysteresis+em")
+"""The conditions, in the order of the table. The last is closed loop: the dense +
+hysteresis feed-forward corrected online from the EM tracker (:mod:`icenav.feedback`)."""
+CLOSED_LOOP = "dense+hysteresis+em"
+"""The closed-loop condition's name."""
+SETTLE_UPDATES = 10
+"""Closed loop: tracker updates at the start pose before the spin starts (1/8 s at 80 Hz)."""
+CLOSED_LOOP_REVERSAL_DEG = 1.0
+"""Closed loop: the play inverse's reversal threshold (deg). The servo's corrections carry
+the tracker's jitter; with the exact inverse (0) every jitter reversal jumps the command
+across the whole play. Chosen with the servo's gain on development catheters 50-52,
+straight and steep vessels (of 0, 0.5, 1, 2, 3 deg; the open loop is best with 0 and keeps
+it)."""
 BENDS_DEG = (20, 40, 60)
 """The paper's initial AP bends (deg)."""
 SAVGOL_WINDOW = 15
@@ -94,7 +107,8 @@ class SpinRecord:
     bend_deg: int
     """Initial AP bend (deg)."""
     condition: str
-    """``none``, ``dense``, ``simplified`` or ``dense+hysteresis``."""
+    """``none``, ``dense``, ``simplified``, ``dense+hysteresis`` or ``dense+hysteresis+em``
+    (closed loop on the EM tracker)."""
     position_rmse_mm: float
     """Tip position RMSE measured by the EM tracker (mm), the paper's protocol."""
     rotation_rmse_deg: float
@@ -185,33 +199,48 @@ def _rmse(measured: Array, intended: Array) -> tuple[float, float]:
     return float(np.sqrt(np.mean(pos**2))), math.degrees(float(np.sqrt(np.mean(rot**2))))
 
 
-def _commands(condition: str, q_model: Array, cal: Calibrations | None) -> Array:
-    """Motor commands (APPROACH_STEPS + n, 4): the approach from rest, then the spin."""
+def _approach_path(q_model: Array) -> Array:
+    """The approach from rest to the spin's start, then the spin: (APPROACH_STEPS + n, 4)."""
     approach = np.linspace(np.zeros(4), q_model[0], APPROACH_STEPS + 1)[1:]
-    path = np.vstack([approach, q_model])
+    return np.vstack([approach, q_model])
+
+
+def _effective_path(q_model: Array, cal: Calibrations) -> tuple[Array, Array]:
+    """dense + hysteresis before the play inverse: the wanted effective joint states
+    (APPROACH_STEPS + n, 4) (twist pre-shaped, F, Savitzky-Golay) and the intended bend of
+    each (rad), for :meth:`HysteresisCompensator.command`."""
+    path = _approach_path(q_model)
+    lim = DEFAULT_GEOMETRY.knob_limit
+    # the distal twist play: turn the image frame ahead
+    model = cal.compensator.preshape_model(path)
+    model[:, :2] = np.clip(model[:, :2], -lim, lim)
+    eff = cal.dense_effective.model_to_motor(model, check=False)
+    eff[APPROACH_STEPS:] = savgol_smooth(eff[APPROACH_STEPS:], SAVGOL_WINDOW)
+    eff[:APPROACH_STEPS] = np.linspace(np.zeros(4), eff[APPROACH_STEPS], APPROACH_STEPS + 1)[1:]
+    # the roll's play grows with the bend: the intended (model) bend of each sample
+    bends = DEFAULT_GEOMETRY.knob_ratio * np.hypot(path[:, 0], path[:, 1])
+    return eff, bends
+
+
+def _commands(condition: str, q_model: Array, cal: Calibrations | None) -> Array:
+    """Motor commands (APPROACH_STEPS + n, 4): the approach from rest, then the spin
+    (open-loop conditions; the closed loop's feed-forward is ``dense+hysteresis``)."""
+    path = _approach_path(q_model)
     lim = DEFAULT_GEOMETRY.knob_limit
     if condition == "none":
         return path
     if cal is None:
         raise ValueError(f"condition {condition!r} needs the calibrations")
-    fmap = {
-        "dense": cal.dense,
-        "simplified": cal.simplified,
-        "dense+hysteresis": cal.dense_effective,
-    }[condition]
-    model = path
-    if condition == "dense+hysteresis":  # the distal twist play: turn the image frame ahead
-        model = cal.compensator.preshape_model(path)
-        model[:, :2] = np.clip(model[:, :2], -lim, lim)
-    cmd = fmap.model_to_motor(model, check=False)
-    cmd[APPROACH_STEPS:] = savgol_smooth(cmd[APPROACH_STEPS:], SAVGOL_WINDOW)
-    cmd[:APPROACH_STEPS] = np.linspace(np.zeros(4), cmd[APPROACH_STEPS], APPROACH_STEPS + 1)[1:]
-    if condition == "dense+hysteresis":
+    if condition in ("dense+hysteresis", CLOSED_LOOP):
+        eff, bends = _effective_path(q_model, cal)
         comp = cal.compensator
         comp.reset(np.zeros(4))
-        # the roll's play grows with the bend: the intended (model) bend of each sample
-        bends = DEFAULT_GEOMETRY.knob_ratio * np.hypot(path[:, 0], path[:, 1])
-        cmd = comp.command_path(cmd, bends=bends)
+        cmd = comp.command_path(eff, bends=bends)
+    else:
+        fmap = {"dense": cal.dense, "simplified": cal.simplified}[condition]
+        cmd = fmap.model_to_motor(path, check=False)
+        cmd[APPROACH_STEPS:] = savgol_smooth(cmd[APPROACH_STEPS:], SAVGOL_WINDOW)
+        cmd[:APPROACH_STEPS] = np.linspace(np.zeros(4), cmd[APPROACH_STEPS], APPROACH_STEPS + 1)[1:]
     cmd[:, :2] = np.clip(cmd[:, :2], -lim, lim)
     return cmd
 
@@ -237,6 +266,52 @@ def run_spin(
     return np.array(true), np.array(em)
 
 
+def run_spin_closed_loop(
+    plant: Any,
+    tracker: Any,
+    q_model: Array,
+    cal: Calibrations,
+    servo: TipPoseServo | None = None,
+) -> tuple[Array, Array, Array]:
+    """The spin of ``q_model`` (n, 4) with dense + hysteresis compensation corrected online
+    from the EM tracker (:class:`icenav.feedback.TipPoseServo`).
+
+    From a relaxed start, the approach runs open loop; at the start pose the servo takes
+    ``SETTLE_UPDATES`` tracker updates; then at each sample the motor command is the play
+    inverse of the wanted effective state plus the servo's correction (so the play inverse
+    also pre-shapes the correction), the tip is measured once, and the servo updates
+    toward the intended pose of that sample. Returns the true and the EM-tracked poses
+    (n, 4, 4) (NaN where MISSING) and the motor commands (n, 4)."""
+    servo = TipPoseServo() if servo is None else servo
+    servo.reset()
+    eff, bends = _effective_path(q_model, cal)
+    intended = forward(q_model, check=False)
+    comp = cal.compensator.with_reversal_threshold(math.radians(CLOSED_LOOP_REVERSAL_DEG))
+    comp.reset(np.zeros(4))
+    lim = DEFAULT_GEOMETRY.knob_limit
+    plant.reset()
+
+    def drive(k: int) -> tuple[Array, Array]:
+        q = comp.command(eff[k] + servo.correction, float(bends[k]))
+        q[:2] = np.clip(q[:2], -lim, lim)
+        return plant.move(q), q
+
+    for k in range(APPROACH_STEPS):
+        drive(k)
+    for _ in range(SETTLE_UPDATES):
+        drive(APPROACH_STEPS)
+        servo.update(q_model[0], intended[0], tracker.measure_tip2base())
+    true, em, cmds = [], [], []
+    for k in range(q_model.shape[0]):
+        pose, q = drive(APPROACH_STEPS + k)
+        m = tracker.measure_tip2base()
+        servo.update(q_model[k], intended[k], m)
+        true.append(pose)
+        em.append(np.full((4, 4), np.nan) if m is None else m)
+        cmds.append(q)
+    return np.array(true), np.array(em), np.array(cmds)
+
+
 def run_vessel(
     seed: int,
     vessel: str,
@@ -260,10 +335,15 @@ def run_vessel(
         sp = spin_trajectory([math.radians(bend), 0.0, 0.0, 0.0], n_samples, include_end=True)
         intended = forward(sp.q_model, check=False)
         for cond in conditions:
-            cmd = _commands(cond, sp.q_model, cal)
-            if keep_commands is not None:
-                keep_commands[(bend, cond)] = cmd[APPROACH_STEPS:]
-            true, em = run_spin(plant, tracker, cmd)
+            if cond == CLOSED_LOOP:
+                true, em, cmd = run_spin_closed_loop(plant, tracker, sp.q_model, cal)
+                if keep_commands is not None:
+                    keep_commands[(bend, cond)] = cmd
+            else:
+                cmd = _commands(cond, sp.q_model, cal)
+                if keep_commands is not None:
+                    keep_commands[(bend, cond)] = cmd[APPROACH_STEPS:]
+                true, em = run_spin(plant, tracker, cmd)
             ok = np.all(np.isfinite(em.reshape(len(em), -1)), axis=1)
             tp, tr = _rmse(true, intended)
             ep, er = _rmse(em[ok], intended[ok]) if np.any(ok) else (math.nan, math.nan)
@@ -300,12 +380,12 @@ def format_table(records: Sequence[SpinRecord]) -> str:
     bends = sorted({r.bend_deg for r in records})
     conds = [c for c in CONDITIONS if any(r.condition == c for r in records)]
     lines = []
-    head = "condition".ljust(18) + "".join(
+    head = "condition".ljust(21) + "".join(
         f"{b:>3d} deg: ours EM (paper) | true".ljust(44) for b in bends
     )
     lines.append(head)
     for c in conds:
-        row = c.ljust(18)
+        row = c.ljust(21)
         for b in bends:
             r = next(x for x in records if x.condition == c and x.bend_deg == b)
             ref = ""
@@ -360,6 +440,7 @@ def _plot_curvature(records: Sequence[SpinRecord], out_dir: Path, seed: int) -> 
         "dense": "tab:red",
         "simplified": "tab:blue",
         "dense+hysteresis": "tab:green",
+        CLOSED_LOOP: "tab:purple",
         "none": "tab:gray",
     }
     paths = []
@@ -368,7 +449,7 @@ def _plot_curvature(records: Sequence[SpinRecord], out_dir: Path, seed: int) -> 
         ("rotation_rmse_deg", "orientation RMSE (deg)", "curvature_rotation.png"),
     ):
         fig, ax = plt.subplots(figsize=(5.5, 3.8))
-        for cond in ("dense", "simplified", "dense+hysteresis"):
+        for cond in ("dense", "simplified", "dense+hysteresis", CLOSED_LOOP):
             for vessel, ls in styles.items():
                 rs = sorted(
                     (r for r in records if r.condition == cond and r.vessel == vessel),
@@ -614,7 +695,13 @@ def main(argv: Sequence[str] | None = None) -> int:
         plant, tracker = _make_plant(args.seed, args.vessel)
         tips = {}
         for c in conds:
-            if (bend, c) in commands:
+            if c == CLOSED_LOOP:
+                sp = spin_trajectory(
+                    [math.radians(bend), 0.0, 0.0, 0.0], args.samples, include_end=True
+                )
+                true, _, _ = run_spin_closed_loop(plant, tracker, sp.q_model, cal)
+                tips[c] = true[:, :3, 3]
+            elif (bend, c) in commands:
                 approach = np.linspace(np.zeros(4), commands[(bend, c)][0], APPROACH_STEPS + 1)
                 true, _ = run_spin(plant, tracker, np.vstack([approach[1:], commands[(bend, c)]]))
                 tips[c] = true[:, :3, 3]

@@ -1,0 +1,188 @@
+"""Image spinning as a controller task, open loop or closed on the EM tracker (issue 4).
+
+:class:`SpinTask` drives the paper's spin (the image plane turns 360 deg about the catheter
+axis while the tip stays put) one set-point per control cycle:
+
+    model path q_m(s) -> F (KnobMap.model_to_motor) -> + c (servo) -> play inverse -> motors
+
+- the model path is :func:`icenav.trajectories.spin_trajectory` (inverse kinematics, so the
+  model tip is fixed), the path parameter ``s`` runs at bounded joint speed with a
+  trapezoidal rate (as :class:`icenav.controller.PathTask`);
+- ``F`` is the controller's compensation (identity without one);
+- ``c`` is the correction of a :class:`icenav.feedback.TipPoseServo`, updated once per *new*
+  tracker frame (never twice on the same sample, held on MISSING) toward the intended pose
+  ``forward(q_m(s))``; without a tracker the task is open loop;
+- the play inverse (:class:`icenav.hysteresis.HysteresisCompensator`), when given, pre-shapes
+  the sum, so it also takes up the play for the servo's reversals (``docs/calibration.md``,
+  section 4b: correcting after the inverse made the loop fight the play jumps).
+
+The task never commands beyond the joint limits, and the servo's correction is bounded
+(``PoseServoConfig.max_correction``), so a wrong tracker pose cannot take the catheter far
+from the feed-forward path.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from icenav.errors import InvalidValueError
+from icenav.feedback import TipPoseServo
+from icenav.hysteresis import HysteresisCompensator
+from icenav.kinematics import DEFAULT_GEOMETRY, CatheterGeometry, forward
+from icenav.state import Mode
+from icenav.validation import check_finite
+
+__all__ = ["SpinTask", "tracked_tip2base"]
+
+Array = NDArray[np.float64]
+
+
+def tracked_tip2base(tracker: Any) -> tuple[float, Array | None]:
+    """The newest tracker frame as ``(timestamp s, tip2base (4, 4) mm or None)``.
+
+    ``tip2base = tracker2base @ sensor2tracker @ inv(sensor2tip)`` with the tracker's
+    configured registration and sensor mount; None when the frame has no pose (MISSING,
+    OUT_OF_VOLUME). Non-blocking: it reads ``get_frame()``, never waits for a sample.
+    """
+    frame = tracker.get_frame()
+    if frame.sensor2tracker is None:
+        return float(frame.timestamp), None
+    cfg = tracker.config
+    s2t = np.asarray(cfg.sensor2tip, dtype=np.float64)
+    tip2sensor = np.eye(4)
+    tip2sensor[:3, :3] = s2t[:3, :3].T
+    tip2sensor[:3, 3] = -s2t[:3, :3].T @ s2t[:3, 3]
+    pose = np.asarray(cfg.tracker2base) @ frame.sensor2tracker @ tip2sensor
+    return float(frame.timestamp), pose
+
+
+class SpinTask:
+    """A spin (or any model-space path) with optional play inverse and EM closed loop.
+
+    Parameters
+    ----------
+    q_model_path : array-like, shape (n, 4)
+        Model joint states (rad, rad, rad, mm), e.g. ``spin_trajectory(...).q_model``;
+        ``q_model_path[0]`` is where the robot is (in model terms).
+    to_motor : callable
+        ``(n, 4) or (4,) model -> motor`` joint states without play (F; identity if None).
+    max_velocity : array-like, shape (4,)
+        Joint speed limits (rad/s, rad/s, rad/s, mm/s).
+    joint_limits : array-like, shape (4, 2)
+        Commands are clipped to these (rad, rad, rad, mm).
+    pose_source : callable, optional
+        ``() -> (timestamp s, tip2base or None)``, e.g. ``lambda: tracked_tip2base(t)``;
+        None: open loop.
+    servo : TipPoseServo, optional
+        The pose servo (default settings when a pose source is given).
+    compensator : HysteresisCompensator, optional
+        Play inverse applied to each command (its state is reset at the start, with the
+        current command as relaxed state).
+    speed_scale, ramp_s : float
+        As :class:`icenav.controller.PathTask`.
+    """
+
+    mode = Mode.SPINNING
+
+    def __init__(
+        self,
+        q_model_path: ArrayLike,
+        to_motor: Callable[[Array], Array] | None,
+        max_velocity: ArrayLike,
+        joint_limits: ArrayLike,
+        *,
+        pose_source: Callable[[], tuple[float, Array | None]] | None = None,
+        servo: TipPoseServo | None = None,
+        compensator: HysteresisCompensator | None = None,
+        speed_scale: float = 0.5,
+        ramp_s: float = 0.3,
+        geometry: CatheterGeometry = DEFAULT_GEOMETRY,
+    ) -> None:
+        path = check_finite(q_model_path, "q_model_path")
+        if path.ndim != 2 or path.shape[1] != 4 or path.shape[0] < 2:
+            raise InvalidValueError(f"q_model_path must have shape (n >= 2, 4), got {path.shape}")
+        v = check_finite(max_velocity, "max_velocity").ravel()
+        lim = np.asarray(joint_limits, dtype=np.float64)  # +-inf: an unlimited joint
+        if v.shape != (4,) or np.any(v <= 0) or lim.shape != (4, 2) or np.any(np.isnan(lim)):
+            raise InvalidValueError(
+                "max_velocity must be 4 values > 0 (rad/s, rad/s, rad/s, mm/s) and "
+                f"joint_limits shape (4, 2); got {v.shape} and {lim.shape}"
+            )
+        if not 0.0 < speed_scale <= 1.0 or not ramp_s > 0.0:
+            raise InvalidValueError(
+                f"speed_scale must be in (0, 1] and ramp_s > 0 s, got {speed_scale}, {ramp_s}"
+            )
+        self.q_model_path = path
+        self._to_motor = (lambda q: np.array(q, dtype=np.float64)) if to_motor is None else to_motor
+        shaped = path if compensator is None else compensator.preshape_model(path)
+        knob = geometry.knob_limit
+        shaped[:, :2] = np.clip(shaped[:, :2], -knob, knob)
+        self.feed_forward = np.asarray(self._to_motor(shaped), dtype=np.float64)
+        """(n, 4) motor states without play or correction: F of the model path (turned ahead
+        against the distal twist play when a compensator is given)."""
+        self._knob_ratio = geometry.knob_ratio
+        self.intended = forward(path, geometry, check=False)
+        """(n, 4, 4) intended poses of the image centre frame (base frame, mm)."""
+        self._lim = lim
+        self.pose_source = pose_source
+        self.servo = servo if servo is not None or pose_source is None else TipPoseServo()
+        self.compensator = compensator
+        if compensator is not None:
+            compensator.reset(self.feed_forward[0])
+        self.label = "spin 360 (EM closed loop)" if pose_source is not None else "spin 360"
+        seg = np.abs(np.diff(self.feed_forward, axis=0)) / (v * speed_scale)
+        self._cum = np.concatenate([[0.0], np.cumsum(seg.max(axis=1))])
+        self._ramp = float(ramp_s)
+        self._t = 0.0
+        self._elapsed = 0.0
+        self._last_stamp: float | None = None
+        self.n_pose_updates = 0
+        """Tracker frames used by the servo."""
+
+    @property
+    def duration(self) -> float:
+        """Path time at full rate (s)."""
+        return float(self._cum[-1])
+
+    @property
+    def progress(self) -> float:
+        return 1.0 if self.duration == 0 else min(1.0, self._t / self.duration)
+
+    def _at(self, t: float) -> tuple[Array, Array, Array]:
+        """(model state, feed-forward motor state, intended pose) at path time t."""
+        i = int(np.searchsorted(self._cum, t, side="right")) - 1
+        i = min(max(i, 0), len(self._cum) - 2)
+        span = self._cum[i + 1] - self._cum[i]
+        f = 0.0 if span <= 0 else min(1.0, (t - self._cum[i]) / span)
+        qm = (1 - f) * self.q_model_path[i] + f * self.q_model_path[i + 1]
+        ff = (1 - f) * self.feed_forward[i] + f * self.feed_forward[i + 1]
+        k = i + 1 if f >= 0.5 else i  # intended pose: the nearer sample's
+        return qm, ff, self.intended[k]
+
+    def next_command(self, q_measured: Array, dt: float) -> Array | None:
+        """The next motor set-point (4,), or None when the spin is done."""
+        if self._t >= self.duration:
+            return None
+        self._elapsed += dt
+        remaining = self.duration - self._t
+        rate = min(1.0, self._elapsed / self._ramp, math.sqrt(2.0 * remaining / self._ramp))
+        self._t = min(self.duration, self._t + dt * max(rate, 0.02))
+        qm, ff, target = self._at(self._t)
+        if self.pose_source is not None and self.servo is not None:
+            stamp, pose = self.pose_source()
+            if stamp != self._last_stamp:  # one update per tracker sample
+                self._last_stamp = stamp
+                self.servo.update(qm, target, pose)
+                self.n_pose_updates += pose is not None
+            ff = ff + self.servo.correction
+        if self.compensator is None:
+            cmd = ff
+        else:  # the roll's play grows with the (intended) bend
+            cmd = self.compensator.command(ff, self._knob_ratio * math.hypot(qm[0], qm[1]))
+        out: Array = np.clip(cmd, self._lim[:, 0], self._lim[:, 1])
+        return out
