@@ -83,3 +83,22 @@ def test_headless_demo_on_emulated_canopen_drives() -> None:
     # the same scripted procedure through CANopenRobot and five emulated CiA 402 drives on
     # a virtual CAN bus (real time: about 20 s)
     assert main(["--headless", "--robot", "emulated-canopen", "--duration", "8"]) == 0
+
+
+def test_export_directory_defaults_beside_the_session(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from icenav.demo import _check_args, _parser, export_dir_for
+
+    parser = _parser()
+    args = parser.parse_args(["--session", str(tmp_path / "a" / "s.icenav")])
+    assert export_dir_for(args) == tmp_path / "a" / "exports"
+    monkeypatch.chdir(tmp_path)
+    assert export_dir_for(parser.parse_args([])) == tmp_path / "exports"
+    args = parser.parse_args(["--export-dir", "out", "--session", "x/s.icenav"])
+    assert export_dir_for(args) == tmp_path / "out"  # the option wins, made absolute
+    (tmp_path / "file").write_text("x")
+    with pytest.raises(SystemExit) as info:
+        _check_args(parser.parse_args(["--export-dir", "file"]), parser)
+    assert info.value.code == 2
+    assert "--export-dir file exists and is not a directory" in capsys.readouterr().err

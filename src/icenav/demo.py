@@ -4,10 +4,14 @@
 
     icenav demo [--host 127.0.0.1] [--port 8080] [--session FILE] [--seed N]
                 [--vessel straight|moderate|steep] [--igtl [--igtl-port 18944]]
+                [--export-dir DIR]
     icenav demo --headless --duration S    # scripted operator, no browser; exit 0 if all well
 
 The console binds to 127.0.0.1 unless ``--host`` says otherwise. With ``--session`` the
 roadmap, the views and the event log are kept in an SQLite file and resumed from it.
+The console's Export DICOM button writes into ``--export-dir`` (default: ``exports/`` beside
+the session file, or in the current directory without ``--session``), with file names made
+by the program.
 """
 
 from __future__ import annotations
@@ -25,7 +29,7 @@ import numpy as np
 
 from icenav.errors import IcenavError
 
-__all__ = ["main", "run_headless"]
+__all__ = ["export_dir_for", "main", "run_headless"]
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -41,6 +45,13 @@ def _parser() -> argparse.ArgumentParser:
         help="required with a --host other than loopback: expose the console on the network",
     )
     p.add_argument("--session", type=Path, default=None, help="SQLite session file to resume")
+    p.add_argument(
+        "--export-dir",
+        type=Path,
+        default=None,
+        help="directory of the console's DICOM exports (default: exports/ beside the "
+        "session file, or in the current directory)",
+    )
     p.add_argument("--seed", type=int, default=100, help="catheter seed of the twin (>= 0)")
     p.add_argument(
         "--vessel",
@@ -76,6 +87,8 @@ def _check_args(args: argparse.Namespace, parser: argparse.ArgumentParser) -> No
             f"--host {args.host} exposes the console beyond this machine: "
             "add --allow-remote to confirm"
         )
+    if args.export_dir is not None and args.export_dir.exists() and not args.export_dir.is_dir():
+        parser.error(f"--export-dir {args.export_dir} exists and is not a directory")
     if not 0 <= args.port <= 65535:
         parser.error(f"--port must be in [0, 65535], got {args.port}")
     if not 0 <= args.igtl_port <= 65535:
@@ -84,6 +97,15 @@ def _check_args(args: argparse.Namespace, parser: argparse.ArgumentParser) -> No
         parser.error(f"--seed must be >= 0, got {args.seed}")
     if not (math.isfinite(args.duration) and args.duration > 0):
         parser.error(f"--duration must be > 0 s, got {args.duration}")
+
+
+def export_dir_for(args: argparse.Namespace) -> Path:
+    """The console's export directory: ``--export-dir``, else ``exports/`` beside the
+    session file, else ``exports/`` in the current directory (absolute)."""
+    if args.export_dir is not None:
+        return Path(args.export_dir).expanduser().absolute()
+    base = Path(args.session).expanduser().parent if args.session is not None else Path.cwd()
+    return base.absolute() / "exports"
 
 
 def control_token_for(host: str) -> str | None:
@@ -206,6 +228,7 @@ def run_console(args: argparse.Namespace) -> int:
     """The console in the browser on the real-time controller; Ctrl-C to stop."""
     from icenav.app import anatomy_meshes, make_sim_controller
     from icenav.console import Console
+    from icenav.dicom import ExportDirectory
     from icenav.io.joystick import Sdl2Gamepad
 
     bridge = streamer = forwarder = None
@@ -231,9 +254,16 @@ def run_console(args: argparse.Namespace) -> int:
         streamer = attach_bridge(ctrl, bridge, forwarder)
         print(f"OpenIGTLink: 127.0.0.1:{bridge.port} (TipToBase, SensorToTracker, Image)")
     token = control_token_for(args.host)  # reliability: part 4 (security)
+    exports = ExportDirectory(export_dir_for(args))
     console = Console(
-        ctrl, host=args.host, port=args.port, anatomy_mesh=anatomy_meshes(), control_token=token
+        ctrl,
+        host=args.host,
+        port=args.port,
+        anatomy_mesh=anatomy_meshes(),
+        control_token=token,
+        export_dir=exports,
     )
+    print(f"DICOM exports (Export DICOM in the views panel) go to {exports.root}")
     if token is not None:
         print(f"control token (enter it in the console to take control): {token}", flush=True)
     ctrl.start()

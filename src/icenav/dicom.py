@@ -8,10 +8,13 @@ A clip is written as an *Ultrasound Multi-frame Image Storage* object (SOP class
 - a Sequence of Ultrasound Regions item with the pixel size (cm, as DICOM requires);
 - the catheter state in a private block (group 0x0011, creator ``ICENAV 1``):
   motor joint state q (phi1 rad, phi2 rad, phi3 rad, d4 mm), tip2base (4x4, mm, row
-  major), the view name and each frame's cardiac phase; and the same state, readable by
-  a person, in Image Comments (0020,4000).
+  major), the view name (as a DICOM LO value: cleaned, at most 64 characters) and each
+  frame's cardiac phase; and the same state with the full view name, readable by a person,
+  in Image Comments (0020,4000).
 
 :func:`export_view_clip` writes, :func:`read_view_clip` reads back a :class:`ViewClip`.
+:class:`ExportDirectory` writes clips for clients (the console's Export DICOM button) into one
+configured directory, under file names it makes itself (never a client's path).
 ``python -m icenav.dicom CLIP.npz OUT.dcm`` exports frames kept in an ``.npz`` (until the
 store provides them to ``icenav export-view``).
 """
@@ -19,20 +22,43 @@ store provides them to ``icenav export-view``).
 from __future__ import annotations
 
 import argparse
+import contextlib
 import datetime as dt
 import json
+import os
 import sys
+import unicodedata
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from icenav.errors import FileFormatError, InvalidValueError, ShapeError
+if TYPE_CHECKING:
+    from pydicom.dataset import Dataset
+
+from icenav.errors import (
+    ConfigurationError,
+    ExportError,
+    FileFormatError,
+    InvalidValueError,
+    ShapeError,
+    UnsafeExportPathError,
+)
 from icenav.validation import check_finite, check_joint_state, check_positive, check_transform
 
-__all__ = ["PRIVATE_CREATOR", "ViewClip", "export_view_clip", "main", "read_view_clip"]
+__all__ = [
+    "EXPORT_SUFFIX",
+    "ExportDirectory",
+    "PRIVATE_CREATOR",
+    "ViewClip",
+    "export_file_stem",
+    "export_view_clip",
+    "main",
+    "read_view_clip",
+]
 
 PRIVATE_CREATOR = "ICENAV 1"
 """Private creator of icenav's block in group 0x0011."""
@@ -85,7 +111,8 @@ def export_view_clip(
     Parameters
     ----------
     path : str or Path
-        Output file.
+        Output file (a path the caller trusts; for names that come from a client use
+        :meth:`ExportDirectory.write_clip`).
     frames : array-like of uint8, shape (n_frames, rows, cols)
         The pictures (one heart beat).
     frame_time_s : float
@@ -104,6 +131,35 @@ def export_view_clip(
     Path
         The file written.
     """
+    ds = _clip_dataset(
+        frames,
+        frame_time_s,
+        q_motor,
+        tip2base,
+        acquired_at=acquired_at,
+        view_name=view_name,
+        pixel_mm=pixel_mm,
+        cardiac_phases=cardiac_phases,
+        patient_id=patient_id,
+    )
+    out = Path(path)
+    ds.save_as(out, enforce_file_format=True)
+    return out
+
+
+def _clip_dataset(
+    frames: ArrayLike,
+    frame_time_s: float,
+    q_motor: ArrayLike,
+    tip2base: ArrayLike,
+    *,
+    acquired_at: dt.datetime | None = None,
+    view_name: str = "",
+    pixel_mm: float | None = None,
+    cardiac_phases: ArrayLike | None = None,
+    patient_id: str = "ICENAV-SIM",
+) -> Dataset:
+    """The DICOM dataset of one clip (arguments as :func:`export_view_clip`)."""
     import pydicom
     from pydicom.dataset import Dataset, FileMetaDataset
     from pydicom.sequence import Sequence as DicomSequence
@@ -155,7 +211,8 @@ def export_view_clip(
     ds.AcquisitionDateTime = when.strftime("%Y%m%d%H%M%S.%f") + (
         when.strftime("%z") if when.tzinfo else ""
     )
-    ds.SeriesDescription = f"ICE view {view_name}".strip()
+    ds.SpecificCharacterSet = "ISO_IR 192"  # UTF-8: view names are any text
+    ds.SeriesDescription = _lo(f"ICE view {view_name}".strip())
     ds.ImageType = ["ORIGINAL", "PRIMARY"]
     ds.InstanceNumber = 1
     n, rows, cols = arr.shape
@@ -187,20 +244,25 @@ def export_view_clip(
     block = ds.private_block(_GROUP, PRIVATE_CREATOR, create=True)
     block.add_new(_Q_MOTOR, "FD", [float(v) for v in q])
     block.add_new(_TIP2BASE, "FD", [float(v) for v in pose.ravel()])
-    block.add_new(_VIEW, "LO", view_name)
+    block.add_new(_VIEW, "LO", _lo(view_name))
     if phases is not None:
         block.add_new(_PHASES, "FD", [float(v) for v in phases])
     ds.ImageComments = json.dumps(
         {
-            "view": view_name,
+            "view": view_name[:1024],  # LT holds 10240 characters
             "q_motor": {"phi1_rad": q[0], "phi2_rad": q[1], "phi3_rad": q[2], "d4_mm": q[3]},
             "tip_position_in_base_mm": pose[:3, 3].round(4).tolist(),
         }
     )
     ds.PixelData = np.ascontiguousarray(arr).tobytes()
-    out = Path(path)
-    ds.save_as(out, enforce_file_format=True)
-    return out
+    return ds
+
+
+def _lo(text: str) -> str:
+    """``text`` as a DICOM LO value: no backslash (the value separator), no control
+    characters, at most 64 characters."""
+    clean = "".join("/" if c == "\\" else c for c in text if c.isprintable())
+    return clean[:64].strip()
 
 
 def _private(ds: object, element: int) -> object | None:
@@ -259,6 +321,8 @@ def read_view_clip(path: str | Path) -> ViewClip:
     phases_raw = _private(ds, _PHASES)
     phases = None if phases_raw is None else np.asarray(phases_raw, dtype=np.float64).ravel()
     view = _private(ds, _VIEW)
+    with contextlib.suppress(ValueError, KeyError, TypeError):  # the full name (LO: <= 64)
+        view = json.loads(str(ds.get("ImageComments", "")))["view"]
     return ViewClip(
         frames=frames,
         frame_time_s=float(ds.FrameTime) / 1000.0,
@@ -269,6 +333,141 @@ def read_view_clip(path: str | Path) -> ViewClip:
         pixel_mm=pixel_mm,
         cardiac_phases=phases,
     )
+
+
+# ------------------------------------------------------------------ exports from clients
+
+
+EXPORT_SUFFIX = ".dcm"
+"""File name extension of exported clips."""
+_STEM_CHARS = frozenset("abcdefghijklmnopqrstuvwxyzABCDEFGHIJKLMNOPQRSTUVWXYZ0123456789-_")
+
+
+def export_file_stem(view_name: str, max_chars: int = 48) -> str:
+    """A file-name stem made from a view name that a client gave: only ASCII letters,
+    digits, ``-`` and ``_`` (accents dropped, every other run of characters one ``_``), no
+    leading or trailing ``-`` / ``_``, at most ``max_chars`` characters; ``"view"`` when
+    nothing is left. It holds no separator, no dot (so no ``..``, no hidden file) and is
+    never absolute."""
+    if max_chars < 1:
+        raise InvalidValueError(f"max_chars must be >= 1 character, got {max_chars}")
+    ascii_text = unicodedata.normalize("NFKD", str(view_name)).encode("ascii", "ignore").decode()
+    out: list[str] = []
+    for c in ascii_text:
+        c = c if c in _STEM_CHARS else "_"
+        if not (c == "_" and out and out[-1] == "_"):
+            out.append(c)
+    stem = "".join(out)[:max_chars].strip("-_")
+    return stem or "view"
+
+
+@dataclass(frozen=True)
+class ExportDirectory:
+    """The one directory into which clients' exports are written; file names are made here,
+    never taken from a client.
+
+    A name is ``<stem>_<UTC time>.dcm`` (:func:`export_file_stem` of the view name, time as
+    ``YYYYmmddTHHMMSSZ``), with ``-2``, ``-3``, ... added when that name exists. The file is
+    created exclusively, relative to the directory's descriptor, without following a
+    symlink: an existing file or a symlink planted under the name is never written through.
+    """
+
+    root: Path
+    """The export directory (made on the first export); stored absolute, with symlinks
+    resolved when the ExportDirectory is made."""
+    max_stem_chars: int = 48
+    """Longest stem taken from a view name (characters, 1..128)."""
+
+    def __post_init__(self) -> None:
+        if not 1 <= self.max_stem_chars <= 128:
+            raise ConfigurationError(
+                f"max_stem_chars must be in [1, 128] characters, got {self.max_stem_chars}"
+            )
+        root = Path(self.root).expanduser().resolve()
+        if root.exists() and not root.is_dir():
+            raise ConfigurationError(f"export directory {root} exists and is not a directory")
+        object.__setattr__(self, "root", root)
+
+    def path_for(self, view_name: str, when: dt.datetime | None = None) -> Path:
+        """A path for a new export of ``view_name`` at ``when`` (now, UTC, if omitted): a
+        direct child of :attr:`root` that does not exist yet (not even as a symlink)."""
+        stem = export_file_stem(view_name, self.max_stem_chars)
+        stamp = (when or dt.datetime.now(dt.UTC)).astimezone(dt.UTC).strftime("%Y%m%dT%H%M%SZ")
+        for k in range(1, 1000):
+            name = f"{stem}_{stamp}{'' if k == 1 else f'-{k}'}{EXPORT_SUFFIX}"
+            path = self.root / name
+            if not os.path.lexists(path):
+                return self._checked(path)
+        raise ExportError(f"999 exports of {stem!r} in the second {stamp}: try again")
+
+    def _checked(self, path: Path) -> Path:
+        """Refuse a path that is not a plain direct child of the root (never expected: the
+        names are made above; this is the last line of defence)."""
+        name = path.name
+        if (
+            path.parent != self.root
+            or name in ("", ".", "..")
+            or "/" in name
+            or "\\" in name
+            or "\0" in name
+        ):
+            raise UnsafeExportPathError(f"refused export path {str(path)!r}: not in {self.root}")
+        return path
+
+    def write_clip(self, clip: ViewClip, when: dt.datetime | None = None) -> Path:
+        """Write ``clip`` as a new DICOM file in the directory; returns its path.
+
+        Raises
+        ------
+        UnsafeExportPathError
+            The directory was replaced by a symlink (or moved) since it was configured.
+        ExportError
+            The file could not be written (disk full, permissions, ...).
+        """
+        ds = _clip_dataset(
+            clip.frames,
+            clip.frame_time_s,
+            clip.q_motor,
+            clip.tip2base,
+            acquired_at=clip.acquired_at,
+            view_name=clip.view_name,
+            pixel_mm=clip.pixel_mm,
+            cardiac_phases=clip.cardiac_phases,
+        )
+        try:
+            self.root.mkdir(parents=True, exist_ok=True)
+        except OSError as exc:
+            raise ExportError(f"cannot make the export directory {self.root}: {exc}") from exc
+        if self.root.resolve() != self.root:
+            raise UnsafeExportPathError(
+                f"export directory {self.root} now leads to {self.root.resolve()} "
+                "(replaced by a symlink?): refused"
+            )
+        flags = os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_NOFOLLOW | os.O_CLOEXEC
+        try:
+            dir_fd = os.open(self.root, os.O_RDONLY | os.O_DIRECTORY | os.O_NOFOLLOW)
+        except OSError as exc:
+            raise UnsafeExportPathError(f"cannot open {self.root} as a directory: {exc}") from exc
+        try:
+            for _ in range(1000):
+                path = self.path_for(clip.view_name, when)
+                try:
+                    fd = os.open(path.name, flags, 0o644, dir_fd=dir_fd)
+                except FileExistsError:  # made between the check and the open: next name
+                    continue
+                except OSError as exc:
+                    raise ExportError(f"cannot create {path}: {exc}") from exc
+                try:
+                    with os.fdopen(fd, "wb") as f:
+                        ds.save_as(f, enforce_file_format=True)
+                except (OSError, ValueError) as exc:
+                    with contextlib.suppress(OSError):
+                        os.unlink(path.name, dir_fd=dir_fd)
+                    raise ExportError(f"cannot write {path}: {exc}") from exc
+                return path
+            raise ExportError(f"no free file name for {clip.view_name!r} in {self.root}")
+        finally:
+            os.close(dir_fd)
 
 
 def main(argv: Sequence[str] | None = None) -> int:

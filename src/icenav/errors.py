@@ -14,12 +14,14 @@ unit and the allowed range (as canopen's ``SdoAbortedError`` carries the abort c
     │   ├── JointLimitError                   a joint state beyond its limit
     │   ├── TransformError                    a matrix that is not a rigid transform
     │   ├── UnreachablePoseError              no joint state reaches a pose
-    │   └── ConfigurationError                a bad setting (geometry, plant, tracker, ...)
+    │   ├── ConfigurationError                a bad setting (geometry, plant, tracker, ...)
+    │   └── UnsafeExportPathError             an export would land outside its directory
     ├── FileFormatError (ValueError)          a file that icenav cannot read
     │   └── UnsupportedVersionError           written by a newer icenav, or unknown version
     ├── PlanningError                         no path can be planned
     │   └── GoalUnreachableError              the goal is not connected to the start
     ├── StoreError                            the session store failed (disk full, read-only, ...)
+    ├── ExportError                           writing an export failed (disk full, permission)
     ├── MotionAborted                         an automatic motion was aborted or stopped
     ├── HardwareError                         a robot backend reports a problem
     │   ├── DriveFaultError                   a motor drive is in FAULT (code and text)
@@ -34,6 +36,7 @@ __all__ = [
     "ConfigurationError",
     "DriveFaultError",
     "EmergencyStopError",
+    "ExportError",
     "FileFormatError",
     "GoalUnreachableError",
     "HardwareError",
@@ -49,6 +52,7 @@ __all__ = [
     "TrackerError",
     "TransformError",
     "UnreachablePoseError",
+    "UnsafeExportPathError",
     "UnsupportedVersionError",
 ]
 
@@ -168,3 +172,12 @@ class EmergencyStopError(HardwareError):
 
 class TrackerError(IcenavError):
     """The tracker is not running, or is misconfigured."""
+
+
+class ExportError(IcenavError):
+    """Writing an export failed (the disk is full, no permission, ...)."""
+
+
+class UnsafeExportPathError(InvalidValueError):
+    """An export would be written outside its export directory (a symlink, a directory
+    replaced after it was configured)."""

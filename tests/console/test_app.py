@@ -7,16 +7,20 @@ test drives the real ``icenav.controller.Controller``.
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import threading
 import urllib.request
 from collections.abc import Callable
+from pathlib import Path
 from typing import Any, Literal
 
 import numpy as np
+import pydicom
 import pytest
 
 from icenav.console import Console
+from icenav.dicom import PRIVATE_CREATOR, read_view_clip
 from icenav.errors import ConfigurationError
 from icenav.hw.base import RobotStatus
 from icenav.kinematics import backbone, forward
@@ -144,6 +148,52 @@ class RecordingController:
 
     def add_listener(self, callback: Callable[[ControllerState], None]) -> None:
         self._listeners.append(callback)
+
+
+class FakeHandle:
+    """Stands in for a viser GUI handle: keeps its value and the callbacks given to it."""
+
+    def __init__(self, *args: object, **kwargs: object) -> None:
+        self.value = kwargs.get("initial_value", "")
+        self.content = args[0] if args else ""
+        self.callbacks: list[Callable[[Any], None]] = []
+
+    def on_click(self, fn: Callable[[Any], None]) -> Callable[[Any], None]:
+        self.callbacks.append(fn)
+        return fn
+
+    on_update = on_click
+
+    def on_hold(self, fn: Callable[[Any], None], callback_hz: float = 0.0) -> object:
+        return self.on_click(fn)
+
+    def click(self) -> None:
+        """What viser does when a browser clicks the button."""
+
+        class Ev:
+            client = object()
+            client_id = 1
+
+        for fn in self.callbacks:
+            fn(Ev())
+
+    def add_tab(self, *args: object, **kwargs: object) -> contextlib.nullcontext[None]:
+        return contextlib.nullcontext()
+
+
+class FakeGui:
+    """A viser client's ``gui``: every ``add_*`` makes a :class:`FakeHandle`."""
+
+    def __getattr__(self, name: str) -> object:
+        return FakeHandle
+
+
+class FakeClient:
+    """A browser connection as the console's connection handler sees it (no server)."""
+
+    def __init__(self, client_id: int) -> None:
+        self.client_id = client_id
+        self.gui = FakeGui()
 
 
 def test_recording_controller_satisfies_the_protocol() -> None:
@@ -286,7 +336,7 @@ def test_view_markers_follow_the_library(console: Console) -> None:
     assert console._marker_handles == {}
 
 
-def test_console_settings_are_checked() -> None:
+def test_console_settings_are_checked(tmp_path: Path) -> None:
     verts = np.array([[0, 0, 0], [10, 0, 0], [0, 10, 0.0]])
     mesh = ("ra", verts, [[0, 1, 2]], (1, 2, 3), 0.3)
     c = Console(RecordingController(), port=0, anatomy_mesh=[mesh])
@@ -299,6 +349,12 @@ def test_console_settings_are_checked() -> None:
         Console(RecordingController(), status_hz=-1)
     with pytest.raises(ConfigurationError, match="port"):
         Console(RecordingController(), port=70000)
+    for token in ("", " padded "):
+        with pytest.raises(ConfigurationError, match="control_token must be non-empty"):
+            Console(RecordingController(), control_token=token)
+    (tmp_path / "file").write_text("x")
+    with pytest.raises(ConfigurationError, match="not a directory"):
+        Console(RecordingController(), export_dir=tmp_path / "file")
     with pytest.raises(ConfigurationError, match="not started"):
         _ = c.url
     with c:  # the mesh goes into the scene (scene units: m)
@@ -342,3 +398,100 @@ def test_all_is_sorted_and_resolves(name: str) -> None:
     assert exported == sorted(exported), f"{name}.__all__ is not sorted"
     for member in exported:
         assert hasattr(module, member), f"{name}.{member} is in __all__ but missing"
+
+
+# ------------------------------------------------------------------ DICOM export
+
+
+def _view_with_image(ctl: RecordingController, name: str, q: np.ndarray) -> ImageFrame:
+    """Give the double a saved view ``name`` at q, with its image (0.5 mm pixels)."""
+    pixels = np.random.default_rng(3).integers(0, 255, (40, 30), dtype=np.uint8)
+    ijk2tip = np.array([[0, 0.5, 0, 0], [0, 0, 1, 0], [0.5, 0, 0, -7.5], [0, 0, 0, 1.0]])
+    frame = ImageFrame(pixels, 12.5, ijk2tip)
+    ctl.view_images[name] = frame
+    views = (*ctl.snapshot().views, ViewSummary(name, q, 1_795_000_000.25, True))
+    ctl.publish(make_state(views=views))
+    return frame
+
+
+def _files(root: Path) -> list[Path]:
+    return sorted(p for p in root.rglob("*") if p.is_file())
+
+
+def test_export_button_writes_the_selected_view_into_the_export_directory(
+    tmp_path: Path,
+) -> None:
+    ctl = RecordingController()
+    exports = tmp_path / "session" / "exports"
+    console = Console(ctl, port=0, export_dir=exports)
+    console._on_connect(FakeClient(1))
+    panel = console._panels[1]
+    assert ctl.owner == panel.name and panel.export is not None  # no token: control at once
+    q = np.array([0.3, -0.2, 0.4, 5.0])
+    name = "../../../tmp/evil\\apex"  # a view name is data: it never becomes a path
+    frame = _view_with_image(ctl, name, q)
+    panel.views.value = name
+    panel.export.click()
+    note = panel.export_note.content
+    (path,) = _files(tmp_path)
+    assert path.parent == exports and path.name.startswith("tmp_evil_apex_")
+    assert note.startswith(f"Exported view **{name}** to `{path}`")  # where the file went
+
+    ds = pydicom.dcmread(path)  # an independent reader
+    assert ds.SOPClassUID == "1.2.840.10008.5.1.4.1.1.3.1" and int(ds.NumberOfFrames) == 1
+    np.testing.assert_array_equal(ds.pixel_array, frame.pixels)
+    block = ds.private_block(0x0011, PRIVATE_CREATOR)
+    np.testing.assert_allclose(list(block[0x01].value), q)
+    # the double has no view library: the pose is the model pose of the view's motor state
+    np.testing.assert_allclose(np.reshape(block[0x02].value, (4, 4)), forward(q), atol=1e-12)
+    assert float(ds.SequenceOfUltrasoundRegions[0].PhysicalDeltaX) == pytest.approx(0.05)  # cm
+    assert ds.AcquisitionDateTime.startswith("20261118110640.25")  # created_s, in UTC
+    assert read_view_clip(path).view_name == name
+
+
+def test_export_is_refused_without_the_token_or_control(tmp_path: Path) -> None:
+    ctl = RecordingController()
+    exports = tmp_path / "exports"
+    console = Console(ctl, port=0, control_token="s3cret-token-0123456789", export_dir=exports)
+    console._on_connect(FakeClient(1))
+    panel = console._panels[1]
+    _view_with_image(ctl, "apex", np.zeros(4))
+    panel.views.value = "apex"
+    panel.export.click()
+    assert "Export refused" in panel.export_note.content and "token" in panel.export_note.content
+    assert _files(tmp_path) == []
+    # the token entered, but another client holds control: still refused
+    ctl.owner = "gamepad"
+    panel.token.value = "s3cret-token-0123456789"
+    panel.take.click()
+    ctl.publish(ctl.snapshot())
+    panel.export.click()
+    assert "take control first" in panel.export_note.content and _files(tmp_path) == []
+    # in control: a name that is not a saved view, and a view without an image, are refused
+    ctl.owner = None
+    panel.take.click()
+    ctl.publish(ctl.snapshot())
+    assert ctl.snapshot().control_owner == panel.name
+    for value, why in [
+        ("../../etc/passwd", "no saved view named '../../etc/passwd'"),
+        ("/tmp/x.dcm", "no saved view named"),
+    ]:
+        panel.views.value = value  # what a tampered browser could send
+        panel.export.click()
+        assert why in panel.export_note.content, panel.export_note.content
+    views = (*ctl.snapshot().views, ViewSummary("blind", np.zeros(4), 0.0, False))
+    ctl.publish(make_state(views=views))
+    panel.views.value = "blind"
+    panel.export.click()
+    assert "has no saved image" in panel.export_note.content
+    assert _files(tmp_path) == []
+    panel.views.value = "apex"
+    panel.export.click()
+    assert len(_files(exports)) == 1 and "Exported view **apex**" in panel.export_note.content
+
+
+def test_no_export_button_without_an_export_directory() -> None:
+    console = Console(RecordingController(), port=0)
+    console._on_connect(FakeClient(1))
+    assert console._panels[1].export is None
+    assert "Export is off" in console.export_view("apex")

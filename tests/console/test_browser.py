@@ -93,14 +93,54 @@ def _panel(console: Console, index: int) -> Any:
         return list(console._panels.values())[index]
 
 
-def _type_view_name(console: Console, page: Any, panel: Any, name: str) -> None:
-    """Type a view name and wait until the server has it (viser syncs text on change)."""
+def _type_text(page: Any, handle: Any, label_text: str, text: str) -> None:
+    """Type into the text field labelled ``label_text`` and wait until the server has the
+    text in ``handle`` (viser syncs text on change)."""
     synced = threading.Event()
-    panel.view_name.on_update(lambda ev: synced.set() if panel.view_name.value == name else None)
+    handle.on_update(lambda ev: synced.set() if handle.value == text else None)
     # viser labels the field, but the label's "for" does not match the input's id
-    label = page.locator("label", has_text="View name")
-    page.locator("div.mantine-Flex-root", has=label).locator("input").fill(name)
-    assert synced.wait(TIMEOUT_MS / 1000), f"the server never got the view name {name!r}"
+    label = page.locator("label", has_text=label_text)
+    page.locator("div.mantine-Flex-root", has=label).locator("input").fill(text)
+    assert synced.wait(TIMEOUT_MS / 1000), f"the server never got {label_text} = {text!r}"
+
+
+def _type_view_name(console: Console, page: Any, panel: Any, name: str) -> None:
+    """Type a view name and wait until the server has it."""
+    _type_text(page, panel.view_name, "View name", name)
+
+
+class CallbacksDone:
+    """Counts the console's own callbacks of some buttons that have returned.
+
+    viser runs each callback in its thread pool, in no set order with other callbacks, so
+    a callback of the test's own could run before the console's is done; this wraps the
+    console's callbacks instead (clicks: ``update_cb``; holds: ``hold_cbs_from_freq``).
+    """
+
+    def __init__(self, *handles: Any) -> None:
+        self._cond = threading.Condition()
+        self.count = 0
+        for h in handles:
+            lists = [h._impl.update_cb, *h._button_impl.hold_cbs_from_freq.values()]
+            for cbs in lists:
+                cbs[:] = [self._wrap(cb) for cb in cbs]
+
+    def _wrap(self, cb: Callable[[Any], None]) -> Callable[[Any], None]:
+        def run(ev: Any) -> None:
+            try:
+                cb(ev)
+            finally:
+                with self._cond:
+                    self.count += 1
+                    self._cond.notify_all()
+
+        return run
+
+    def wait(self, n: int, what: str) -> None:
+        """Block until ``n`` callbacks have returned in all."""
+        with self._cond:
+            ok = self._cond.wait_for(lambda: self.count >= n, TIMEOUT_MS / 1000)
+        assert ok, f"the server ran {self.count} of {n} callbacks for {what}"
 
 
 class StateWaiter:
@@ -246,5 +286,122 @@ def test_console_on_the_real_controller(browser: Any, tmp_path: Path) -> None:
             page.close()
             assert console.last_error == ""
             assert console.stats().images_sent > 0
+    finally:
+        ctl.shutdown()
+
+
+def test_control_token_in_the_browser(browser: Any, tmp_path: Path) -> None:
+    """With a control token set, a browser that has not entered it sees the live console;
+    even with its buttons enabled (as a tampered page would have them) its save, go-to,
+    jog and export clicks reach the server and change nothing; its Stop and E-STOP work; a
+    wrong token is refused; after the right token the same browser commands."""
+    from playwright.sync_api import expect
+
+    token = "s3cret-token-0123456789"
+    exports = tmp_path / "exports"
+    from icenav.app import make_sim_controller
+    from icenav.controller import ControllerConfig
+
+    ctl = make_sim_controller(seed=0, config=ControllerConfig(image_rate_hz=2.0)).controller
+    waiter = StateWaiter(ctl)
+    ctl.start()
+    try:
+        # a script saves "home" and drives 30 deg away from it (nobody holds control)
+        waiter.until(lambda s: ctl.latest_image() is not None, "first image")
+        ctl.save_view("home")
+        waiter.until(lambda s: [v.name for v in s.views] == ["home"], "home saved")
+        while waiter.latest is not None and waiter.latest.q_motor[0] < math.radians(30):
+            ctl.jog(np.array([0.5, 0.0, 0.0, 0.0]), "knob")
+            waiter.next_states(5)
+        ctl.stop()
+        away = waiter.until(lambda s: s.mode is Mode.IDLE, "stopped away from home")
+        # 5 Hz refresh: less for software WebGL to draw (the other test covers 25 Hz)
+        with Console(
+            ctl, port=0, control_token=token, export_dir=exports, refresh_hz=5.0, status_hz=5.0
+        ) as console:
+            page = _open(browser, console.url, 800, 600)
+            # the live console, view only
+            expect(page.get_by_text("nobody has control", exact=False)).to_be_visible()
+            expect(page.get_by_text("Control token")).to_be_visible()
+            expect(page.locator("strong", has_text="home")).to_be_visible()
+            expect(page.get_by_role("button", name="Save view", exact=True)).to_be_disabled()
+            panel = _panel(console, 0)
+            assert not panel.authorised and ctl.snapshot().control_owner is None
+
+            # a tampered page: its controls enabled; the clicks reach the server, do nothing
+            q_cmd = ctl._q_cmd.copy()  # noqa: SLF001 - the joint targets held now
+            for h in panel.motion_controls:
+                h.disabled = False
+            save, goto, export = (
+                page.get_by_role("button", name=n, exact=True)
+                for n in ("Save view", "Go to view", "Export DICOM")
+            )
+            expect(save).to_be_enabled()
+            done = CallbacksDone(panel.save, panel.goto, panel.export, panel.jog_buttons[1][0])
+            _type_text(page, panel.view_name, "View name", "intruder")
+            save.click()
+            goto.click()
+            export.click()
+            done.wait(3, "save, go to and export")
+            expect(page.get_by_text("Export refused", exact=False)).to_be_visible()
+            page.get_by_role("tab", name="Jog").click()
+            page.get_by_role("button", name="AP knob (phi1) +", exact=True).hover()
+            page.mouse.down()
+            done.wait(6, "three jog repeats")
+            page.mouse.up()
+            later = waiter.next_states(30)  # the controller had 30 cycles to act on them
+            for s in later:
+                assert s.mode is Mode.IDLE and s.control_owner is None
+                assert [v.name for v in s.views] == ["home"]
+                np.testing.assert_array_equal(s.q_motor, away.q_motor)
+            np.testing.assert_array_equal(ctl._q_cmd, q_cmd)  # noqa: SLF001 - the joint targets
+            assert not exports.exists()
+            assert panel.view_name.value == "intruder"  # a refused save keeps the name
+
+            # Stop and E-STOP work without the token (during a dense calibration raster the
+            # script started: minutes long, so the clicks cannot come after its end)
+            def moving(s: ControllerState) -> bool:
+                return s.mode is Mode.CALIBRATING and bool(np.any(s.q_motor != away.q_motor))
+
+            ctl.start_calibration("dense")
+            waiter.until(moving, "script's calibration moving")
+            page.get_by_role("button", name="Stop", exact=True).click()
+            stopped = waiter.until(lambda s: s.mode is Mode.IDLE, "stopped by the browser")
+            assert "stopped by browser-0" in stopped.message
+            q_after = np.array([s.q_motor for s in waiter.next_states(10)[2:]])
+            assert np.ptp(q_after, axis=0).max() == 0.0
+            ctl.start_calibration("dense")
+            waiter.until(lambda s: moving(s) and bool(np.any(s.q_motor != q_after[-1])), "again")
+            page.get_by_role("button", name="E-STOP").click()
+            halted = waiter.until(lambda s: s.mode is Mode.ESTOP, "e-stopped by the browser")
+            assert "browser-0" in halted.message
+            q_after = np.array([s.q_motor for s in waiter.next_states(10)])
+            assert np.ptp(q_after, axis=0).max() == 0.0
+            expect(page.get_by_text("EMERGENCY STOP", exact=False).first).to_be_visible()
+            ctl.reset_fault()
+            waiter.until(lambda s: s.mode is Mode.IDLE, "reset by the script")
+
+            # a wrong token: still view only
+            page.get_by_role("tab", name="Views").click()
+            _type_text(page, panel.token, "Control token", "guess")
+            page.get_by_role("button", name="Take control", exact=True).click()
+            expect(page.get_by_text("Wrong control token", exact=False)).to_be_visible()
+            assert ctl.snapshot().control_owner is None and not panel.authorised
+
+            # the right token: the same browser takes control and saves a view
+            _type_text(page, panel.token, "Control token", token)
+            page.get_by_role("button", name="Take control", exact=True).click()
+            waiter.until(lambda s: s.control_owner == "browser-0", "control taken")
+            expect(page.get_by_text("You have control")).to_be_visible()
+            expect(save).to_be_enabled()
+            save.click()
+            waiter.until(lambda s: "intruder" in [v.name for v in s.views], "view saved")
+            expect(page.locator("strong", has_text="intruder")).to_be_visible()
+            export.click()
+            expect(page.get_by_text("Exported view", exact=False)).to_be_visible()
+            (written,) = exports.iterdir()
+            assert written.name.startswith("intruder_") and written.suffix == ".dcm"
+            page.close()
+            assert console.last_error == ""
     finally:
         ctl.shutdown()

@@ -4,11 +4,13 @@ commands when exposed, and client strings that never become paths."""
 from __future__ import annotations
 
 import inspect
+from pathlib import Path
 
 import pytest
 
 from icenav.errors import InvalidValueError
 from icenav.io.igtl import IgtlBridge, IgtlCommand, IgtlConfig, IgtlRequest
+from tests.console.test_app import FakeClient
 
 TOKEN = "s3cret-token-0123456789"
 
@@ -71,53 +73,6 @@ def test_view_names_from_igtl_are_passed_as_data() -> None:
 # ------------------------------------------------------------------ the console's token
 
 
-class _Handle:
-    """Stands in for a viser GUI handle: keeps its value and the callbacks given to it."""
-
-    def __init__(self, *args: object, **kwargs: object) -> None:
-        self.value = kwargs.get("initial_value", "")
-        self.callbacks: list[object] = []
-
-    def on_click(self, fn: object) -> object:
-        self.callbacks.append(fn)
-        return fn
-
-    on_update = on_click
-
-    def on_hold(self, fn: object, callback_hz: float = 0.0) -> object:
-        return self.on_click(fn)
-
-    def click(self) -> None:
-        class Ev:
-            client = object()
-            client_id = 1
-
-        for fn in self.callbacks:
-            fn(Ev())  # type: ignore[operator]
-
-    def add_tab(self, *args: object, **kwargs: object) -> _Tab:
-        return _Tab()
-
-
-class _Tab:
-    def __enter__(self) -> None:
-        return None
-
-    def __exit__(self, *exc: object) -> None:
-        return None
-
-
-class _Gui:
-    def __getattr__(self, name: str) -> object:
-        return _Handle
-
-
-class _Client:
-    def __init__(self, client_id: int) -> None:
-        self.client_id = client_id
-        self.gui = _Gui()
-
-
 def test_console_browser_needs_the_token_to_control_but_not_to_stop() -> None:
     from icenav.console.app import Console, _TokenGate
     from icenav.controller import Controller, ControllerConfig
@@ -126,7 +81,7 @@ def test_console_browser_needs_the_token_to_control_but_not_to_stop() -> None:
 
     ctrl = Controller(SimulatedRobot(IdealPlant()), ControllerConfig())
     console = Console(ctrl, host="0.0.0.0", port=0, control_token=TOKEN)
-    console._on_connect(_Client(1))  # noqa: SLF001 - the connection handler, no server
+    console._on_connect(FakeClient(1))  # noqa: SLF001 - the connection handler, no server
     panel = console._panels[1]  # noqa: SLF001
     ctrl.step()
     assert ctrl.snapshot().control_owner is None  # not taken on connect without the token
@@ -142,9 +97,9 @@ def test_console_browser_needs_the_token_to_control_but_not_to_stop() -> None:
     state = ctrl.step()
     assert state.control_owner == panel.name
     panel.save.click()
-    assert len(ctrl.step().views) == 1  # the name field moved on after the refused save
+    assert [v.name for v in ctrl.step().views] == ["view-1"]  # a refused save keeps the name
     # a second browser without the token can still stop everything
-    console._on_connect(_Client(2))  # noqa: SLF001
+    console._on_connect(FakeClient(2))  # noqa: SLF001
     other = console._panels[2]  # noqa: SLF001
     assert not other.authorised
     gate = _TokenGate(ctrl, other)
@@ -164,7 +119,7 @@ def test_console_on_loopback_needs_no_token() -> None:
     assert t1 and t2 and t1 != t2 and len(t1) >= 16
     ctrl = Controller(SimulatedRobot(IdealPlant()), ControllerConfig())
     console = Console(ctrl, port=0)
-    console._on_connect(_Client(1))  # noqa: SLF001
+    console._on_connect(FakeClient(1))  # noqa: SLF001
     assert console._panels[1].token is None and console._panels[1].authorised  # noqa: SLF001
     assert ctrl.step().control_owner == console._panels[1].name  # noqa: SLF001
 
@@ -179,7 +134,7 @@ def test_console_disconnect_mid_jog_releases_control_and_the_robot_stops() -> No
 
     ctrl = Controller(SimulatedRobot(IdealPlant()), ControllerConfig())
     console = Console(ctrl, port=0)
-    client = _Client(7)
+    client = FakeClient(7)
     console._on_connect(client)  # noqa: SLF001
     panel = console._panels[7]  # noqa: SLF001
     assert ctrl.step().control_owner == panel.name
@@ -194,3 +149,46 @@ def test_console_disconnect_mid_jog_releases_control_and_the_robot_stops() -> No
     for _ in range(30):
         np.testing.assert_array_equal(ctrl.step().q_motor, held)
     assert ctrl.snapshot().control_owner is None and 7 not in console._panels  # noqa: SLF001
+
+
+def test_console_export_of_a_saved_view_stays_in_the_export_directory(tmp_path: Path) -> None:
+    """The Export DICOM button on the real controller (twin with its ultrasound image): a
+    view named like a path is written as a program-made name inside the export directory,
+    with the pose and image the controller saved with it."""
+    import numpy as np
+
+    from icenav.app import make_sim_controller
+    from icenav.console.app import Console
+    from icenav.dicom import read_view_clip
+
+    session = make_sim_controller(seed=0)
+    ctrl = session.controller
+    try:
+        exports = tmp_path / "session" / "exports"
+        console = Console(ctrl, host="0.0.0.0", port=0, control_token=TOKEN, export_dir=exports)
+        console._on_connect(FakeClient(1))  # noqa: SLF001
+        panel = console._panels[1]  # noqa: SLF001
+        ctrl.run_cycles(3)
+        panel.view_name.value = "../../outside"
+        panel.save.click()  # no token yet: dropped
+        assert ctrl.step().views == ()
+        panel.token.value = TOKEN
+        panel.take.click()
+        panel.save.click()
+        (view,) = ctrl.step().views
+        assert view.name == "../../outside" and view.has_image
+        panel.views.value = view.name
+        panel.export.click()
+        written = [p for p in tmp_path.rglob("*") if p.is_file()]
+        assert len(written) == 1 and written[0].parent == exports
+        assert str(written[0]) in panel.export_note.content
+        clip = read_view_clip(written[0])
+        saved = ctrl.views.get(view.name)
+        assert clip.view_name == view.name
+        np.testing.assert_array_equal(clip.q_motor, saved.q)
+        np.testing.assert_array_equal(clip.tip2base, saved.tip2base)
+        image = ctrl.view_image(view.name)
+        assert image is not None
+        np.testing.assert_array_equal(clip.frames[0], image.pixels)
+    finally:
+        session.close()

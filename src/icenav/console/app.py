@@ -7,21 +7,28 @@ Threads
 - One refresh thread wakes at ``refresh_hz``, takes the newest state (older ones are
   coalesced away), updates the scene and panels, and sends a new ICE image when there is one.
 - viser's thread pool runs the GUI callbacks, which only send requests to the controller
-  (each returns at once; the controller executes them at its next cycle).
+  (each returns at once; the controller executes them at its next cycle). The one that
+  does work itself, Export DICOM, writes one small file into :attr:`Console.export_dir`.
 
 Several browsers may connect. The E-STOP and Stop buttons, the status, the image, the plot
 and the 3-D scene are shared by all of them; each browser has its own driving controls,
 enabled only while it holds control (``controller.acquire_control(client)``, with the client
 named ``browser-<id>``). The gamepad always wins; the controller enforces that.
+
+With a control token (``Console(..., control_token=...)``, as ``icenav demo`` sets when the
+console is exposed) a browser's requests other than Stop and E-STOP are dropped on the
+server until it entered the token (reliability: part 4, security).
 """
 
 from __future__ import annotations
 
 import contextlib
+import datetime as dt
 import hmac
 import threading
 from collections.abc import Sequence
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -53,9 +60,10 @@ from icenav.console.scene import (
     subsample,
     view_marker_positions,
 )
-from icenav.errors import ConfigurationError
+from icenav.dicom import ExportDirectory, ViewClip
+from icenav.errors import ConfigurationError, ExportError, IcenavError
 from icenav.io.joystick import JoystickMapping
-from icenav.kinematics import DEFAULT_GEOMETRY, CatheterGeometry
+from icenav.kinematics import DEFAULT_GEOMETRY, CatheterGeometry, forward
 from icenav.state import ControllerCommands, ControllerState, ImageFrame, Mode
 
 __all__ = ["Console", "ConsoleStats"]
@@ -70,6 +78,8 @@ IMAGE_MAX_WIDTH = 640
 """Widest ICE image sent (pixels); wider ones are decimated."""
 IMAGE_MIN_WIDTH = 300
 """Narrower ICE images are enlarged towards this width (the panel is about 320 px wide)."""
+SINGLE_FRAME_TIME_S = 0.05
+"""Frame Time written for a one-frame export (s; DICOM requires one for a multi-frame image)."""
 
 
 @dataclass(frozen=True)
@@ -116,6 +126,11 @@ class _ClientPanel:
                 np.zeros((8, 8, 3), np.uint8), label="Thumbnail", format="jpeg", visible=False
             )
             self.delete = gui.add_button("Delete view", color="gray")
+            self.export = None
+            self.export_note = None
+            if console.export_dir is not None:  # reliability: part 4 (security)
+                self.export = gui.add_button("Export DICOM", hint="Into the export directory")
+                self.export_note = gui.add_markdown("")
             self.view_list = gui.add_markdown("*No saved views yet.*")
         with tabs.add_tab("Jog"):
             self.jog_buttons = []
@@ -144,6 +159,7 @@ class _ClientPanel:
             self.save,
             self.goto,
             self.delete,
+            *([self.export] if self.export is not None else []),
             *(b for b, _, _ in self.jog_buttons),
         ]
 
@@ -173,6 +189,12 @@ class Console:
     status_hz : float
         Rate of the status table and the joint plot (at most refresh_hz; also redrawn on
         each mode change).
+    control_token : str, optional
+        When set, a browser must enter it before it may take control (viewing, Stop and
+        E-STOP need no token).
+    export_dir : str, Path or ExportDirectory, optional
+        Where the views panel's **Export DICOM** button writes a saved view's image (file
+        names made by the program, never by the browser); None: no export button.
     """
 
     def __init__(
@@ -189,6 +211,7 @@ class Console:
         jog_hz: float = 20.0,
         status_hz: float = 10.0,
         control_token: str | None = None,
+        export_dir: str | Path | ExportDirectory | None = None,
     ):
         if not (0 < refresh_hz <= 120):
             raise ConfigurationError(f"refresh_hz must be in (0, 120] Hz, got {refresh_hz}")
@@ -202,10 +225,21 @@ class Console:
             )
         if not 0 <= port <= 65535:
             raise ConfigurationError(f"port must be in [0, 65535], got {port}")
+        if control_token is not None and (
+            not control_token or control_token != control_token.strip()
+        ):
+            raise ConfigurationError(
+                "control_token must be non-empty, without surrounding spaces (a browser's "
+                f"entry is stripped), got {len(control_token)} characters"
+            )
         self.controller = controller
         self.control_token = control_token
         """When set, a browser controls (moves, saves, ...) only after entering it; viewing,
         Stop and E-STOP need no token."""
+        if export_dir is not None and not isinstance(export_dir, ExportDirectory):
+            export_dir = ExportDirectory(Path(export_dir))
+        self.export_dir: ExportDirectory | None = export_dir
+        """Where the Export DICOM button writes (None: no button)."""
         self.host = host
         self.requested_port = port
         self.refresh_hz = refresh_hz
@@ -473,7 +507,8 @@ class Console:
             view = panel.view_name.value.strip()
             if view:
                 c.save_view(view, client=name)
-                panel.view_name.value = _next_name(view)
+                if panel.authorised:  # a refused save keeps the name
+                    panel.view_name.value = _next_name(view)
 
         @panel.goto.on_click
         def _(ev: Any) -> None:
@@ -489,6 +524,12 @@ class Console:
         def _(ev: Any) -> None:
             self._show_thumbnail(panel)
 
+        if panel.export is not None:
+
+            @panel.export.on_click
+            def _(ev: Any) -> None:
+                self._export_clicked(panel)
+
         with self._lock:
             self._panels[client.client_id] = panel
             state = self._last_state
@@ -503,6 +544,81 @@ class Console:
             state = self._last_state
         if panel is not None and state is not None and state.control_owner == panel.name:
             self.controller.release_control(panel.name)
+
+    def _export_clicked(self, panel: _ClientPanel) -> None:
+        """The Export DICOM button: the selected view into the export directory, if this
+        browser entered the token and holds control; the outcome shown under the button."""
+        state = self.controller.snapshot()
+        if not panel.authorised:
+            text = "**Export refused**: enter the control token and take control first."
+        elif state.control_owner != panel.name:
+            text = "**Export refused**: take control first."
+        elif panel.views.value == NO_VIEWS:
+            text = "**Nothing to export**: save a view first."
+        else:
+            text = self.export_view(str(panel.views.value), state)
+        if panel.export_note is not None:
+            panel.export_note.content = text
+
+    def export_view(self, name: str, state: ControllerState | None = None) -> str:
+        """Write the image saved with view ``name`` into :attr:`export_dir` as a DICOM file
+        (one frame, with the view's joint state and pose); returns the operator's message
+        (markdown), naming the file written or why nothing was written.
+
+        ``name`` is looked up among the saved views; it never becomes a path (the file name
+        is :meth:`ExportDirectory.path_for`'s).
+        """
+        if self.export_dir is None:
+            return "**Export is off**: no export directory is configured."
+        try:
+            path = self.export_dir.write_clip(self.view_clip(name, state))
+        except IcenavError as exc:
+            return f"**Export failed**: {exc}"
+        return f"Exported view **{name}** to `{path}`"
+
+    def view_clip(self, name: str, state: ControllerState | None = None) -> ViewClip:
+        """The image saved with view ``name`` as a one-frame clip with its state.
+
+        The pose is the one the controller saved with the view when the controller exposes
+        its view library (``controller.views``, as :class:`icenav.controller.Controller`
+        does); otherwise the model pose of the view's motor state.
+
+        Raises
+        ------
+        ExportError
+            No view of that name, or no image saved with it.
+        """
+        state = state or self.controller.snapshot()
+        summary = next((v for v in state.views if v.name == name), None)
+        if summary is None:
+            raise ExportError(f"no saved view named {name!r}")
+        frame = self.controller.view_image(name)
+        if frame is None:
+            raise ExportError(f"view {name!r} has no saved image: nothing to export")
+        q = np.asarray(summary.q_motor, dtype=np.float64)
+        tip2base = None
+        get = getattr(getattr(self.controller, "views", None), "get", None)
+        if callable(get):
+            with contextlib.suppress(KeyError, IcenavError):
+                tip2base = get(name).tip2base
+        if tip2base is None:
+            tip2base = forward(q, self.geometry)
+        ijk2tip = np.asarray(frame.ijk2tip, dtype=np.float64)
+        pixel_mm = None  # identity: the imager did not say how large its pixels are
+        if not np.array_equal(ijk2tip, np.eye(4)):
+            pixel_mm = float(np.linalg.norm(ijk2tip[:3, 0]))  # one column step (mm)
+        pixels = np.asarray(frame.pixels, dtype=np.uint8)
+        if pixels.ndim == 3:  # RGB: grey for MONOCHROME2
+            pixels = pixels.mean(axis=2).round().astype(np.uint8)
+        return ViewClip(
+            frames=pixels[np.newaxis],
+            frame_time_s=SINGLE_FRAME_TIME_S,
+            acquired_at=dt.datetime.fromtimestamp(summary.created_s, dt.UTC),
+            q_motor=q,
+            tip2base=np.asarray(tip2base, dtype=np.float64),
+            view_name=name,
+            pixel_mm=pixel_mm,
+        )
 
     def _client_of(self, ev: Any) -> str:
         return "browser" if ev.client_id is None else client_name(ev.client_id)
