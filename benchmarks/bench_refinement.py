@@ -4,7 +4,9 @@ A refinement's cost is dominated by rendering one beat per evaluation; the robot
 the scoring are small. Reported: one beat rendered (5 frames at 128 px, the evaluation's
 settings), one score against 4 reference beats, and a whole refinement (hysteretic plant,
 moderate vessel, return perturbed by 2 deg / 0.5 mm, the at-view gate off so the search
-runs) in wall time and in controller time.
+runs) in wall time and in controller time; and one EM pose stage (the stage before the
+image search: the play of roll, distal twist and translation put on the other side, about
+20 deg / several mm off) in wall time, controller time and EM measurements.
 """
 
 from __future__ import annotations
@@ -16,6 +18,7 @@ import numpy as np
 
 from benchmarks.common import Result, time_per_call
 from icenav.hw.sim import SimulatedRobot
+from icenav.pose_stage import pose_stage
 from icenav.refinement import (
     RefinementConfig,
     RefinementTask,
@@ -25,6 +28,7 @@ from icenav.refinement import (
 )
 from icenav.sim.anatomy import EXAMPLE_VIEWS, default_phantom
 from icenav.sim.plant import CatheterPlant
+from icenav.sim.tracker import EMTracker
 from icenav.sim.ultrasound import ProbeConfig, UltrasoundRenderer
 
 
@@ -70,7 +74,40 @@ def main() -> list[Result]:
         Result("refinement: one refinement, controller time", float(np.median(ctrl)), "s"),
         Result("refinement: one refinement, beats measured", float(np.median(evals)), "beats"),
     ]  # fmt: skip
+    results += _pose_stage_results()
     return results
+
+
+def _pose_stage_results() -> list[Result]:
+    deg = math.pi / 180
+    wall, ctrl, meas = [], [], []
+    for seed in (110, 111, 112):
+        clock = SimClock()
+        plant = CatheterPlant(seed=seed, vessel="moderate")
+        robot = SimulatedRobot(plant, clock=clock.now)
+        robot.enable()
+        tracker = EMTracker(plant, seed=seed, clock=clock.now)
+        q_view = np.array(EXAMPLE_VIEWS["aortic_valve"])
+        below = np.array([16 * deg, 16 * deg, 30 * deg, 3.0])
+        plant.move(q_view - below)
+        robot.command_position(q_view)
+        saved = tracker.measure_tip2base(n_average=64)
+        assert saved is not None
+        plant.move(q_view + below * np.array([-1, -1, 1, 1]))
+        robot.command_position(q_view)
+        t0 = time.perf_counter()
+        res = pose_stage(robot, q_view, saved, tracker, arrival_direction=(1, 1, 1, 1),
+                         start_direction=(1, 1, -1, -1), sleep=clock.advance)  # fmt: skip
+        wall.append(time.perf_counter() - t0)
+        ctrl.append(res.duration_s)
+        meas.append(len(res.measurements))
+    return [
+        Result("refinement: one EM pose stage, wall time, median of 3",
+               float(np.median(wall)), "s"),
+        Result("refinement: one EM pose stage, controller time", float(np.median(ctrl)), "s"),
+        Result("refinement: one EM pose stage, EM measurements (64 samples each)",
+               float(np.median(meas)), "measurements"),
+    ]  # fmt: skip
 
 
 if __name__ == "__main__":

@@ -18,6 +18,8 @@ MODULES = [
     "icenav.dicom",
     "icenav.errors",
     "icenav.eval.metrics",
+    "icenav.feedback",
+    "icenav.gating",
     "icenav.hw",
     "icenav.hw.base",
     "icenav.hw.canopen_robot",
@@ -28,6 +30,8 @@ MODULES = [
     "icenav.io.joystick",
     "icenav.kinematics",
     "icenav.motion",
+    "icenav.pose_stage",
+    "icenav.refinement",
     "icenav.roadmap",
     "icenav.sim",
     "icenav.sim.anatomy",
@@ -38,6 +42,7 @@ MODULES = [
     "icenav.tracking",
     "icenav.trajectories",
     "icenav.validation",
+    "icenav.view_refinement",
     "icenav.views",
 ]
 

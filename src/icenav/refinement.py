@@ -51,6 +51,10 @@ Two ways to run it: :class:`RefinementTask` (an ``AutomaticTask`` for the contro
 set-point per cycle) and :func:`refine` (blocking; drives a ``RobotBackend`` with the same
 task). Images come from a :class:`BeatImager`; :class:`SimulatedBeatImager` renders them on
 the digital twin.
+
+The EM pose stage that runs before the image search is :mod:`icenav.pose_stage`, the
+respiratory gating of beats :mod:`icenav.gating`, and both stages as one controller task
+:class:`icenav.view_refinement.ViewRefinementTask`.
 """
 
 from __future__ import annotations
@@ -110,6 +114,8 @@ class BeatClip:
     frames: tuple[object, ...] = ()
     """The source frames with their ground truth (e.g. ``icenav.sim.ultrasound.Frame``),
     when the imager keeps them (evaluation only)."""
+    times: NDArray[np.float64] | None = None
+    """(n,) acquisition time of each frame (s), if known (needed for respiratory gating)."""
 
     def __post_init__(self) -> None:
         img = np.asarray(self.images, dtype=np.float64)
@@ -125,6 +131,24 @@ class BeatClip:
             object.__setattr__(self, "mask", m)
         object.__setattr__(self, "images", img)
         object.__setattr__(self, "phases", ph)
+        if self.times is not None:
+            tt = check_finite(self.times, "times").ravel()
+            if tt.shape != ph.shape:
+                raise ShapeError(f"{ph.size} frames need {ph.size} times, got {tt.size}")
+            object.__setattr__(self, "times", tt)
+
+    def subsampled(self, k: int) -> BeatClip:
+        """Every ``k``-th frame (k >= 1) of the beat, with its phases, times and frames."""
+        if isinstance(k, bool) or int(k) != k or k < 1:
+            raise ConfigurationError(f"k must be an int >= 1, got {k!r}")
+        return BeatClip(
+            self.images[::k],
+            self.phases[::k],
+            self.mask,
+            self.t0,
+            self.frames[::k],
+            None if self.times is None else self.times[::k],
+        )
 
 
 class BeatImager(Protocol):
@@ -245,8 +269,9 @@ class SimulatedBeatImager:
     def _clip(frames: tuple[Any, ...], t0: float) -> BeatClip:
         images = np.stack([f.image for f in frames]).astype(np.float64)
         phases = np.array([f.cardiac_phase for f in frames])
+        times = np.array([f.t for f in frames], dtype=np.float64)
         mask = frames[0].labels >= 0
-        return BeatClip(images, phases, mask, t0, frames)
+        return BeatClip(images, phases, mask, t0, frames, times)
 
 
 def _blur(images: NDArray[np.float64], sigma_px: float, factor: int) -> NDArray[np.float64]:
@@ -836,3 +861,8 @@ def refine(
         if sleep is not None:
             sleep(dt)
     return task.result()
+
+
+# =============================================================================================
+# Pose stage: servo the EM-measured tip pose onto the pose saved with the view
+# =============================================================================================
