@@ -84,7 +84,8 @@ class LiteralRoadmap:
 
 def build(trace: np.ndarray, n_vertices: int) -> tuple[Roadmap, View, int, float]:
     """Feed the trace until the roadmap has n_vertices; return (roadmap, states, seconds)."""
-    rm = Roadmap(1.0, capacity=n_vertices + 16)
+    # unbounded: the scaling rows grow past the default vertex budget (250,000)
+    rm = Roadmap(config=RoadmapConfig(epsilon=1.0, max_vertices=None), capacity=n_vertices + 16)
     t0 = time.perf_counter()
     k = 0
     add = rm.add

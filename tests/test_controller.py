@@ -13,7 +13,7 @@ from icenav.hw.base import RobotStatus
 from icenav.hw.sim import IdealPlant, SimulatedRobot
 from icenav.io.joystick import JoystickMapping, Keyframe, ScriptedInput
 from icenav.kinematics import forward
-from icenav.state import Mode
+from icenav.state import ControllerState, Mode
 
 M = JoystickMapping()
 ENABLE = M.enable_button
@@ -391,7 +391,9 @@ def test_pathtask_accelerations_are_bounded() -> None:
 def test_large_roadmap_plans_in_the_background_while_holding() -> None:
     clock = Clock()
     robot = SimulatedRobot(IdealPlant(), clock=clock)
-    ctrl = Controller(robot, ControllerConfig(background_plan_vertices=0), clock=clock)
+    # the Dijkstra in a thread here (the worker process is tested in test_roadmap.py)
+    cfg = ControllerConfig(background_plan_vertices=0, plan_in_process=False)
+    ctrl = Controller(robot, cfg, clock=clock)
     for _ in range(80):
         ctrl.jog([0.6, -0.3, 0.4, 3.0], "knob")
         run(ctrl, clock, 0.01)
@@ -415,3 +417,119 @@ def test_large_roadmap_plans_in_the_background_while_holding() -> None:
             break
     np.testing.assert_allclose(robot.read_state().q, ctrl.views.get("v").q, atol=1e-12)
     assert "done" in state.message
+
+
+def test_gc_policy_freezes_and_defers_full_collections_until_released() -> None:
+    import gc
+
+    from icenav import controller as controller_module
+
+    held_elsewhere = bool(controller_module._GC_USERS)  # a running loop elsewhere
+    before = gc.get_threshold()
+    ctrl, _, clock = make()
+    other, _, _ = make()
+    ctrl2 = Controller(
+        SimulatedRobot(IdealPlant(), clock=clock), ControllerConfig(gc_full_every_s=0.5)
+    )
+    try:
+        ctrl2.settle_gc()
+        other.settle_gc()
+        assert gc.get_threshold()[2] >= 10**9  # no automatic full collection
+        assert gc.get_freeze_count() > 0  # start-up objects are never traversed again
+        assert ctrl2.collect_garbage_if_due() is False  # not due yet (controller time)
+        ctrl2.run_cycles(49)
+        assert ctrl2.collect_garbage_if_due() is False
+        ctrl2.run_cycles(1)
+        assert ctrl2.collect_garbage_if_due() is True  # 0.5 s of controller time passed
+        assert ctrl2.collect_garbage_if_due() is False  # and the next one is 0.5 s later
+        assert ctrl.collect_garbage_if_due() is False  # this one never settled: no policy
+        ctrl2.release_gc()
+        assert gc.get_threshold()[2] >= 10**9  # the other controller still holds it
+    finally:
+        other.release_gc()
+        ctrl2.release_gc()
+    if not held_elsewhere:  # the default policy is back
+        assert gc.get_threshold() == before
+        assert gc.get_freeze_count() == 0
+    with pytest.raises(ConfigurationError, match="gc_full_every_s"):
+        ControllerConfig(gc_full_every_s=0.0)
+
+
+def test_view_saved_message_waits_for_the_store_writer(tmp_path: object) -> None:
+    import sqlite3
+    from contextlib import closing
+    from pathlib import Path
+
+    from icenav.app import StoreRecorder
+    from icenav.store import SessionStore
+
+    path = Path(str(tmp_path)) / "s.icenav"
+    ctrl, _, clock = make()
+    store = SessionStore(path)
+    recorder = StoreRecorder(store, ctrl.roadmap, threaded=True)
+    ctrl.set_recorder(recorder)
+    try:
+        for _ in range(30):
+            ctrl.jog([0.3, 0.0, 0.0, 1.0], "knob")
+            run(ctrl, clock, 0.01)
+        ctrl.save_view("mitral")
+        run(ctrl, clock, 0.01)
+        assert ctrl.snapshot().message == "view 'mitral': saving to disk"
+        recorder.drain()  # the writer thread has committed it (blocks on its queue)
+        with closing(sqlite3.connect(path)) as other:  # another reader: committed rows only
+            names = [r[0] for r in other.execute("SELECT name FROM views")]
+        assert names == ["mitral"]
+        run(ctrl, clock, 0.01)
+        assert ctrl.snapshot().message == "view 'mitral' saved"  # told only now
+    finally:
+        recorder.close()
+        store.close()
+
+
+def _spin_on_the_twin(feedback: bool) -> tuple[np.ndarray, str]:
+    """Bend the twin to ~40 deg AP, spin, and return the true tip's distance from where it
+    was at the start (mm, per cycle) and the task's label."""
+    from icenav.app import make_sim_controller
+
+    t = [0.0]  # one simulated clock for the robot, the tracker and the controller
+    cfg = ControllerConfig(spin_feedback=feedback)
+    session = make_sim_controller(
+        seed=104, vessel="moderate", imaging=False, config=cfg, clock=lambda: t[0]
+    )
+    ctrl = session.controller
+    plant = session.plant
+
+    def step() -> ControllerState:
+        t[0] += cfg.dt
+        return ctrl.step()
+
+    try:
+        for _ in range(70):
+            ctrl.jog([math.radians(60), 0, 0, 0], "knob")
+            step()
+        for _ in range(50):
+            step()
+        start = plant.state.tip2base[:3, 3].copy()
+        ctrl.start_spin()
+        step()
+        label = ctrl.snapshot().progress_label
+        dist = []
+        for _ in range(20000):
+            state = step()
+            dist.append(float(np.linalg.norm(plant.state.tip2base[:3, 3] - start)))
+            if state.mode is Mode.IDLE:
+                break
+        assert ctrl.mode is Mode.IDLE
+        return np.array(dist), label
+    finally:
+        session.close()
+
+
+def test_spin_on_the_twin_is_servoed_on_the_tracker() -> None:
+    """With a tracker the console's spin holds the *true* tip where it was (EM closed loop);
+    open loop (no compensation installed) the uncompensated catheter wanders by mm."""
+    open_dist, open_label = _spin_on_the_twin(feedback=False)
+    closed_dist, closed_label = _spin_on_the_twin(feedback=True)
+    assert "closed loop" in closed_label and "closed loop" not in open_label
+    assert float(np.sqrt(np.mean(open_dist**2))) > 2.0
+    assert float(np.sqrt(np.mean(closed_dist**2))) < 0.5 * float(np.sqrt(np.mean(open_dist**2)))

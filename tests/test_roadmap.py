@@ -16,7 +16,13 @@ from icenav.errors import (
     PlanningError,
     ShapeError,
 )
-from icenav.roadmap import Roadmap, RoadmapConfig, RoadmapMetric, direction_tracker
+from icenav.roadmap import (
+    Roadmap,
+    RoadmapConfig,
+    RoadmapFullError,
+    RoadmapMetric,
+    direction_tracker,
+)
 
 DEG = math.pi / 180
 
@@ -456,3 +462,197 @@ def test_tree_job_from_a_snapshot_plans_exactly_after_more_driving() -> None:
 
     assert length(fast) == pytest.approx(length(fresh), rel=1e-9)
     np.testing.assert_array_equal(fast[-1], view.q)
+
+
+# --- vertex budget (issue 9: bounded memory over a long procedure) -------------------------
+
+
+def explore(rng: np.random.Generator, n: int) -> np.ndarray:
+    """A smooth random walk (no dwell) held loosely in a box of +-4 metric units per joint
+    by a cubic pull: it keeps reaching new joint space and keeps revisiting old."""
+    step = np.array([0.4 * DEG, 0.4 * DEG, 0.4 * DEG, 0.4])
+    box = np.array([4 * DEG, 4 * DEG, 4 * DEG, 4.0])
+    out = np.empty((n, 4))
+    q = np.zeros(4)
+    vel = np.zeros(4)
+    for i in range(n):
+        pull = -0.5 * np.clip(q / box, -2, 2) ** 3
+        vel = 0.9 * vel + 0.1 * (rng.normal(0, 1, 4) + pull) * step * 3
+        q = q + vel
+        out[i] = q
+    return out
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_vertex_budget_is_never_exceeded_and_views_stay_exact_and_reachable(seed: int) -> None:
+    rng = np.random.default_rng(900 + seed)
+    cfg = RoadmapConfig(epsilon=1.0, max_vertices=1000)
+    rm = Roadmap(config=cfg)
+    reachable, isolated = [], []
+    n_out = 0
+    for i, q in enumerate(explore(rng, 9000)):
+        rm.add(q)
+        assert rm.n_vertices <= 1000
+        if i % 450 == 449:
+            out_there = not rm.recording  # out of recorded territory, budget closed
+            before = rm.n_isolated_views
+            view = rm.make_view(f"v{i}", created_s=i / 100)
+            np.testing.assert_array_equal(rm.vertices()[view.vertex], q)  # exact
+            (isolated if rm.n_isolated_views > before else reachable).append(view)
+            n_out += out_there and rm.n_isolated_views == before
+    assert rm.n_unrecorded > 0, "the walk should have outgrown the budget"
+    assert rm.n_vertices >= cfg.max_vertices - cfg.view_reserve  # the budget was used
+    assert rm.merge_radius_now == rm.epsilon  # coarse merging beyond 80 %
+    assert n_out >= 5, "views saved out of recorded territory, their excursion recorded"
+    # vertices added in the coarse phase keep more than epsilon from every older vertex,
+    # except views and recorded excursions (from the reserve)
+    x = rm.metric_coordinates(rm.vertices())
+    view_ids = {v.vertex for v in reachable + isolated}
+    for k in range(int(0.8 * 1000), cfg.max_vertices - cfg.view_reserve):
+        if k in view_ids:
+            continue
+        d = np.sqrt(np.sum((x[:k] - x[k]) ** 2, axis=1))
+        assert d.min() > rm.epsilon
+    for _ in range(400):  # come back into recorded territory
+        if rm.recording:
+            break
+        rm.add(rm.current_state * 0.99)
+    assert rm.recording
+    start = rm.current_state
+    for view in reachable:  # every view with a recorded path: exact, under the contract
+        for approach in (False, True):
+            path = rm.plan(start, view, approach=approach)
+            check_path(rm, path, start, view.q)
+    for view in isolated:  # no room left for its excursion: refused, never a shortcut
+        with pytest.raises(GoalUnreachableError, match="not connected"):
+            rm.plan(start, view)
+
+
+def test_view_reserve_and_a_full_roadmap() -> None:
+    cfg = RoadmapConfig(epsilon=1.0, max_vertices=1000)
+    assert cfg.view_reserve == 100
+    rm = Roadmap(config=cfg)
+    k = 0
+    while rm.n_vertices < 1000 - 100:  # ordinary states, 2 epsilon apart along d4
+        rm.add(d4(2.0 * k)[0])
+        k += 1
+    assert rm.add(d4(2.0 * k)[0]) == -1  # closed: farther than epsilon is not recorded
+    assert not rm.recording and rm.n_unrecorded == 1
+    assert rm.add(d4(2.0 * (k - 1) + 0.6)[0]) == rm.n_vertices - 1  # merged: within epsilon
+    assert rm.recording
+    while rm.n_vertices < 1000:  # the reserve takes views only
+        q = d4(2.0 * (k - 1) + 0.5 + 1e-3 * rm.n_vertices)[0]
+        rm.add(q)
+        rm.make_view(f"v{rm.n_vertices}", created_s=0.0)
+    assert rm.n_vertices == 1000
+    same = rm.make_view("again", created_s=0.0)  # the state is a vertex already: fine
+    assert same.vertex == rm.current_vertex
+    rm.add(d4(2.0 * (k - 1) + 0.75)[0])
+    with pytest.raises(RoadmapFullError, match="budget of 1000 vertices"):
+        rm.make_view("one too many", created_s=0.0)
+    assert rm.n_vertices == 1000
+
+
+def test_unbounded_roadmap_and_bad_budgets() -> None:
+    rm = Roadmap(config=RoadmapConfig(max_vertices=None))
+    for k in range(3000):
+        rm.add(d4(2.0 * k)[0])
+    assert rm.n_vertices == 3000 and rm.n_unrecorded == 0
+    with pytest.raises(ConfigurationError, match="max_vertices must be None or an integer"):
+        RoadmapConfig(max_vertices=999)
+    with pytest.raises(ConfigurationError, match="max_vertices"):
+        RoadmapConfig(max_vertices=2.5e5)  # type: ignore[arg-type]
+    with pytest.raises(ConfigurationError, match=r"tree_cache must be an integer in \[1, 1024\]"):
+        RoadmapConfig(tree_cache=0)
+
+
+def test_tree_cache_keeps_the_most_recently_used_trees() -> None:
+    rng = np.random.default_rng(5)
+    rm = Roadmap(config=RoadmapConfig(tree_cache=3))
+    for q in random_trace(rng, 1500, jumps=False):
+        rm.add(q)
+    goals = [0, 50, 100, 150]
+    for g in goals:
+        rm.shortest_path_ids(rm.current_vertex, g)
+    assert list(rm._trees) == [50, 100, 150]  # the least recently used (0) was dropped
+    rm.shortest_path_ids(rm.current_vertex, 50)  # used again: now the most recent
+    rm.install_tree(0, rm.tree_job(0)())
+    assert list(rm._trees) == [150, 50, 0]
+    ids = rm.shortest_path_ids(rm.current_vertex, 0)
+    fresh = dijkstra(rm.csr(), directed=False, indices=0)[rm.current_vertex]
+    assert path_length(rm, ids) == pytest.approx(fresh, rel=1e-12)
+
+
+def test_approach_stops_where_the_trace_broke() -> None:
+    rm = Roadmap(1.0)
+    for v in np.linspace(0.0, 3.0, 13):
+        rm.add(d4(v)[0])
+    rm.break_trace()  # e.g. a restart: the next state was not reached from the last one
+    for v in np.linspace(10.0, 10.5, 3):
+        rm.add(d4(v)[0])
+    view = rm.make_view("after the break", created_s=0.0)
+    q_app = rm.vertices()[list(view.approach)]
+    assert np.all(q_app[:, 3] >= 10.0)  # never reaches back across the break
+    for q in d4(9.0, 8.0, 7.0, 6.0, 5.0, 4.0, 3.0):  # now connect the islands
+        rm.add(q)
+    path = rm.plan(rm.current_state, view, approach=True)
+    check_path(rm, path, rm.current_state, view.q)
+
+
+def test_rows_below_counts_read_earlier_are_stable() -> None:
+    rng = np.random.default_rng(8)
+    rm = Roadmap(1.0, capacity=16)
+    trace = random_trace(rng, 2000)
+    for q in trace[:300]:
+        rm.add(q)
+    nv, ne, nt = rm.counts()
+    v0, (uv0, w0), t0 = rm.vertices(0, nv).copy(), rm.edges(0, ne), rm.trace(0, nt)
+    for q in trace[300:]:  # grows the arrays (capacity doubles several times)
+        rm.add(q)
+    np.testing.assert_array_equal(rm.vertices(0, nv), v0)
+    uv1, w1 = rm.edges(0, ne)
+    np.testing.assert_array_equal(uv1, uv0)
+    np.testing.assert_array_equal(w1, w0)
+    np.testing.assert_array_equal(rm.trace(0, nt), t0)
+    assert rm.edges()[0].dtype == np.int64 and rm.trace().dtype == np.int64
+
+
+def test_tree_job_in_the_worker_process_equals_the_one_in_a_thread() -> None:
+    rng = np.random.default_rng(11)
+    rm = Roadmap(1.0)
+    for q in random_trace(rng, 3000):
+        rm.add(q)
+    view = rm.make_view("v", created_s=0.0)
+    for q in random_trace(rng, 500):
+        rm.add(q)
+    local = rm.tree_job(view)()
+    isolated = rm.tree_job(view, isolate=True)()  # scipy's Dijkstra in another process
+    np.testing.assert_array_equal(isolated.tree.dist, local.tree.dist)
+    np.testing.assert_array_equal(isolated.tree.pred, local.tree.pred)
+    rm.install_tree(view, isolated)
+    path = rm.plan(rm.current_state, view)
+    check_path(rm, path, rm.current_state, view.q)
+
+
+def test_anchor_records_the_excursion_so_a_return_can_start_out_there() -> None:
+    cfg = RoadmapConfig(epsilon=1.0, max_vertices=1000)
+    rm = Roadmap(config=cfg)
+    k = 0
+    while rm.n_vertices < 1000 - cfg.view_reserve:  # fill to the closed stage along d4
+        rm.add(d4(0.3 * k)[0])
+        k += 1
+    home = rm.make_view("home", created_s=0.0)
+    end = 0.3 * (k - 1)
+    out = [np.array([0.01 * i * DEG, 0.0, 0.0, end]) for i in range(1, 400)]  # knob phi1
+    for q in out:
+        assert rm.add(q) == -1 or rm.recording  # leaves recorded territory: not recorded
+    assert not rm.recording
+    with pytest.raises(PlanningError, match="more than epsilon"):
+        rm.plan(out[-1], home)
+    n0 = rm.n_vertices
+    assert rm.anchor() is True and rm.recording
+    assert rm.n_vertices - n0 <= 5  # the trail: states > epsilon apart, 4 deg of travel
+    path = rm.plan(out[-1], home, approach=True)
+    check_path(rm, path, out[-1], home.q)
+    assert rm.anchor() is True  # recording already: nothing to do
+    assert rm.n_isolated_views == 0

@@ -17,7 +17,7 @@ import pytest
 from icenav.errors import FileFormatError, StoreError, UnsupportedVersionError
 from icenav.kinematics import forward
 from icenav.roadmap import Roadmap, RoadmapConfig, RoadmapMetric
-from icenav.store import SCHEMA_VERSION, SessionStore
+from icenav.store import SCHEMA_VERSION, SessionStore, StoreWriter
 
 DEG = math.pi / 180
 
@@ -241,3 +241,77 @@ def test_read_only_and_full_disk_give_store_errors(tmp_path: Path) -> None:
     store._db.close()
     with pytest.raises(StoreError, match="does not exist"):
         SessionStore(tmp_path / "missing.icenav", read_only=True)
+
+
+# --- the writer thread (issue 9: no commit or fsync on the control thread) ----------------
+
+
+def test_writer_runs_jobs_in_order_and_reports_errors(tmp_path: Path) -> None:
+    store = SessionStore(tmp_path / "s.icenav")
+    writer = StoreWriter(store)
+    order: list[int] = []
+    outcomes: list[BaseException | None] = []
+    for i in range(50):
+        writer.submit(lambda st, i=i: order.append(i))
+    writer.submit(lambda st: st.log_event(1.0, "input", {"k": 1}), outcomes.append)
+
+    def boom(st: SessionStore) -> None:
+        raise StoreError("disk on fire")
+
+    writer.submit(boom, outcomes.append)  # reported to on_done, not kept
+    writer.flush()
+    assert order == list(range(50))
+    assert outcomes[0] is None and isinstance(outcomes[1], StoreError)
+    writer.submit(boom)  # no on_done: kept for the next raise_pending, raised once
+    writer.drain()
+    with pytest.raises(StoreError, match="disk on fire"):
+        writer.raise_pending()
+    writer.raise_pending()
+    writer.submit(lambda st: (_ for _ in ()).throw(ValueError("odd")))
+    with pytest.raises(StoreError, match="cannot write session file .*: odd"):
+        writer.flush()
+    writer.close()
+    with pytest.raises(StoreError, match="writer of .* is closed"):
+        writer.submit(lambda st: None)
+    assert [e.kind for e in store.events()] == ["input"]
+    store.close()
+
+
+@pytest.mark.parametrize("seed", range(2))
+def test_threaded_recorder_stores_exactly_what_the_roadmap_holds(tmp_path: Path, seed: int) -> None:
+    from icenav.app import StoreRecorder
+
+    path = tmp_path / "s.icenav"
+    cfg = RoadmapConfig(epsilon=1.0, max_vertices=1000, tree_cache=5)
+    store = SessionStore(path, config=cfg, batch_states=64)
+    rm = Roadmap(config=cfg, capacity=16)  # grows (reallocates) while the writer reads
+    recorder = StoreRecorder(store, rm, sync_every=3, threaded=True)
+    durable: list[tuple[str, bool]] = []
+    views = []
+    for i, q in enumerate(walk(seed, 4000)):
+        rm.add(q)
+        recorder("state", {"q": q})
+        if i % 1000 == 999 and rm.recording:
+            view = rm.make_view(f"v{i}", created_s=float(i))
+            views.append(view)
+
+            def on_durable(error: BaseException | None, name: str = view.name) -> None:
+                with closing(sqlite3.connect(path)) as other:  # committed rows only
+                    rows = other.execute("SELECT name FROM views WHERE name=?", (name,))
+                    durable.append((name, error is None and rows.fetchone() is not None))
+
+            assert recorder("view_saved", {"view": view, "on_durable": on_durable}) == "pending"
+    recorder.close()
+    store.close()
+    assert durable == [(v.name, True) for v in views]  # "done" meant on disk
+    with SessionStore(path, read_only=True) as again:
+        assert again.config == cfg  # the budget is part of the session
+        back = again.load_roadmap()
+        assert [v.name for v in again.load_views()] == [v.name for v in views]
+    np.testing.assert_array_equal(back.vertices(), rm.vertices())
+    np.testing.assert_array_equal(back.trace(), rm.trace())
+    uv0, w0 = rm.edges()
+    uv1, w1 = back.edges()
+    assert sorted(zip(map(tuple, uv0.tolist()), w0.tolist(), strict=True)) == sorted(
+        zip(map(tuple, uv1.tolist()), w1.tolist(), strict=True)
+    )

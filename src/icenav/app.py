@@ -20,8 +20,8 @@ from numpy.typing import NDArray
 from icenav.controller import Controller, ControllerConfig
 from icenav.errors import ConfigurationError
 from icenav.io.joystick import InputSource
-from icenav.roadmap import Roadmap
-from icenav.store import SessionStore
+from icenav.roadmap import Roadmap, RoadmapConfig
+from icenav.store import SessionStore, StoreWriter
 from icenav.views import View
 
 __all__ = ["SimSession", "StoreRecorder", "anatomy_meshes", "make_sim_controller"]
@@ -35,34 +35,98 @@ class StoreRecorder:
     The roadmap is synced incrementally (new vertices, edges and trace since the last sync)
     and committed in batches by the store; a saved view is committed at once, so a view is
     never lost to a crash.
+
+    With ``threaded=True`` every write runs on a :class:`StoreWriter` thread: a control
+    cycle only takes the roadmap's counts (``Roadmap.counts()``, O(1)) and queues a job, so
+    no insert, commit or fsync runs on the control thread. A saved view whose payload has
+    an ``"on_durable"`` callback returns ``"pending"``, and the callback gets ``None`` once
+    the view is committed (or the error), on the writer thread: the controller tells the
+    operator "saved" only then. Without the callback the call waits for the commit. A
+    failed batch is raised by the next call on the control thread (the controller reports
+    it), and the store rewrites the lost rows at the next sync.
+
+    Parameters
+    ----------
+    store : SessionStore
+        The session file.
+    roadmap : Roadmap
+        The controller's roadmap.
+    sync_every : int
+        Sync the roadmap every this many "state" events (control cycles).
+    threaded : bool
+        Write on a thread of its own (see above); False: on the caller's thread.
     """
 
-    def __init__(self, store: SessionStore, roadmap: Roadmap, sync_every: int = 10):
+    def __init__(
+        self, store: SessionStore, roadmap: Roadmap, sync_every: int = 10, threaded: bool = False
+    ):
         self.store = store
         self.roadmap = roadmap
         self.sync_every = max(1, int(sync_every))
         self._n = 0
+        self.writer: StoreWriter | None = StoreWriter(store) if threaded else None
+        """The writer thread (None when not threaded)."""
 
-    def __call__(self, event: str, payload: dict[str, Any]) -> None:
+    def _run(self, fn: Callable[[SessionStore], object], wait: bool = False) -> None:
+        if self.writer is None:
+            fn(self.store)
+        else:
+            self.writer.submit(fn)
+            if wait:
+                self.writer.flush()
+
+    def __call__(self, event: str, payload: dict[str, Any]) -> object:
+        roadmap = self.roadmap
+        if self.writer is not None and event != "view_saved":
+            # a failed write reaches the controller here (a view reports its own outcome,
+            # and is tried even after an earlier batch failed)
+            self.writer.raise_pending()
         if event == "state":
             self._n += 1
             if self._n % self.sync_every == 0:
-                self.store.sync_roadmap(self.roadmap)
+                upto = roadmap.counts()
+                self._run(lambda st: st.sync_roadmap(roadmap, upto))
         elif event == "view_saved":
             view: View = payload["view"]
-            self.store.sync_roadmap(self.roadmap)
-            self.store.add_view(view, self.roadmap)
-            self.store.commit()
+            upto = roadmap.counts()
+            on_durable = payload.get("on_durable")
+            if self.writer is not None and on_durable is not None:
+                self.writer.submit(lambda st: st.add_view(view, roadmap, upto), on_durable)
+                return "pending"
+            self._run(lambda st: st.add_view(view, roadmap, upto), wait=True)
         elif event == "view_deleted":
-            self.store.delete_view(str(payload["name"]))
-            self.store.commit()
+            name = str(payload["name"])
+            self._run(lambda st: st.delete_view(name))
         else:
-            self.store.log_event(time.time(), event, {k: str(v) for k, v in payload.items()})
+            t = time.time()
+            data = {k: str(v) for k, v in payload.items()}
+            self._run(lambda st: st.log_event(t, event, data))
+        return None
+
+    def drain(self) -> None:
+        """Wait until the writer has run every job queued so far (no-op when not threaded);
+        errors stay pending for the next call or :meth:`flush`."""
+        if self.writer is not None:
+            self.writer.drain()
 
     def flush(self) -> None:
-        """Sync and commit everything pending."""
-        self.store.sync_roadmap(self.roadmap)
-        self.store.commit()
+        """Sync and commit everything pending (waits for the writer); raises a pending
+        write error."""
+        roadmap = self.roadmap
+
+        def sync(st: SessionStore) -> None:
+            st.sync_roadmap(roadmap)
+            st.commit()
+
+        self._run(sync, wait=True)
+
+    def close(self) -> None:
+        """Flush and stop the writer thread (the store stays open)."""
+        try:
+            self.flush()
+        finally:
+            if self.writer is not None:
+                self.writer.close()
 
 
 @dataclass
@@ -81,10 +145,12 @@ class SimSession:
     def close(self) -> None:
         """Stop the loop and flush the store."""
         self.controller.shutdown()
-        if self.recorder is not None:
-            self.recorder.flush()  # a failure here must reach the operator: no silent loss
-        if self.store is not None:
-            self.store.close()
+        try:
+            if self.recorder is not None:
+                self.recorder.close()  # a failure here must reach the operator: no silent loss
+        finally:
+            if self.store is not None:
+                self.store.close()
         self.controller.robot.close()
         if self.drives is not None:
             self.drives.close()
@@ -100,6 +166,7 @@ def make_sim_controller(
     imaging: bool = True,
     robot: str = "sim",
     clock: Callable[[], float] = time.monotonic,
+    roadmap_config: RoadmapConfig | None = None,
 ) -> SimSession:
     """A controller on the digital twin.
 
@@ -119,6 +186,9 @@ def make_sim_controller(
         "sim": the simulated robot moves the twin directly. "emulated-canopen": five
         emulated CiA 402 drives on a virtual CAN bus behind :class:`CANopenRobot` (the code
         path of real drives); the twin follows the drives' encoder positions.
+    roadmap_config : RoadmapConfig, optional
+        Settings of a new roadmap (epsilon, vertex budget, ...); a resumed session keeps
+        the settings stored in its file.
     """
     from icenav.hw.sim import SimulatedRobot
     from icenav.sim import CatheterPlant, EMTracker
@@ -141,10 +211,12 @@ def make_sim_controller(
     store = recorder = None
     roadmap = views = None
     if session is not None:
-        store = SessionStore(session, clock=clock)
+        store = SessionStore(session, config=roadmap_config, clock=clock)
         roadmap = store.load_roadmap()
         roadmap.break_trace()  # the restart was not a travelled motion
         views = store.load_views()
+    elif roadmap_config is not None:
+        roadmap = Roadmap(config=roadmap_config)
     renderer = None
     imager = None
     if imaging:
@@ -185,7 +257,7 @@ def make_sim_controller(
         clock=clock,
     )
     if store is not None:
-        recorder = StoreRecorder(store, controller.roadmap)
+        recorder = StoreRecorder(store, controller.roadmap, threaded=True)
         controller.set_recorder(recorder)
     return SimSession(controller, plant, tracker, renderer, store, recorder, drives)
 

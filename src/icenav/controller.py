@@ -25,6 +25,7 @@ Modes and the allowed transitions are in :data:`TRANSITIONS`.
 
 from __future__ import annotations
 
+import gc
 import math
 import queue
 import threading
@@ -50,6 +51,7 @@ from icenav.io.joystick import (
 )
 from icenav.kinematics import DEFAULT_GEOMETRY, CatheterGeometry, backbone, forward, tip_jog
 from icenav.roadmap import Roadmap
+from icenav.spin_task import SpinTask, tracked_tip2base
 from icenav.state import (
     CalibrationKind,
     ControllerState,
@@ -74,6 +76,11 @@ __all__ = [
 Array = NDArray[np.float64]
 
 _AUTOMATIC = (Mode.GOTO_VIEW, Mode.SPINNING, Mode.CALIBRATING)
+_GC_NO_AUTOMATIC_FULL = 1_000_000_000
+"""Generation-2 threshold of the GC policy: so large that no full collection is automatic."""
+_GC_LOCK = threading.Lock()
+_GC_USERS: set[int] = set()  # controllers holding the GC policy (settle_gc)
+_GC_SAVED: list[int] = []  # the generation-2 threshold before the policy
 _TELEOP = (Mode.IDLE, Mode.KNOB, Mode.TIP)
 
 TRANSITIONS: dict[Mode, frozenset[Mode]] = {
@@ -141,9 +148,22 @@ class ControllerConfig:
     """Rate of the live ICE image (Hz), when an imager is configured."""
     backbone_points: int = 30
     """Points per drawn bending section."""
-    background_plan_vertices: int = 20_000
+    background_plan_vertices: int = 2_000
     """From this roadmap size on, go-to-view plans in a background thread (the robot holds
-    meanwhile) and a new view's shortest-path tree is prepared in the background."""
+    meanwhile) and a new view's shortest-path tree is prepared in the background (it was
+    20,000: a plan inside the cycle then took up to 50 ms of CPU, 100-300 ms on a busy
+    machine; issue 9, soak)."""
+    plan_in_process: bool = True
+    """Run the background Dijkstra of go-to-view / a new view's tree in a worker process
+    (``Roadmap.tree_job(isolate=True)``): scipy's Dijkstra holds the GIL for its whole run,
+    so in a thread it would stall the control loop (issue 9, soak)."""
+    gc_full_every_s: float = 300.0
+    """With the real-time loop's GC policy (:meth:`Controller.settle_gc`): run a full
+    garbage collection at most this often (s), between cycles, in a cycle's idle time."""
+    spin_feedback: bool = True
+    """Servo the spin on the EM tracker when one is configured with a registration
+    (``tracker.config.tracker2base`` and ``sensor2tip``): :class:`icenav.spin_task.SpinTask`
+    with a :class:`icenav.feedback.TipPoseServo` (``docs/calibration.md``, section 4b)."""
     geometry: CatheterGeometry = DEFAULT_GEOMETRY
     """Catheter geometry and joint limits (the motor limits equal the model limits)."""
 
@@ -153,6 +173,7 @@ class ControllerConfig:
             raise ConfigurationError(f"rate_hz must be <= 2000 Hz, got {self.rate_hz} Hz")
         check_positive(self.watchdog_s, "watchdog_s", "s")
         check_positive(self.image_rate_hz, "image_rate_hz", "Hz")
+        check_positive(self.gc_full_every_s, "gc_full_every_s", "s")
         v = check_finite(self.max_velocity, "max_velocity", "rad/s, rad/s, rad/s, mm/s")
         if v.shape != (4,) or np.any(v <= 0):
             raise ConfigurationError(
@@ -326,7 +347,7 @@ class _PlanningTask:
         self.failed = False
         """True when no path could be planned (the message says why)."""
         self._hold = ctrl._q_cmd.copy()
-        job = ctrl.roadmap.tree_job(view)
+        job = ctrl.roadmap.tree_job(view, approach=True, isolate=ctrl.config.plan_in_process)
 
         def run() -> None:
             prepared = job()
@@ -416,7 +437,7 @@ class Controller:
         tracker: Any = None,
         imager: Callable[[Array, float], NDArray[np.uint8]] | None = None,
         image_ijk2tip: Array | None = None,
-        recorder: Callable[[str, dict[str, Any]], None] | None = None,
+        recorder: Callable[[str, dict[str, Any]], object] | None = None,
         clock: Callable[[], float] = time.monotonic,
     ) -> None:
         self.robot = robot
@@ -458,6 +479,7 @@ class Controller:
         """Compute time of the latest cycles (s), for the benchmark."""
         self.cycle_starts: deque[float] = deque(maxlen=100_000)
         """perf_counter() at the start of the latest real-time cycles (s), for jitter."""
+        self._next_full_gc: float | None = None  # GC policy: off until settle_gc()
         if self.robot.status is RobotStatus.DISABLED:
             self.robot.enable()
         q0 = self.robot.read_state().q
@@ -837,7 +859,23 @@ class Controller:
             self._view_images[name] = self._image
         self._selected_view = name
         self._prepare_plans_to(view)
-        if self._record("view_saved", {"view": view}):
+
+        # --- store writer hand-off (issue 9, soak): a threaded recorder commits the view on
+        # its own thread and calls back; the operator reads "saved" only once it is on disk
+        def on_durable(error: BaseException | None) -> None:  # on the writer thread
+            if error is None:
+                text = f"view {name!r} saved"
+            else:
+                text = (
+                    f"view {name!r} saved in memory only, NOT on disk: "
+                    f"could not record view_saved: {error}"
+                )
+            self._submit(lambda: setattr(self, "_message", text))
+
+        recorded = self._record("view_saved", {"view": view, "on_durable": on_durable})
+        if recorded == "pending":
+            self._message = f"view {name!r}: saving to disk"
+        elif recorded:
             self._message = f"view {name!r} saved"
         else:  # reliability: the operator must know the view is not on disk
             self._message = f"view {name!r} saved in memory only, NOT on disk: {self._message}"
@@ -856,7 +894,7 @@ class Controller:
         to it plans in milliseconds and the control loop never waits for a full search."""
         if self.roadmap.n_vertices < self.config.background_plan_vertices:
             return  # a first plan is fast enough on a small roadmap
-        job = self.roadmap.tree_job(view)
+        job = self.roadmap.tree_job(view, approach=True, isolate=self.config.plan_in_process)
 
         def run() -> None:
             tree = job()
@@ -870,6 +908,9 @@ class Controller:
         except IcenavError as exc:
             self._message = str(exc)
             return
+        # vertex budget (issue 9, soak): out of recorded territory, record the stretch
+        # travelled since the roadmap was left, so the return can start from here
+        self.roadmap.anchor()
         if self.roadmap.n_vertices >= self.config.background_plan_vertices:
             # a large roadmap: the search runs in a thread on a snapshot while the robot
             # holds; the control loop never waits for it
@@ -895,12 +936,26 @@ class Controller:
         except IcenavError as exc:
             self._message = f"cannot spin from here: {exc}"
             return
-        path = self._to_motor(spin.q_model)
         lim = g.joint_limits
-        path = np.clip(path, lim[:, 0], lim[:, 1])
-        path[0] = self._q
-        task = PathTask(
-            path, np.asarray(self.config.max_velocity), mode=Mode.SPINNING, label="spin 360"
+        pose_source = None
+        registration = getattr(getattr(self.tracker, "config", None), "tracker2base", None)
+        if self.config.spin_feedback and self.tracker is not None and registration is not None:
+            tracker = self.tracker
+
+            def pose_source() -> tuple[float, Array | None]:
+                try:
+                    return tracked_tip2base(tracker)
+                except IcenavError:  # the tracker is not in the safety path: hold the loop
+                    return self._time, None
+
+        task = SpinTask(
+            spin.q_model,
+            self._to_motor,
+            np.asarray(self.config.max_velocity),
+            lim,
+            pose_source=pose_source,
+            geometry=g,
+            hold_measured=True,
         )
         self.start_task(task)
 
@@ -971,16 +1026,18 @@ class Controller:
 
     # --- publishing -----------------------------------------------------------------------
 
-    def _record(self, event: str, payload: dict[str, Any]) -> bool:
-        """Hand ``event`` to the recorder; False (and a message) when it failed."""
+    def _record(self, event: str, payload: dict[str, Any]) -> bool | Literal["pending"]:
+        """Hand ``event`` to the recorder; False (and a message) when it failed; "pending"
+        when the recorder writes on its own thread and will call ``payload["on_durable"]``
+        (see :meth:`_save_view`)."""
         if self._recorder is None:
             return True
         try:
-            self._recorder(event, payload)
+            result = self._recorder(event, payload)
         except IcenavError as exc:
             self._message = f"could not record {event}: {exc}"
             return False
-        return True
+        return "pending" if result == "pending" else True
 
     def _operator_message(self) -> str:
         """The latest message; in FAULT / ESTOP the cause stays in front until reset."""
@@ -1012,8 +1069,9 @@ class Controller:
                 self._message = f"tracker error: {exc}"
             if frame is not None:
                 tracker_status = frame.status.name
-                if frame.sensor2tracker is not None:
-                    sensor = self.tracker.config.tracker2base @ frame.sensor2tracker
+                registration = getattr(getattr(self.tracker, "config", None), "tracker2base", None)
+                if frame.sensor2tracker is not None and registration is not None:
+                    sensor = registration @ frame.sensor2tracker
         task = self._task
         return ControllerState(
             time=self._time,
@@ -1063,9 +1121,56 @@ class Controller:
         self._image = frame
         return frame
 
-    def set_recorder(self, recorder: Callable[[str, dict[str, Any]], None] | None) -> None:
+    def set_recorder(self, recorder: Callable[[str, dict[str, Any]], object] | None) -> None:
         """Install the persistence callback (see the class docstring)."""
         self._recorder = recorder
+
+    # --- garbage-collection policy (issue 9, soak) -------------------------------------------
+    # A full (generation 2) collection traverses every container object of the process; on
+    # a long procedure it stalled one control cycle for up to seconds. Policy: after
+    # start-up, collect once and freeze what exists (never traversed again), switch the
+    # automatic full collection off, and run a full collection only between cycles, in a
+    # cycle's idle time, at most every ``gc_full_every_s``. Young generations stay
+    # automatic: they only traverse objects allocated since the last collection.
+
+    def settle_gc(self) -> None:
+        """Apply the policy above (process-wide): collect, ``gc.freeze()``, and no automatic
+        full collection, until :meth:`release_gc` (which :meth:`shutdown` calls) of the
+        last controller that settled. :meth:`start` calls it; a caller stepping the loop by
+        hand (the soak) may too, then calls :meth:`collect_garbage_if_due` between cycles."""
+        if self._next_full_gc is not None:
+            return
+        with _GC_LOCK:
+            if not _GC_USERS:
+                gc.collect()
+                gc.freeze()
+                t0, t1, t2 = gc.get_threshold()
+                _GC_SAVED[:] = [t2]
+                gc.set_threshold(t0, t1, _GC_NO_AUTOMATIC_FULL)
+            _GC_USERS.add(id(self))
+        self._next_full_gc = self._time + self.config.gc_full_every_s
+
+    def release_gc(self) -> None:
+        """Undo :meth:`settle_gc` for this controller (the default policy is back once no
+        controller holds it)."""
+        if self._next_full_gc is None:
+            return
+        self._next_full_gc = None
+        with _GC_LOCK:
+            _GC_USERS.discard(id(self))
+            if not _GC_USERS and _GC_SAVED:
+                t0, t1, _ = gc.get_threshold()
+                gc.set_threshold(t0, t1, _GC_SAVED.pop())
+                gc.unfreeze()
+
+    def collect_garbage_if_due(self) -> bool:
+        """Between cycles: run a full collection if ``gc_full_every_s`` of controller time
+        has passed since the last one (after :meth:`settle_gc`); return whether it ran."""
+        if self._next_full_gc is None or self._time < self._next_full_gc:
+            return False
+        self._next_full_gc = self._time + self.config.gc_full_every_s
+        gc.collect()
+        return True
 
     # --- running in real time -------------------------------------------------------------
 
@@ -1075,6 +1180,7 @@ class Controller:
         renderer never delays a control cycle."""
         if self._thread is not None:
             return
+        self.settle_gc()
         self._running.set()
         self._thread = threading.Thread(target=self._loop, name="icenav-control", daemon=True)
         self._thread.start()
@@ -1107,6 +1213,8 @@ class Controller:
                 self._message = f"controller error: {exc}; e-stopped"
             next_t += period
             delay = next_t - time.perf_counter()
+            if delay > 0.5 * period and self.collect_garbage_if_due():  # GC policy (above)
+                delay = next_t - time.perf_counter()
             if delay > 0:
                 time.sleep(delay)
             else:
@@ -1120,6 +1228,7 @@ class Controller:
                 thread.join(timeout=5.0)
         self._thread = None
         self._image_thread = None
+        self.release_gc()
 
     def run_cycles(self, n: int) -> ControllerState:
         """Run ``n`` cycles as fast as possible (simulation, tests)."""

@@ -25,6 +25,10 @@ already visited. What we add (see ``docs/view-recovery.md``):
   (adding edges can only shorten distances). A pure-Python A* with the Euclidean
   heuristic over the same CSR arrays is available (``method="astar"``) and returns paths
   exactly as short (the heuristic is consistent: edge weights are Euclidean distances).
+* A vertex budget (``RoadmapConfig.max_vertices``, default 250,000) bounds memory over a
+  long procedure: coarse merging from 80 % of it, no new territory recorded from 90 %
+  except the excursions that lead to a saved view or to the start of a return; nothing is
+  ever dropped, so views stay exact and their paths intact (``docs/view-recovery.md``).
 * Each view remembers the direction from which every joint arrived; ``plan(...,
   approach=True)`` ends by replaying the recorded trace that led to the view, so the
   transmission's backlash is taken up the same way as when the view was saved.
@@ -32,9 +36,12 @@ already visited. What we add (see ``docs/view-recovery.md``):
 
 from __future__ import annotations
 
+import array
+import atexit
 import heapq
 import itertools
 import math
+import threading
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Any, Literal
@@ -51,11 +58,15 @@ from icenav.views import View
 __all__ = [
     "Roadmap",
     "RoadmapConfig",
+    "RoadmapFullError",
     "RoadmapMetric",
     "direction_tracker",
 ]
 
 _DEG_PER_RAD = 180.0 / math.pi
+_EXCURSION_MAX = 2048
+"""Longest excursion trail kept while the vertex budget is closed (states more than
+epsilon apart, so at least 2048 metric units of travel)."""
 
 Array = NDArray[np.float64]
 IntArray = NDArray[np.int64]
@@ -113,9 +124,35 @@ class RoadmapConfig:
     return errors than no approach, 5 (with approach_length 40) about 15-100x)."""
     approach_length: float = 20.0
     """Longest recorded trace (path length) kept as a view's same-direction approach."""
+    max_vertices: int | None = 250_000
+    """Vertex budget (None: unbounded). From 80 % of it on, a state merges into any vertex
+    within epsilon (coarse merging); from ``max_vertices - view_reserve`` (90 %) on, a
+    state farther than epsilon from every vertex is not recorded (the trace is broken
+    there) until a view is saved out there: then the stretch travelled since the roadmap
+    was left is recorded from the reserve, so the view stays reachable. See
+    ``docs/view-recovery.md`` ("Vertex budget")."""
+    tree_cache: int = 8
+    """Shortest-path trees kept (least recently used dropped), each 12 bytes a vertex."""
 
     def __post_init__(self) -> None:
         eps = check_positive(self.epsilon, "epsilon", "metric units (1 mm == 1 deg)")
+        if self.max_vertices is not None and (
+            isinstance(self.max_vertices, bool)
+            or not isinstance(self.max_vertices, int | np.integer)
+            or self.max_vertices < 1000
+        ):
+            raise ConfigurationError(
+                f"max_vertices must be None or an integer >= 1000 vertices, got "
+                f"{self.max_vertices!r}"
+            )
+        if (
+            isinstance(self.tree_cache, bool)
+            or not isinstance(self.tree_cache, int | np.integer)
+            or not 1 <= self.tree_cache <= 1024
+        ):
+            raise ConfigurationError(
+                f"tree_cache must be an integer in [1, 1024] trees, got {self.tree_cache!r}"
+            )
         if self.merge_radius is not None:
             r = check_positive(self.merge_radius, "merge_radius", "metric units")
             if r >= eps:
@@ -129,6 +166,19 @@ class RoadmapConfig:
     def resolution(self) -> float:
         """The merge radius in use (metric units)."""
         return self.epsilon / 4.0 if self.merge_radius is None else float(self.merge_radius)
+
+    @property
+    def view_reserve(self) -> int:
+        """Vertex slots kept for views (and the excursion trails that lead to them) at the
+        end of the budget (10 %, at least 64)."""
+        if self.max_vertices is None:
+            return 0
+        return max(64, int(self.max_vertices) // 10)
+
+
+class RoadmapFullError(PlanningError):
+    """The vertex budget (``RoadmapConfig.max_vertices``) is used up: a view whose state is
+    not already a vertex cannot be recorded exactly."""
 
 
 def direction_tracker(
@@ -210,13 +260,15 @@ class Roadmap:
         self._q = np.empty((cap, 4))
         self._x = np.empty((cap, 4))
         self._n = 0
-        self._eu = np.empty(4 * cap, np.int64)
-        self._ev = np.empty(4 * cap, np.int64)
+        self._eu = np.empty(4 * cap, np.int32)  # int32 ids: 16 bytes an edge with w
+        self._ev = np.empty(4 * cap, np.int32)
         self._ew = np.empty(4 * cap)
         self._m = 0
         self._long_edges: set[tuple[int, int]] = set()
-        self._grid: dict[tuple[int, int, int, int], list[int]] = {}
-        self._trace = np.empty(cap, np.int64)
+        # cell -> vertex ids; array.array rather than list: 8 bytes an id, no int objects,
+        # and not a container the garbage collector has to traverse
+        self._grid: dict[tuple[int, int, int, int], array.array[int]] = {}
+        self._trace = np.empty(cap, np.int32)
         self._t = 0
         self._current = -1
         self._cur_x: list[float] = []  # metric coordinates of the current vertex
@@ -228,9 +280,20 @@ class Roadmap:
         self._csr_t: sp.csr_matrix | None = None  # its transpose (the other direction)
         self._csr_version = -1
         self._csr_m = 0  # edges [0, _csr_m) are in the CSR
-        self._delta_adj: dict[int, list[tuple[int, float]]] = {}
-        self._delta_upto = 0  # edges [_csr_m, _delta_upto) are in _delta_adj
-        self._trees: dict[int, _Tree] = {}
+        self._delta: sp.csr_matrix | None = None  # symmetric CSR of edges [_csr_m, m)
+        self._delta_key = (-1, -1, -1)  # (_csr_m, m, n) the delta was built for
+        self._trees: dict[int, _Tree] = {}  # least recently used first
+        # the vertex budget (see RoadmapConfig.max_vertices)
+        big = np.iinfo(np.int64).max
+        mv = cfg.max_vertices
+        self._max_n = big if mv is None else int(mv)
+        self._closed_from = big if mv is None else int(mv) - cfg.view_reserve
+        self._coarse_from = big if mv is None else min(self._closed_from, int(0.8 * int(mv)))
+        self._n_unrecorded = 0
+        self._exit = -1  # vertex where an unrecorded excursion left the roadmap (-1: none)
+        self._excursion: list[list[float]] = []  # its states, > epsilon apart
+        self._excursion_x: list[float] = []
+        self._n_isolated_views = 0
 
     # --- properties -------------------------------------------------------------------
 
@@ -266,8 +329,33 @@ class Roadmap:
 
     @property
     def current_vertex(self) -> int:
-        """Vertex of the latest state (-1 before the first state)."""
+        """Vertex of the latest state (-1 before the first state, and while the latest state
+        was not recorded: see :attr:`recording`)."""
         return self._current
+
+    @property
+    def recording(self) -> bool:
+        """Whether the latest state was recorded (False when the vertex budget is closed
+        and the state lies farther than epsilon from every vertex)."""
+        return self._current >= 0
+
+    @property
+    def n_unrecorded(self) -> int:
+        """States not recorded because the vertex budget was closed (see RoadmapConfig)."""
+        return self._n_unrecorded
+
+    @property
+    def n_isolated_views(self) -> int:
+        """Views saved (or :meth:`anchor` calls made) out of recorded territory whose
+        excursion could not be recorded (longer than the trail kept, or no room left in the
+        budget): no path leads to them."""
+        return self._n_isolated_views
+
+    @property
+    def merge_radius_now(self) -> float:
+        """The merge radius in use for the next state (metric units): the configured one,
+        or epsilon once 80 % of the vertex budget is used."""
+        return self._eps if self._n >= self._coarse_from else self._res
 
     @property
     def current_state(self) -> Array | None:
@@ -284,20 +372,36 @@ class Roadmap:
         """(4,) the direction threshold per joint in motor units (rad, rad, rad, mm)."""
         return self._thr.copy()
 
-    def vertices(self, start: int = 0) -> Array:
-        """(n - start, 4) motor states of vertices ``start..n-1`` (read-only view)."""
-        v = self._q[start : self._n]
+    def vertices(self, start: int = 0, stop: int | None = None) -> Array:
+        """(stop - start, 4) motor states of vertices ``start..stop-1`` (default: to the
+        end; read-only view).
+
+        Rows below a count read earlier never change (the arrays are append-only), so
+        another thread may read ``vertices(a, b)`` with ``b <= n_vertices`` read before,
+        while this roadmap grows (the store's writer thread does).
+        """
+        q = self._q  # read once: a concurrent growth replaces the array, not its rows
+        v = q[start : self._n if stop is None else stop]
         v.flags.writeable = False
         return v
 
-    def edges(self, start: int = 0) -> tuple[IntArray, Array]:
-        """Edges ``start..m-1``: (k, 2) vertex id pairs and (k,) lengths (metric units)."""
-        uv = np.stack([self._eu[start : self._m], self._ev[start : self._m]], axis=1)
-        return uv, self._ew[start : self._m].copy()
+    def edges(self, start: int = 0, stop: int | None = None) -> tuple[IntArray, Array]:
+        """Edges ``start..stop-1`` (default: to the end): (k, 2) vertex id pairs and (k,)
+        lengths (metric units). Safe from another thread as :meth:`vertices` is."""
+        m = self._m if stop is None else stop
+        eu, ev, ew = self._eu, self._ev, self._ew
+        uv = np.stack([eu[start:m], ev[start:m]], axis=1).astype(np.int64)
+        return uv, ew[start:m].copy()
 
-    def trace(self, start: int = 0) -> IntArray:
-        """Vertex ids visited in order (consecutive duplicates removed), from ``start``."""
-        return self._trace[start : self._t].copy()
+    def trace(self, start: int = 0, stop: int | None = None) -> IntArray:
+        """Vertex ids visited in order (consecutive duplicates removed), ``start..stop-1``
+        (default: to the end). Safe from another thread as :meth:`vertices` is."""
+        tr = self._trace
+        return tr[start : self._t if stop is None else stop].astype(np.int64)
+
+    def counts(self) -> tuple[int, int, int]:
+        """(n_vertices, n_edges, n_trace) read together (for a consistent snapshot)."""
+        return self._n, self._m, self._t
 
     def metric_coordinates(self, q: ArrayLike) -> Array:
         """Metric coordinates ``x = scale * q`` of motor state(s), shape (..., 4)."""
@@ -313,13 +417,18 @@ class Roadmap:
         within ``merge_radius`` of an existing vertex (then it is merged into that vertex).
         Either way, the vertex of the previous state and this one are connected.
 
+        Vertex budget (``config.max_vertices``): from 90 % of it on, the merge radius is
+        epsilon; once only the view reserve is left, a state farther than epsilon from
+        every vertex is not recorded and -1 is returned (see :attr:`recording`).
+
         Parameters
         ----------
         q : array-like, shape (4,)
             Motor joint state (phi1 rad, phi2 rad, phi3 rad, d4 mm).
         force_vertex : bool
             Make ``q`` itself a vertex (used when a view is saved, so the view's state is
-            recorded exactly), unless a vertex with exactly these coordinates exists.
+            recorded exactly), unless a vertex with exactly these coordinates exists; it
+            may use the view reserve of the budget (RoadmapFullError when none is left).
         check : bool
             Validate ``q``; ``False`` for hot loops.
         """
@@ -341,11 +450,24 @@ class Roadmap:
         xs = [ql[0] * sc[0], ql[1] * sc[1], ql[2] * sc[2], ql[3] * sc[3]]
         cur = self._current
         vid = -1
+        merge_r = self._eps if self._n >= self._coarse_from else self._res
         if force_vertex:
             ids, d = self._query(xs, self._res)
             exact = ids[d == 0.0] if len(ids) else ids
             if len(exact):
                 vid = int(exact[0])
+            elif cur < 0 and self._exit >= 0:
+                # a view out of recorded territory (budget closed): record the stretch
+                # travelled since the roadmap was left, so the view stays reachable
+                self._record_excursion()
+                cur = self._current
+                if cur >= 0 and self._q[cur].tolist() == ql:
+                    vid = cur  # the trail ended exactly at the view's state
+            if vid < 0 and self._n >= self._max_n:
+                raise RoadmapFullError(
+                    f"the roadmap holds its budget of {self._max_n} vertices "
+                    "(RoadmapConfig.max_vertices): a new state cannot be recorded as a view"
+                )
         else:
             if cur >= 0:
                 xc = self._cur_x
@@ -355,15 +477,23 @@ class Roadmap:
                     + (xs[2] - xc[2]) ** 2
                     + (xs[3] - xc[3]) ** 2
                 )
-                if dc <= self._res:
+                if dc <= merge_r:
                     vid = cur
             if vid < 0:
                 near_ids, near_d = self._query(xs, self._eps)
                 if len(near_ids):
                     i = int(np.argmin(near_d))
-                    if near_d[i] <= self._res:
+                    if near_d[i] <= merge_r:
                         vid = int(near_ids[i])
                 if vid < 0:
+                    if self._n >= self._closed_from:
+                        # budget closed: farther than epsilon from every vertex, the state
+                        # is not recorded, and the trace breaks (no edge claims the
+                        # unrecorded stretch was travelled)
+                        self._note_excursion(ql, xs, cur)
+                        self._current = -1
+                        self._n_unrecorded += 1
+                        return -1
                     vid = self._new_vertex(ql, xs, near_ids, near_d)
         if vid < 0:
             ids, d = self._query(xs, self._eps)
@@ -383,7 +513,87 @@ class Roadmap:
             self._append_trace(vid)
             self._cur_x = new_x
         self._current = vid
+        if self._exit >= 0:  # back in recorded territory: the excursion is over
+            self._exit = -1
+            self._excursion = []
         return vid
+
+    def anchor(self) -> bool:
+        """Make the latest state a recorded vertex if it is not (the budget was closed and
+        the operator is out of recorded territory), with the stretch travelled since the
+        roadmap was left, from the view reserve, so that a return can start here. Return
+        whether the latest state is now connected to the roadmap (False: no state yet, the
+        reserve is used up, or the excursion was too long to keep: then
+        :attr:`n_isolated_views` counts it and a return from here is refused)."""
+        if self._current >= 0:
+            return True
+        if self._prev_list is None:
+            return False
+        before = self._n_isolated_views
+        try:
+            self.add(self._prev_list, force_vertex=True)
+        except RoadmapFullError:
+            return False
+        return self._current >= 0 and self._n_isolated_views == before
+
+    def _note_excursion(self, ql: list[float], xs: list[float], cur: int) -> None:
+        """Remember an unrecorded state (budget closed) in the excursion trail: states more
+        than epsilon apart since the roadmap was left at vertex ``_exit``, at most
+        ``_EXCURSION_MAX`` of them (longer excursions are forgotten: a view saved there has
+        no recorded path)."""
+        if cur >= 0:  # leaving the roadmap now, from vertex cur
+            self._exit = cur
+            self._excursion = []
+        elif self._exit < 0:
+            return  # no anchor (an earlier excursion was too long, or the trace broke)
+        trail = self._excursion
+        if trail:
+            lx = self._excursion_x
+            d2 = (
+                (xs[0] - lx[0]) ** 2
+                + (xs[1] - lx[1]) ** 2
+                + (xs[2] - lx[2]) ** 2
+                + (xs[3] - lx[3]) ** 2
+            )
+            if d2 <= self._eps * self._eps:
+                return
+        if len(trail) >= _EXCURSION_MAX:
+            self._exit = -1  # too long to keep
+            self._excursion = []
+            return
+        trail.append(ql)
+        self._excursion_x = xs
+
+    def _record_excursion(self) -> None:
+        """Record the excursion trail as vertices (from the view reserve), connected from
+        the vertex where the roadmap was left, as if the budget had been open."""
+        trail = self._excursion
+        if self._exit < 0 or self._n + len(trail) + 1 > self._max_n:
+            self._n_isolated_views += 1  # no room (or no anchor): the view has no path
+            return
+        cur = self._exit
+        cur_x = self._x[cur].tolist()
+        sc = self._scale_list
+        for ql in trail:
+            xs = [ql[0] * sc[0], ql[1] * sc[1], ql[2] * sc[2], ql[3] * sc[3]]
+            ids, d = self._query(xs, self._eps)
+            vid = -1
+            if len(ids):  # the trail may cross itself: merge as coarse merging does
+                i = int(np.argmin(d))
+                vid = int(ids[i])
+            if vid < 0:
+                vid = self._new_vertex(ql, xs, ids, d)
+            if vid != cur:
+                new_x = self._x[vid].tolist()
+                w = math.sqrt(sum((a - b) ** 2 for a, b in zip(new_x, cur_x, strict=True)))
+                if w > self._eps:
+                    self._connect_long(cur, vid, w)
+                self._append_trace(vid)
+                cur, cur_x = vid, new_x
+        self._current = cur
+        self._cur_x = cur_x
+        self._exit = -1
+        self._excursion = []
 
     def _cell_ranges(self, xs: list[float], radius: float) -> list[tuple[int, ...]]:
         c = self._cell
@@ -432,7 +642,7 @@ class Roadmap:
         )
         lst = self._grid.get(key)
         if lst is None:
-            self._grid[key] = [n]
+            self._grid[key] = array.array("q", (n,))
         else:
             lst.append(n)
         k = len(ids)
@@ -579,6 +789,8 @@ class Roadmap:
             step = float(np.sqrt(np.sum((self._x[u] - self._x[ids[-1]]) ** 2)))
             if length + step > limit:
                 break
+            if step > self._eps and (min(u, ids[-1]), max(u, ids[-1])) not in self._long_edges:
+                break  # the trace broke here (restart, unrecorded stretch): not travelled
             length += step
             ids.append(u)
             reached |= (q_view - self._q[u]) * direction >= 2.0 * self._thr
@@ -598,8 +810,7 @@ class Roadmap:
             self._csr_t = None
             self._csr_version = self._version
             self._csr_m = m
-            self._delta_adj = {}
-            self._delta_upto = m
+            self._delta = None
         return self._csr
 
     def _both_halves(self) -> tuple[sp.csr_matrix, sp.csr_matrix]:
@@ -615,24 +826,21 @@ class Roadmap:
         half = self._half()
         return (half + half.T).tocsr()
 
-    def _adjacency_delta(self) -> dict[int, list[tuple[int, float]]]:
-        """Adjacency of the edges added since the CSR was built (kept up to date)."""
-        m = self._m
-        if self._delta_upto < m:
-            adj = self._delta_adj
-            lo = self._delta_upto
-            for a, b, w in zip(
-                self._eu[lo:m].tolist(),
-                self._ev[lo:m].tolist(),
-                self._ew[lo:m].tolist(),
-                strict=True,
-            ):
-                adj.setdefault(a, []).append((b, w))
-                adj.setdefault(b, []).append((a, w))
-            self._delta_upto = m
-        return self._delta_adj
+    def _adjacency_delta(self) -> sp.csr_matrix:
+        """Symmetric (n, n) CSR of the edges added since the CSR was built (numpy arrays,
+        not Python objects: it may hold as many edges as the CSR itself)."""
+        key = (self._csr_m, self._m, self._n)
+        if self._delta is None or self._delta_key != key:
+            lo, m, n = key
+            u, v, w = self._eu[lo:m], self._ev[lo:m], self._ew[lo:m]
+            self._delta = sp.coo_matrix(
+                (np.concatenate([w, w]), (np.concatenate([u, v]), np.concatenate([v, u]))),
+                shape=(n, n),
+            ).tocsr()
+            self._delta_key = key
+        return self._delta
 
-    def _tree(self, goal: int) -> tuple[Array, IntArray]:
+    def _tree(self, goal: int) -> tuple[Array, NDArray[np.int32]]:
         """Shortest-path tree to ``goal``: (n,) distances and (n,) predecessors (-9999 at
         the goal and at unreachable vertices).
 
@@ -641,26 +849,33 @@ class Roadmap:
         edges are added: relax the new edges, then propagate the decreases Dijkstra-style),
         which costs time proportional to the change, not to the graph.
         """
-        tree = self._trees.get(goal)
+        tree = self._trees.pop(goal, None)
         if tree is None:
             dist, pred = dijkstra(
                 self._half(), directed=False, indices=goal, return_predecessors=True
             )
-            tree = _Tree(m=self._m, dist=dist, pred=pred.astype(np.int64))
-            self._trees[goal] = tree
-            if len(self._trees) > 64:  # keep the cache small: drop the oldest entry
-                self._trees.pop(next(iter(self._trees)))
+            tree = _Tree(m=self._m, dist=dist, pred=pred.astype(np.int32))
+            self._cache_tree(goal, tree)
             return tree.dist, tree.pred
+        self._cache_tree(goal, tree)  # now the most recently used
         if tree.m < self._m or len(tree.dist) < self._n:
             self._repair(tree)
         return tree.dist, tree.pred
+
+    def _cache_tree(self, goal: int, tree: _Tree) -> None:
+        """Keep ``tree`` as the most recently used; drop the least recently used beyond
+        ``config.tree_cache`` (each tree holds 12 bytes a vertex)."""
+        self._trees.pop(goal, None)
+        self._trees[goal] = tree
+        while len(self._trees) > self._config.tree_cache:
+            self._trees.pop(next(iter(self._trees)))
 
     def _repair(self, tree: _Tree) -> None:
         n, m = self._n, self._m
         if len(tree.dist) < n:
             k = len(tree.dist)
             tree.dist = np.concatenate([tree.dist, np.full(n - k, np.inf)])
-            tree.pred = np.concatenate([tree.pred, np.full(n - k, -9999, np.int64)])
+            tree.pred = np.concatenate([tree.pred, np.full(n - k, -9999, np.int32)])
         dist, pred = tree.dist, tree.pred
         heap: list[tuple[float, int]] = []
         lo = tree.m
@@ -703,6 +918,8 @@ class Roadmap:
         p1, i1, d1 = half.indptr, half.indices, half.data
         p2, i2, d2 = other.indptr, other.indices, other.data
         delta = self._adjacency_delta()
+        p3, i3, d3 = delta.indptr, delta.indices, delta.data
+        n_delta = delta.shape[0] if delta.nnz else 0
 
         def neighbours(u: int) -> list[tuple[int, float]]:
             out: list[tuple[int, float]] = []
@@ -711,18 +928,20 @@ class Roadmap:
                 out.extend(zip(i1[a:b].tolist(), d1[a:b].tolist(), strict=True))
                 a, b = int(p2[u]), int(p2[u + 1])
                 out.extend(zip(i2[a:b].tolist(), d2[a:b].tolist(), strict=True))
-            extra = delta.get(u)
-            if extra:
-                out.extend(extra)
+            if u < n_delta:
+                a, b = int(p3[u]), int(p3[u + 1])
+                if b > a:
+                    out.extend(zip(i3[a:b].tolist(), d3[a:b].tolist(), strict=True))
             return out
 
         return neighbours
 
-    def prepare(self, goal: View | int) -> None:
+    def prepare(self, goal: View | int, *, approach: bool = False) -> None:
         """Compute (or repair) the shortest-path tree to ``goal`` now, so that the next
         :meth:`plan` to it is fast (e.g. call it at idle time after a view is saved: the
-        first tree costs one full Dijkstra, about a second at 1e6 vertices)."""
-        gv = goal.vertex if isinstance(goal, View) else int(goal)
+        first tree costs one full Dijkstra, about a second at 1e6 vertices); ``approach``
+        as in :meth:`plan`."""
+        gv = self._search_goal(goal, approach)
         if not 0 <= gv < self._n:
             raise PlanningError(f"goal vertex {gv} is not in the roadmap (0..{self._n - 1})")
         self._tree(gv)
@@ -733,18 +952,38 @@ class Roadmap:
         them; it connects the next state only to recorded states within epsilon."""
         self._current = -1
         self._prev_list = None
+        self._exit = -1
+        self._excursion = []
 
-    def tree_job(self, goal: View | int) -> Callable[[], _PreparedTree]:
+    def _search_goal(self, goal: View | int, approach: bool) -> int:
+        """The vertex a plan to ``goal`` searches to: a view's approach start when planning
+        with ``approach=True`` (the recorded approach is appended), else the view's."""
+        if isinstance(goal, View):
+            if approach and len(goal.approach) >= 2:
+                return int(goal.approach[0])
+            return goal.vertex
+        return int(goal)
+
+    def tree_job(
+        self, goal: View | int, *, approach: bool = False, isolate: bool = False
+    ) -> Callable[[], _PreparedTree]:
         """Snapshot the graph now and return a job that computes the shortest-path tree to
         ``goal`` from the snapshot, safe to run in another thread while :meth:`add` goes on;
         hand its result to :meth:`install_tree` (in the thread that owns the roadmap).
 
         The snapshot is free (views of the append-only edge arrays: entries below the
         current edge count are never written again); the job builds the CSR and runs the
-        Dijkstra (about half a second at 1e6 vertices), so the control loop never waits
-        for either.
+        Dijkstra (about half a second at 1e6 vertices). ``approach`` as in :meth:`plan`:
+        with True, the tree is the one a plan with ``approach=True`` searches (to the start
+        of the view's recorded approach).
+
+        ``isolate=True`` runs the Dijkstra in a worker process (one, started at the first
+        use): scipy's ``dijkstra`` holds the GIL for its whole run, so in a thread it stalls
+        every other thread of the process, the control loop included (measured: a 0.5 s
+        stall at 3e5 vertices). The job thread only waits for the answer. If the worker
+        cannot be used, the job falls back to the Dijkstra in its own thread.
         """
-        gv = goal.vertex if isinstance(goal, View) else int(goal)
+        gv = self._search_goal(goal, approach)
         if not 0 <= gv < self._n:
             raise PlanningError(f"goal vertex {gv} is not in the roadmap (0..{self._n - 1})")
         n, m = self._n, self._m
@@ -752,8 +991,12 @@ class Roadmap:
 
         def job() -> _PreparedTree:
             half = sp.coo_matrix((w, (u, v)), shape=(n, n)).tocsr()
-            dist, pred = dijkstra(half, directed=False, indices=gv, return_predecessors=True)
-            tree = _Tree(m=m, dist=dist, pred=pred.astype(np.int64))
+            dist_pred: tuple[Array, NDArray[np.int32]] | None = None
+            if isolate:
+                dist_pred = _dijkstra_isolated(half, gv)
+            if dist_pred is None:
+                dist_pred = _dijkstra_tree(half.indptr, half.indices, half.data, n, gv)
+            tree = _Tree(m=m, dist=dist_pred[0], pred=dist_pred[1])
             return _PreparedTree(goal=gv, tree=tree, half=half, half_t=half.T.tocsr())
 
         return job
@@ -762,20 +1005,21 @@ class Roadmap:
         """Cache a tree from :meth:`tree_job` (repaired for later edges at the next plan),
         and its CSR when it is newer than the roadmap's own; a cached tree that already
         covers more edges is kept."""
-        gv = goal.vertex if isinstance(goal, View) else int(goal)
-        if gv != prepared.goal:
-            raise PlanningError(f"the prepared tree is for vertex {prepared.goal}, not {gv}")
+        allowed = {self._search_goal(goal, False), self._search_goal(goal, True)}
+        gv = prepared.goal
+        if gv not in allowed:
+            raise PlanningError(
+                f"the prepared tree is for vertex {gv}, not {' or '.join(map(str, allowed))}"
+            )
         tree = prepared.tree
         old = self._trees.get(gv)
-        if old is None or old.m < tree.m:
-            self._trees[gv] = tree
+        self._cache_tree(gv, tree if old is None or old.m < tree.m else old)
         if self._csr is None or self._csr_m < tree.m:
             self._csr = prepared.half
             self._csr_t = prepared.half_t
             self._csr_m = tree.m
             self._csr_version = -1  # older than the graph: _half() rebuilds when asked
-            self._delta_adj = {}
-            self._delta_upto = tree.m
+            self._delta = None
 
     def shortest_path_ids(
         self, start: int, goal: int, method: Literal["tree", "astar"] = "tree"
@@ -953,9 +1197,13 @@ class Roadmap:
         rm._x[:n] = q * rm._scale
         rm._n = n
         cells = np.floor(rm._x[:n] / rm._cell).astype(np.int64)
-        grid: dict[tuple[int, int, int, int], list[int]] = {}
+        grid: dict[tuple[int, int, int, int], array.array[int]] = {}
         for i, c in enumerate(map(tuple, cells.tolist())):
-            grid.setdefault(c, []).append(i)
+            lst = grid.get(c)
+            if lst is None:
+                grid[c] = array.array("q", (i,))
+            else:
+                lst.append(i)
         rm._grid = grid
         rm._reserve_edges(len(uv))
         rm._eu[: len(uv)] = uv[:, 0]
@@ -984,7 +1232,7 @@ class _Tree:
 
     m: int
     dist: Array
-    pred: IntArray
+    pred: NDArray[np.int32]
 
 
 @dataclass
@@ -995,6 +1243,57 @@ class _PreparedTree:
     tree: _Tree
     half: sp.csr_matrix
     half_t: sp.csr_matrix
+
+
+def _dijkstra_tree(
+    indptr: NDArray[Any], indices: NDArray[Any], data: Array, n: int, goal: int
+) -> tuple[Array, NDArray[np.int32]]:
+    """Shortest-path tree to ``goal`` over the undirected graph of a half CSR (the worker
+    process runs this too, so it takes plain arrays)."""
+    half = sp.csr_matrix((data, indices, indptr), shape=(n, n))
+    dist, pred = dijkstra(half, directed=False, indices=goal, return_predecessors=True)
+    return np.asarray(dist, np.float64), pred.astype(np.int32)
+
+
+_WORKER: Any = None  # the planning worker process (concurrent.futures), started lazily
+_WORKER_LOCK = threading.Lock()
+
+
+def _dijkstra_isolated(half: sp.csr_matrix, goal: int) -> tuple[Array, NDArray[np.int32]] | None:
+    """:func:`_dijkstra_tree` in the worker process; None when the worker fails (broken,
+    killed, cannot start): the caller then runs it in its own thread."""
+    global _WORKER
+    import concurrent.futures
+    import multiprocessing
+
+    try:
+        with _WORKER_LOCK:
+            if _WORKER is None:
+                _WORKER = concurrent.futures.ProcessPoolExecutor(
+                    max_workers=1, mp_context=multiprocessing.get_context("spawn")
+                )
+                atexit.register(_stop_worker)  # before the interpreter tears modules down
+            worker = _WORKER
+        future = worker.submit(
+            _dijkstra_tree, half.indptr, half.indices, half.data, half.shape[0], goal
+        )
+        result: tuple[Array, NDArray[np.int32]] = future.result()
+        return result
+    except Exception:  # noqa: BLE001 - BrokenProcessPool, OSError, pickling: fall back
+        with _WORKER_LOCK:
+            if _WORKER is not None:
+                _WORKER.shutdown(wait=False, cancel_futures=True)
+            _WORKER = None
+        return None
+
+
+def _stop_worker() -> None:
+    """Shut the planning worker process down (at exit)."""
+    global _WORKER
+    with _WORKER_LOCK:
+        worker, _WORKER = _WORKER, None
+    if worker is not None:
+        worker.shutdown(wait=True, cancel_futures=True)
 
 
 def _grow(a: NDArray[Any], size: int | None = None) -> NDArray[Any]:

@@ -85,6 +85,14 @@ class SpinTask:
         current command as relaxed state).
     speed_scale, ramp_s : float
         As :class:`icenav.controller.PathTask`.
+    hold_measured : bool
+        With a pose source: hold the tip where the tracker *measures* it at the start (the
+        intended poses become ``L @ forward(q_m)`` with ``L = measured_0 @ forward(q_m0)^-1``,
+        ``measured_0`` the mean of the first ``reference_frames`` frames, taken while the
+        task holds at the start), rather than at the model's tip (the paper's protocol,
+        used by ``icenav eval spin``). What an operator expects: the image turns about
+        where the catheter is. If no frame comes within ``reference_timeout_s`` the spin
+        runs open loop.
     """
 
     mode = Mode.SPINNING
@@ -102,6 +110,9 @@ class SpinTask:
         speed_scale: float = 0.5,
         ramp_s: float = 0.3,
         geometry: CatheterGeometry = DEFAULT_GEOMETRY,
+        hold_measured: bool = False,
+        reference_frames: int = 8,
+        reference_timeout_s: float = 1.0,
     ) -> None:
         path = check_finite(q_model_path, "q_model_path")
         if path.ndim != 2 or path.shape[1] != 4 or path.shape[0] < 2:
@@ -143,6 +154,18 @@ class SpinTask:
         self._last_stamp: float | None = None
         self.n_pose_updates = 0
         """Tracker frames used by the servo."""
+        if reference_frames < 1 or not reference_timeout_s > 0:
+            raise InvalidValueError(
+                f"reference_frames must be >= 1 and reference_timeout_s > 0 s, got "
+                f"{reference_frames}, {reference_timeout_s}"
+            )
+        self._hold = bool(hold_measured) and pose_source is not None
+        self._ref_needed = int(reference_frames)
+        self._ref_timeout = float(reference_timeout_s)
+        self._ref_poses: list[Array] = []
+        self._ref_waited = 0.0
+        self.reference_correction: Array | None = None
+        """L (4, 4), base frame: measured start pose @ inverse(model start pose), once set."""
 
     @property
     def duration(self) -> float:
@@ -164,15 +187,50 @@ class SpinTask:
         k = i + 1 if f >= 0.5 else i  # intended pose: the nearer sample's
         return qm, ff, self.intended[k]
 
+    def _take_reference(self, dt: float) -> Array:
+        """Hold at the start and average the first tracker frames into L."""
+        assert self.pose_source is not None
+        stamp, pose = self.pose_source()
+        if stamp != self._last_stamp and pose is not None:
+            self._ref_poses.append(pose)
+        self._last_stamp = stamp
+        self._ref_waited += dt
+        if len(self._ref_poses) >= self._ref_needed:
+            stack = np.stack(self._ref_poses)
+            mean = np.eye(4)
+            mean[:3, 3] = stack[:, :3, 3].mean(axis=0)
+            u, _, vt = np.linalg.svd(stack[:, :3, :3].sum(axis=0))  # chordal mean rotation
+            mean[:3, :3] = u @ np.diag([1.0, 1.0, float(np.sign(np.linalg.det(u @ vt)))]) @ vt
+            model0 = self.intended[0]
+            inv0 = np.eye(4)
+            inv0[:3, :3] = model0[:3, :3].T
+            inv0[:3, 3] = -model0[:3, :3].T @ model0[:3, 3]
+            self.reference_correction = mean @ inv0
+        elif self._ref_waited >= self._ref_timeout:
+            self._hold = False  # no tracker: open loop
+            self.pose_source = None
+            self.label = "spin 360 (open loop: no tracker pose)"
+        first = self.feed_forward[0]
+        out: Array = np.clip(
+            first if self.compensator is None else self.compensator.command(first),
+            self._lim[:, 0],
+            self._lim[:, 1],
+        )
+        return out
+
     def next_command(self, q_measured: Array, dt: float) -> Array | None:
         """The next motor set-point (4,), or None when the spin is done."""
         if self._t >= self.duration:
             return None
+        if self._hold and self.reference_correction is None:
+            return self._take_reference(dt)
         self._elapsed += dt
         remaining = self.duration - self._t
         rate = min(1.0, self._elapsed / self._ramp, math.sqrt(2.0 * remaining / self._ramp))
         self._t = min(self.duration, self._t + dt * max(rate, 0.02))
         qm, ff, target = self._at(self._t)
+        if self.reference_correction is not None:
+            target = self.reference_correction @ target
         if self.pose_source is not None and self.servo is not None:
             stamp, pose = self.pose_source()
             if stamp != self._last_stamp:  # one update per tracker sample

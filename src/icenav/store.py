@@ -27,7 +27,9 @@ import functools
 import io
 import json
 import os
+import queue
 import sqlite3
+import threading
 import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass
@@ -52,6 +54,7 @@ __all__ = [
     "Event",
     "SCHEMA_VERSION",
     "SessionStore",
+    "StoreWriter",
 ]
 
 SCHEMA_VERSION = 1
@@ -188,9 +191,15 @@ class SessionStore:
         try:
             if read_only:
                 uri = self.path.resolve().as_uri() + "?mode=ro"
-                self._db = sqlite3.connect(uri, uri=True, isolation_level=None)
+                self._db = sqlite3.connect(
+                    uri, uri=True, isolation_level=None, check_same_thread=False
+                )
             else:
-                self._db = sqlite3.connect(str(self.path), isolation_level=None)
+                # check_same_thread=False: a StoreWriter writes from its own thread (one
+                # thread at a time: the writer owns the store while it runs)
+                self._db = sqlite3.connect(
+                    str(self.path), isolation_level=None, check_same_thread=False
+                )
         except sqlite3.Error as exc:
             raise StoreError(f"cannot open session file {self.path}: {exc}") from exc
         try:
@@ -274,6 +283,8 @@ class SessionStore:
                 "metric": asdict(config.metric),
                 "direction_threshold": config.direction_threshold,
                 "approach_length": config.approach_length,
+                "max_vertices": config.max_vertices,
+                "tree_cache": config.tree_cache,
             }
             self._db.execute("INSERT INTO meta VALUES ('roadmap_config', ?)", (json.dumps(cfg),))
             self._db.execute("INSERT INTO meta VALUES ('created_unix_s', ?)", (str(time.time()),))
@@ -301,6 +312,9 @@ class SessionStore:
             metric=RoadmapMetric(**d["metric"]),
             direction_threshold=d["direction_threshold"],
             approach_length=d["approach_length"],
+            # absent in files written before the vertex budget: the defaults
+            max_vertices=d.get("max_vertices", RoadmapConfig.max_vertices),
+            tree_cache=d.get("tree_cache", RoadmapConfig.tree_cache),
         )
 
     # --- writing --------------------------------------------------------------------------
@@ -362,25 +376,29 @@ class SessionStore:
         self._exec_many("INSERT OR REPLACE INTO trace VALUES (?, ?)", rows)
         self._note_pending(len(rows))
 
-    def sync_roadmap(self, roadmap: Roadmap) -> bool:
+    def sync_roadmap(self, roadmap: Roadmap, upto: tuple[int, int, int] | None = None) -> bool:
         """Queue what ``roadmap`` gained since the last sync (incremental, no rewrite) and
         commit if the batch is due; return whether it committed. Vertices, edges and trace
-        of one sync always land in the same transaction."""
-        nv, ne, nt = roadmap.n_vertices, roadmap.n_edges, roadmap.n_trace
+        of one sync always land in the same transaction.
+
+        ``upto`` = ``roadmap.counts()`` taken earlier on the thread that grows the roadmap:
+        only rows below these counts are read, so a writer thread can sync while the
+        roadmap keeps growing (rows below a count never change)."""
+        nv, ne, nt = roadmap.counts() if upto is None else upto
         if nv > self._synced_vertices:
-            q = roadmap.vertices(self._synced_vertices)
+            q = roadmap.vertices(self._synced_vertices, nv)
             rows = [(self._synced_vertices + i, *r) for i, r in enumerate(q.tolist())]
             self._exec_many("INSERT OR REPLACE INTO vertices VALUES (?, ?, ?, ?, ?)", rows)
             self._queue(len(rows))
             self._synced_vertices = nv
         if ne > self._synced_edges:
-            uv, w = roadmap.edges(self._synced_edges)
+            uv, w = roadmap.edges(self._synced_edges, ne)
             erows = [(a, b, c) for (a, b), c in zip(uv.tolist(), w.tolist(), strict=True)]
             self._exec_many("INSERT OR REPLACE INTO edges VALUES (?, ?, ?)", erows)
             self._queue(len(erows))
             self._synced_edges = ne
         if nt > self._synced_trace:
-            tr = roadmap.trace(self._synced_trace).tolist()
+            tr = roadmap.trace(self._synced_trace, nt).tolist()
             trows = [(self._synced_trace + i, v) for i, v in enumerate(tr)]
             self._exec_many("INSERT OR REPLACE INTO trace VALUES (?, ?)", trows)
             self._queue(len(trows))
@@ -411,11 +429,17 @@ class SessionStore:
         self._pending = 0
         self._pending_since = None
 
-    def add_view(self, view: View, roadmap: Roadmap | None = None) -> None:
+    def add_view(
+        self,
+        view: View,
+        roadmap: Roadmap | None = None,
+        upto: tuple[int, int, int] | None = None,
+    ) -> None:
         """Store a view and commit at once (with the pending roadmap batch, first synced
-        from ``roadmap`` if given, so the view's vertex is on disk too)."""
+        from ``roadmap`` if given, up to ``upto`` as in :meth:`sync_roadmap`, so the view's
+        vertex is on disk too)."""
         if roadmap is not None:
-            self.sync_roadmap(roadmap)
+            self.sync_roadmap(roadmap, upto)
         ordinal = self._db.execute("SELECT COALESCE(MAX(ordinal), 0) + 1 FROM views").fetchone()[0]
         row = (
             view.name,
@@ -546,3 +570,113 @@ class SessionStore:
 
     def __exit__(self, *exc: object) -> None:
         self.close()
+
+
+class StoreWriter:
+    """Runs a :class:`SessionStore`'s writes, in order, on a thread of its own, so that no
+    insert, commit or fsync runs on the control thread.
+
+    While the writer runs, it owns the store: every write goes through :meth:`submit`
+    (reads at start-up, before the writer, and after :meth:`close` are fine).
+
+    Errors: a job submitted with ``on_done`` gets its outcome there (``None`` or the
+    exception), called on the writer thread, *after* the job's commit (so "done" means
+    durable when the job commits, as :meth:`SessionStore.add_view` does). The first error
+    of a job without ``on_done`` is kept and raised by the next :meth:`raise_pending` (the
+    recorder calls it every control cycle, so the operator learns of a full disk within a
+    cycle); an error reported to ``on_done`` clears the pending one (the submitter tells
+    the operator of it). After an error the store restarts its batch from what is on disk, so later
+    syncs rewrite the lost rows.
+
+    Parameters
+    ----------
+    store : SessionStore
+        The store to write to (opened for writing).
+    name : str
+        Name of the thread.
+    """
+
+    def __init__(self, store: SessionStore, name: str = "icenav-store-writer") -> None:
+        self.store = store
+        self._jobs: queue.Queue[
+            tuple[Callable[[SessionStore], object], Callable[[BaseException | None], None] | None]
+            | None
+        ] = queue.Queue()
+        self._error: BaseException | None = None
+        self._error_lock = threading.Lock()
+        self._thread = threading.Thread(target=self._run, name=name, daemon=True)
+        self._closed = False
+        self._thread.start()
+
+    def _run(self) -> None:
+        while True:
+            item = self._jobs.get()
+            try:
+                if item is None:
+                    return
+                fn, on_done = item
+                error: BaseException | None = None
+                try:
+                    fn(self.store)
+                except Exception as exc:  # noqa: BLE001 - reported to the submitter
+                    error = exc
+                if on_done is not None:
+                    if error is not None:  # reported there: it supersedes pending errors
+                        with self._error_lock:
+                            self._error = None
+                    try:
+                        on_done(error)
+                    except Exception as exc:  # noqa: BLE001 - keep the writer alive
+                        error = exc
+                    else:
+                        error = None
+                if error is not None:
+                    with self._error_lock:
+                        if self._error is None:
+                            self._error = error
+            finally:
+                self._jobs.task_done()
+
+    def submit(
+        self,
+        fn: Callable[[SessionStore], object],
+        on_done: Callable[[BaseException | None], None] | None = None,
+    ) -> None:
+        """Queue ``fn(store)``; ``on_done(error_or_None)`` after it (writer thread)."""
+        if self._closed:
+            raise StoreError(f"the writer of {self.store.path} is closed")
+        self._jobs.put((fn, on_done))
+
+    def raise_pending(self) -> None:
+        """Raise (once) the first error of a job submitted without ``on_done``."""
+        if self._error is None:
+            return
+        with self._error_lock:
+            error, self._error = self._error, None
+        if error is None:
+            return
+        if isinstance(error, IcenavError):
+            raise error
+        raise StoreError(f"cannot write session file {self.store.path}: {error}") from error
+
+    def drain(self) -> None:
+        """Wait until every job submitted so far has run (blocks on the queue, no polling)."""
+        self._jobs.join()
+
+    def flush(self) -> None:
+        """Wait for every job, then raise the first pending error, if any."""
+        self.drain()
+        self.raise_pending()
+
+    @property
+    def pending_jobs(self) -> int:
+        """Jobs queued and not yet done (approximate: another thread may be adding)."""
+        return self._jobs.unfinished_tasks
+
+    def close(self) -> None:
+        """Run what is queued, stop the thread; the store stays open (close it after)."""
+        if self._closed:
+            return
+        self._closed = True
+        self._jobs.put(None)
+        self._thread.join()

@@ -306,6 +306,12 @@ def _session(tmp_path: Path, clock: Clock) -> tuple[Controller, SessionStore, Ca
     return session.controller, session.store, session.close
 
 
+def _drain(ctrl: Controller) -> None:
+    """Wait until the store's writer thread has run every queued write (blocks on its queue:
+    no sleep), so that a fault injected into the connection next hits a known point."""
+    ctrl._recorder.drain()  # type: ignore[union-attr]  # noqa: SLF001
+
+
 def _drive(ctrl: Controller, clock: Clock, cycles: int, v: list[float]) -> None:
     for _ in range(cycles):
         ctrl.jog(v, "knob")
@@ -322,6 +328,7 @@ def test_store_failure_is_reported_robot_stays_safe_file_stays_consistent(
     _drive(ctrl, clock, 150, [0.2, -0.1, 0.0, 1.0])
     ctrl.save_view("before")
     _drive(ctrl, clock, 1, [0.0, 0.0, 0.0, 0.0])
+    _drain(ctrl)
     db = store._db  # noqa: SLF001 - the fault is injected into the connection itself
     if fault == "disk_full":
         pages = db.execute("PRAGMA page_count").fetchone()[0]
@@ -331,6 +338,14 @@ def test_store_failure_is_reported_robot_stays_safe_file_stays_consistent(
     q_before = ctrl.snapshot().q_motor.copy()
     _drive(ctrl, clock, 400, [0.0, 0.2, 0.0, -1.0])  # new states that cannot be stored
     ctrl.save_view("during")
+    clock.t += ctrl.config.dt
+    state = ctrl.step()
+    # the view is committed on the store's writer thread: the operator is not told "saved"
+    assert state.message in (
+        "view 'during': saving to disk",
+        "view 'during' saved in memory only, NOT on disk: " + state.message.split(": ", 2)[-1],
+    )
+    _drain(ctrl)  # the writer has tried (and failed); its answer is shown next cycle
     clock.t += ctrl.config.dt
     state = ctrl.step()
     assert "view 'during' saved in memory only, NOT on disk" in state.message
@@ -366,11 +381,15 @@ def test_store_recovers_after_a_transient_disk_full(tmp_path: Path) -> None:
     clock = Clock()
     ctrl, store, close = _session(tmp_path, clock)
     _drive(ctrl, clock, 100, [0.2, 0.0, 0.0, 1.0])
+    _drain(ctrl)
     db = store._db  # noqa: SLF001
     pages = db.execute("PRAGMA page_count").fetchone()[0]
     db.execute(f"PRAGMA max_page_count={pages}")
     _drive(ctrl, clock, 300, [0.0, 0.2, 0.0, 1.0])
+    _drain(ctrl)  # the writer's failed batches are reported at the next cycle
+    _drive(ctrl, clock, 1, [0.0, 0.2, 0.0, 1.0])
     assert "could not record" in ctrl.snapshot().message
+    _drain(ctrl)
     db.execute("PRAGMA max_page_count=1073741823")
     _drive(ctrl, clock, 100, [0.0, -0.2, 0.0, -1.0])
     ctrl.save_view("after")

@@ -8,6 +8,7 @@ import signal
 import subprocess
 import sys
 import textwrap
+import threading
 from pathlib import Path
 
 import numpy as np
@@ -16,8 +17,11 @@ import pytest
 from icenav.app import make_sim_controller
 from icenav.store import SessionStore
 
-# A procedure that saves a view every 150 cycles and says so once the view is committed
-# (the recorder commits a view at once), then keeps driving until it is killed.
+# A procedure that saves a view every 150 cycles and says so once the controller tells the
+# operator it is saved (the store's writer thread has committed it; until then the message
+# is "saving to disk"), then keeps driving until it is killed. The next view is saved only
+# after the previous one was reported saved: on a busy machine a commit can take longer
+# than 150 cycles, and a later "saving to disk" would hide the earlier "saved".
 SCRIPT = textwrap.dedent(
     """
     import sys
@@ -29,20 +33,25 @@ SCRIPT = textwrap.dedent(
     v = [0.25, -0.15, 0.3, 2.0]
     cycle = 0
     n_saved = 0
+    pending = None
     while True:
-        if cycle % 150 == 149:
-            ctrl.save_view(f"v{cycle // 150}")
+        if pending is None and cycle % 150 == 149:
+            pending = f"v{n_saved}"
+            ctrl.save_view(pending)
         if cycle % 300 == 0:
             v = [-v[0], -v[1], -v[2], v[3]]  # back and forth, always deeper
         ctrl.jog(v, "knob")
         t[0] += ctrl.config.dt
         state = ctrl.step()
-        if len(state.views) > n_saved and "NOT on disk" not in state.message:
-            n_saved = len(state.views)
-            print("SAVED", state.views[-1].name, flush=True)
+        if pending is not None and state.message == f"view {pending!r} saved":
+            print("SAVED", pending, flush=True)
+            n_saved += 1
+            pending = None
         cycle += 1
     """
 )
+CHILD_TIMEOUT_S = 300.0
+"""The child is killed after this long whatever it printed (the test then fails, never hangs)."""
 
 
 @pytest.mark.slow
@@ -56,6 +65,8 @@ def test_kill_9_mid_procedure_then_restart(tmp_path: Path) -> None:
         env={**os.environ, "PYTHONUNBUFFERED": "1"},
     )
     saved: list[str] = []
+    watchdog = threading.Timer(CHILD_TIMEOUT_S, proc.kill)
+    watchdog.start()
     try:
         assert proc.stdout is not None
         for line in proc.stdout:  # blocks on the child's output: no sleep, no timing
@@ -64,6 +75,7 @@ def test_kill_9_mid_procedure_then_restart(tmp_path: Path) -> None:
             if len(saved) == 4:
                 break
     finally:
+        watchdog.cancel()
         proc.send_signal(signal.SIGKILL)
         _, err = proc.communicate(timeout=30)  # reaps the child and closes the pipes
     assert proc.returncode == -signal.SIGKILL
