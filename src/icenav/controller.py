@@ -50,7 +50,7 @@ from icenav.io.joystick import (
     tip_twist,
 )
 from icenav.kinematics import DEFAULT_GEOMETRY, CatheterGeometry, backbone, forward, tip_jog
-from icenav.roadmap import Roadmap
+from icenav.roadmap import Roadmap, warm_up_planner
 from icenav.spin_task import SpinTask, tracked_tip2base
 from icenav.state import (
     CalibrationKind,
@@ -465,6 +465,9 @@ class Controller:
         self._owner: str | None = None
         self._message = ""
         self._fault_message = ""  # reliability: the FAULT / ESTOP cause, shown until reset
+        self._view_alarm: str | None = (
+            None  # a view saved in memory only: shown until a later one is on disk
+        )
         self._time = 0.0
         self._cycle = 0
         self._prev_buttons: tuple[bool, ...] = ()
@@ -870,15 +873,23 @@ class Controller:
                     f"view {name!r} saved in memory only, NOT on disk: "
                     f"could not record view_saved: {error}"
                 )
-            self._submit(lambda: setattr(self, "_message", text))
+            self._submit(lambda: self._view_saved(name, text, error is None))
 
         recorded = self._record("view_saved", {"view": view, "on_durable": on_durable})
         if recorded == "pending":
             self._message = f"view {name!r}: saving to disk"
         elif recorded:
-            self._message = f"view {name!r} saved"
+            self._view_saved(name, f"view {name!r} saved", True)
         else:  # reliability: the operator must know the view is not on disk
-            self._message = f"view {name!r} saved in memory only, NOT on disk: {self._message}"
+            text = f"view {name!r} saved in memory only, NOT on disk: {self._message}"
+            self._view_saved(name, text, False)
+
+    def _view_saved(self, name: str, text: str, durable: bool) -> None:
+        """Tell the operator whether view ``name`` is on disk. A view that is *not* stays in
+        front of every later message (an alarm) until a later view is saved to disk: a
+        store failure also fails the next state batch, whose message must not hide it."""
+        self._message = text
+        self._view_alarm = None if durable else text
 
     def _goto_task(self, view: View, path: Array) -> PathTask:
         return PathTask(
@@ -1040,11 +1051,16 @@ class Controller:
         return "pending" if result == "pending" else True
 
     def _operator_message(self) -> str:
-        """The latest message; in FAULT / ESTOP the cause stays in front until reset."""
+        """The latest message; in FAULT / ESTOP the cause stays in front until reset, and a
+        view that is not on disk stays in front until a later view is."""
+        message = self._message
+        alarm = self._view_alarm
+        if alarm is not None and alarm not in message:
+            message = f"{alarm} | {message}"
         fault = self._fault_message
         if self._mode not in (Mode.FAULT, Mode.ESTOP) or not fault or self._message == fault:
-            return self._message
-        return f"{fault} (then: {self._message})"
+            return message
+        return f"{fault} (then: {message})"
 
     def _make_state(self) -> ControllerState:
         g = self.config.geometry
@@ -1181,6 +1197,8 @@ class Controller:
         if self._thread is not None:
             return
         self.settle_gc()
+        if self.config.plan_in_process:  # spawn the planning worker now, not at the first plan
+            threading.Thread(target=warm_up_planner, name="icenav-plan-warmup", daemon=True).start()
         self._running.set()
         self._thread = threading.Thread(target=self._loop, name="icenav-control", daemon=True)
         self._thread.start()

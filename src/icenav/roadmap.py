@@ -61,6 +61,7 @@ __all__ = [
     "RoadmapFullError",
     "RoadmapMetric",
     "direction_tracker",
+    "warm_up_planner",
 ]
 
 _DEG_PER_RAD = 180.0 / math.pi
@@ -1285,6 +1286,15 @@ def _dijkstra_isolated(half: sp.csr_matrix, goal: int) -> tuple[Array, NDArray[n
                 _WORKER.shutdown(wait=False, cancel_futures=True)
             _WORKER = None
         return None
+
+
+def warm_up_planner() -> bool:
+    """Start the planning worker process now and wait until it has run a (trivial) search:
+    spawning it imports numpy and scipy, 1-3 s on a busy machine, which would otherwise
+    delay the first background plan. True when the worker runs (False: plans will run in
+    threads)."""
+    empty = sp.csr_matrix((1, 1), dtype=np.float64)
+    return _dijkstra_isolated(empty, 0) is not None
 
 
 def _stop_worker() -> None:

@@ -271,7 +271,7 @@ def run_soak(config: SoakConfig, session: str | Path | None = None) -> SoakRepor
     """Run the soak; ``session`` is the SQLite file (a temporary one when None)."""
     from icenav.app import make_sim_controller
     from icenav.controller import ControllerConfig
-    from icenav.roadmap import RoadmapConfig
+    from icenav.roadmap import RoadmapConfig, warm_up_planner
     from icenav.state import ControllerState, Mode
     from icenav.store import SessionStore
 
@@ -336,6 +336,10 @@ def run_soak(config: SoakConfig, session: str | Path | None = None) -> SoakRepor
         return st
 
     between_gc_ms: list[float] = []
+    if ctrl.config.plan_in_process:
+        # as Controller.start() does: the worker is spawned before the procedure, so the
+        # first return does not hold (in simulated time) while it imports scipy
+        warm_up_planner()
     if config.gc_policy:
         ctrl.settle_gc()
     gc.callbacks.append(probe.gc_callback)

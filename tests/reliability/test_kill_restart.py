@@ -21,7 +21,8 @@ from icenav.store import SessionStore
 # operator it is saved (the store's writer thread has committed it; until then the message
 # is "saving to disk"), then keeps driving until it is killed. The next view is saved only
 # after the previous one was reported saved: on a busy machine a commit can take longer
-# than 150 cycles, and a later "saving to disk" would hide the earlier "saved".
+# than 150 cycles, and a later "saving to disk" would hide the earlier "saved"; and the
+# motion stays inside the joint limits, whose message would hide it too.
 SCRIPT = textwrap.dedent(
     """
     import sys
@@ -39,7 +40,7 @@ SCRIPT = textwrap.dedent(
             pending = f"v{n_saved}"
             ctrl.save_view(pending)
         if cycle % 300 == 0:
-            v = [-v[0], -v[1], -v[2], v[3]]  # back and forth, always deeper
+            v = [-v[0], -v[1], -v[2], -v[3]]  # back and forth, within the joint limits
         ctrl.jog(v, "knob")
         t[0] += ctrl.config.dt
         state = ctrl.step()
