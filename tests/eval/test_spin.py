@@ -106,3 +106,18 @@ def test_in_situ_identification_sees_the_vessels_wider_roll_play() -> None:
     # twin: roll play x exp(mu Theta_vessel), about 2.4 for the steep vessel
     assert 1.5 < m1.backlash / m0.backlash < 3.5
     assert steep.roll_play_per_bend > straight.roll_play_per_bend
+
+
+def test_transmission_condition_runs_on_request(tmp_path: Path) -> None:
+    """The opt-in per-tendon condition is calibrated only when asked for, and its spin is
+    better than no compensation (its accuracy is measured in docs/results.md)."""
+    out = tmp_path / "t.json"
+    args = ["--seed", "52", "--samples", "36", "--bends", "40", "--json", str(out)]
+    code = spin.main([*args, "--conditions", f"none,{spin.TRANSMISSION}"])
+    assert code == 0
+    by = {r["condition"]: r for r in json.loads(out.read_text())}
+    assert set(by) == {"none", spin.TRANSMISSION}
+    assert (
+        by[spin.TRANSMISSION]["true_position_rmse_mm"] < 0.5 * by["none"]["true_position_rmse_mm"]
+    )
+    assert spin.TRANSMISSION not in spin.CONDITIONS and spin.TRANSMISSION in spin.ALL_CONDITIONS

@@ -39,8 +39,10 @@ SCRIPT = textwrap.dedent(
         if pending is None and cycle % 150 == 149:
             pending = f"v{n_saved}"
             ctrl.save_view(pending)
-        if cycle % 300 == 0:
-            v = [-v[0], -v[1], -v[2], -v[3]]  # back and forth, within the joint limits
+        if cycle >= 300 and cycle % 150 == 0:
+            # out to about (0.75, -0.45, 0.9 rad, 6 mm), then back and forth by half that:
+            # never near the restart's q = 0, and inside the joint limits
+            v = [-v[0], -v[1], -v[2], -v[3]]
         ctrl.jog(v, "knob")
         t[0] += ctrl.config.dt
         state = ctrl.step()

@@ -54,8 +54,15 @@ from icenav.feedback import TipPoseServo
 from icenav.hysteresis import HysteresisCompensator
 from icenav.kinematics import DEFAULT_GEOMETRY, forward
 from icenav.trajectories import savgol_smooth, spin_trajectory
+from icenav.transmission import (
+    TransmissionCalibration,
+    calibrate_transmission,
+    reidentify_in_situ,
+    transmission_commands,
+)
 
 __all__ = [
+    "ALL_CONDITIONS",
     "CONDITIONS",
     "Calibrations",
     "SpinRecord",
@@ -77,6 +84,12 @@ CONDITIONS = ("none", "dense", "simplified", "dense+hysteresis", "dense+hysteres
 hysteresis feed-forward corrected online from the EM tracker (:mod:`icenav.feedback`)."""
 CLOSED_LOOP = "dense+hysteresis+em"
 """The closed-loop condition's name."""
+TRANSMISSION = "dense+transmission"
+"""Opt-in condition (``--conditions``; not in the default table): dense F with the
+per-tendon transmission model of :mod:`icenav.transmission`, identified from the raster and
+knob circles (about 800 more moves per catheter)."""
+ALL_CONDITIONS = (*CONDITIONS, TRANSMISSION)
+"""Every condition ``--conditions`` accepts."""
 SETTLE_UPDATES = 10
 """Closed loop: tracker updates at the start pose before the spin starts (1/8 s at 80 Hz)."""
 CLOSED_LOOP_REVERSAL_DEG = 1.0
@@ -145,6 +158,8 @@ class Calibrations:
     """The raw 5-point calibration set."""
     seconds: float
     """Wall time of the calibration (s)."""
+    transmission: TransmissionCalibration | None = None
+    """The per-tendon transmission calibration (only when ``dense+transmission`` is run)."""
 
 
 def _make_plant(seed: int, vessel: str) -> tuple[Any, Any]:
@@ -231,6 +246,11 @@ def _commands(condition: str, q_model: Array, cal: Calibrations | None) -> Array
         return path
     if cal is None:
         raise ValueError(f"condition {condition!r} needs the calibrations")
+    if condition == TRANSMISSION:
+        if cal.transmission is None:
+            raise ValueError(f"condition {condition!r} needs the transmission calibration")
+        tc = cal.transmission
+        return transmission_commands(q_model, tc.effective_map, tc.compensator)
     if condition in ("dense+hysteresis", CLOSED_LOOP):
         eff, bends = _effective_path(q_model, cal)
         comp = cal.compensator
@@ -327,6 +347,21 @@ def run_vessel(
 
     With ``in_situ`` and a vessel other than the straight one, the hysteresis compensator of
     ``dense+hysteresis`` is re-identified in the test vessel (:func:`identify_in_situ`)."""
+    if TRANSMISSION in conditions and cal.transmission is None:
+        plant, tracker = _make_plant(seed, "straight")  # calibrated straight, from rest
+        cal = replace(
+            cal,
+            transmission=calibrate_transmission(
+                plant.move, tracker, cal.dense_set, raster_grid(), cal.compensator
+            ),
+        )
+    if in_situ and vessel != "straight" and TRANSMISSION in conditions:
+        assert cal.transmission is not None
+        plant, tracker = _make_plant(seed, vessel)  # the roll and the tendons together
+        roll = identify_in_situ(seed, vessel)
+        cal = replace(
+            cal, transmission=reidentify_in_situ(plant.move, tracker, cal.transmission, roll)
+        )
     if in_situ and vessel != "straight" and "dense+hysteresis" in conditions:
         cal = replace(cal, compensator=identify_in_situ(seed, vessel))
     plant, tracker = _make_plant(seed, vessel)
@@ -378,7 +413,7 @@ def format_table(records: Sequence[SpinRecord]) -> str:
     """The printed table: ours (EM) beside the paper's, and the true-pose errors."""
     paper = paper_table()
     bends = sorted({r.bend_deg for r in records})
-    conds = [c for c in CONDITIONS if any(r.condition == c for r in records)]
+    conds = [c for c in ALL_CONDITIONS if any(r.condition == c for r in records)]
     lines = []
     head = "condition".ljust(21) + "".join(
         f"{b:>3d} deg: ours EM (paper) | true".ljust(44) for b in bends
@@ -616,7 +651,9 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--conditions",
         default=",".join(CONDITIONS),
-        help="comma-separated subset of " + ", ".join(CONDITIONS),
+        help="comma-separated subset of "
+        + ", ".join(ALL_CONDITIONS)
+        + f" (default: all but {TRANSMISSION})",
     )
     p.add_argument(
         "--in-situ",
@@ -641,10 +678,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         )
         return 2
     conds = [c.strip() for c in args.conditions.split(",") if c.strip()]
-    bad = [c for c in conds if c not in CONDITIONS]
+    bad = [c for c in conds if c not in ALL_CONDITIONS]
     if bad or not conds:
         print(
-            f"icenav eval spin: unknown condition(s) {bad}; choose from {CONDITIONS}",
+            f"icenav eval spin: unknown condition(s) {bad}; choose from {ALL_CONDITIONS}",
             file=sys.stderr,
         )
         return 2
