@@ -30,7 +30,7 @@ from numpy.typing import ArrayLike, NDArray
 from icenav.errors import ConfigurationError, ShapeError
 from icenav.feedback import body_pose_error
 from icenav.hw.base import RobotBackend
-from icenav.refinement import _DEG, NeighbourhoodError, _four, _Move
+from icenav.refinement import _DEG, NeighbourhoodError, _four, _Move, drive_task
 from icenav.state import Mode
 from icenav.validation import check_finite, check_joint_state, check_positive
 
@@ -639,19 +639,5 @@ def pose_stage(
         config=config,
         abort=abort,
     )
-    for _ in range(int(max_cycles)):
-        q = np.asarray(robot.read_state().q, np.float64)
-        cmd = task.next_command(q, dt)
-        if cmd is None:
-            break
-        robot.command_position(cmd)
-        if on_command is not None:
-            on_command(cmd)
-        if sleep is not None:
-            sleep(dt)
+    drive_task(robot, task, dt, sleep=sleep, on_command=on_command, max_cycles=max_cycles)
     return task.result()
-
-
-# =============================================================================================
-# Respiratory gating
-# =============================================================================================

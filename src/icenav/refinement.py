@@ -87,6 +87,7 @@ __all__ = [
     "SimulatedBeatImager",
     "TrialRecord",
     "beat_score",
+    "drive_task",
     "refine",
 ]
 
@@ -850,19 +851,34 @@ def refine(
         config=config,
         abort=abort,
     )
+    drive_task(robot, task, dt, sleep=sleep, on_command=on_command, max_cycles=max_cycles)
+    return task.result()
+
+
+class _SteppedTask(Protocol):
+    def next_command(self, q_measured: Array, dt: float) -> Array | None: ...
+
+
+def drive_task(
+    robot: RobotBackend,
+    task: _SteppedTask,
+    dt: float,
+    *,
+    sleep: Callable[[float], None] | None = None,
+    on_command: Callable[[Array], object] | None = None,
+    max_cycles: int = 1_000_000,
+) -> None:
+    """Run a task's ``next_command`` on ``robot`` until it returns None (blocking): read the
+    joint state, send the set-point, report it to ``on_command``, ``sleep(dt)`` if given;
+    at most ``max_cycles`` cycles. Shared by :func:`refine` and
+    :func:`icenav.pose_stage.pose_stage`."""
     for _ in range(int(max_cycles)):
         q = np.asarray(robot.read_state().q, np.float64)
         cmd = task.next_command(q, dt)
         if cmd is None:
-            break
+            return
         robot.command_position(cmd)
         if on_command is not None:
             on_command(cmd)
         if sleep is not None:
             sleep(dt)
-    return task.result()
-
-
-# =============================================================================================
-# Pose stage: servo the EM-measured tip pose onto the pose saved with the view
-# =============================================================================================
