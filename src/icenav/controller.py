@@ -127,6 +127,10 @@ class AutomaticTask(Protocol):
         ...
 
 
+_JOG_ABS_MAX = 1e3
+"""Largest magnitude of a jog velocity component accepted (rad/s or mm/s)."""
+
+
 @dataclass(frozen=True)
 class ControllerConfig:
     """Settings of the control loop."""
@@ -526,6 +530,13 @@ class Controller:
             )
         if not np.all(np.isfinite(v)):
             raise InvalidValueError(f"jog velocity must be finite, got {v}")
+        if np.any(np.abs(v) > _JOG_ABS_MAX):
+            # commands are clipped to max_velocity anyway; this only keeps the arithmetic of
+            # the tip-frame solve away from overflow (a gamepad gives at most a few units)
+            raise InvalidValueError(
+                f"jog velocity must be within +-{_JOG_ABS_MAX:g} (rad/s or mm/s; the speed "
+                f"limits clip it further), got {v}"
+            )
         now = self._clock()
 
         def do() -> None:

@@ -155,3 +155,13 @@ def test_store_file_of_another_kind_is_rejected(tmp_path: Path) -> None:
     text.write_text("hello")
     with pytest.raises(FileFormatError, match="not a readable icenav session"):
         SessionStore(text)
+
+
+def test_huge_finite_jog_is_refused_not_overflowed() -> None:
+    """Found by hypothesis: a finite but huge tip-frame velocity overflowed the tip-jog
+    solve; it is refused with the bound and the unit."""
+    ctrl = Controller(SimulatedRobot(IdealPlant()), ControllerConfig())
+    with pytest.raises(IcenavError, match=r"jog velocity must be within \+-1000 \(rad/s or mm/s"):
+        ctrl.jog([0.0, 0.0, 0.0, 1.797693134862316e307, 0.0, 0.0], "tip")
+    ctrl.jog([0.0, 0.0, 0.0, 999.0, 0.0, 0.0], "tip")
+    assert np.all(np.isfinite(ctrl.step().q_motor))
