@@ -121,11 +121,4 @@ class GatedBeatImager:
 
     def acquire_beat(self) -> BeatClip:
         """One gated beat at the plant's true pose (the catheter held still for the window)."""
-        img = self.imager
-        pose = img.base2anatomy @ np.asarray(img.plant.state.tip2base)  # type: ignore[attr-defined]
-        times = self.frame_times(float(img.clock()))
-        frames = tuple(
-            img.renderer.render(pose, float(t), check=False)  # type: ignore[attr-defined]
-            for t in times
-        )
-        return img._clip(frames, float(times.min()))
+        return self.imager.clip_at_times(self.frame_times(float(self.imager.clock())))

@@ -30,7 +30,7 @@ from numpy.typing import ArrayLike, NDArray
 from icenav.errors import ConfigurationError, ShapeError
 from icenav.feedback import body_pose_error
 from icenav.hw.base import RobotBackend
-from icenav.refinement import _DEG, NeighbourhoodError, _four, _Move, drive_task
+from icenav.refinement import _DEG, NeighbourhoodError, _four, _Move, _Stepper, drive_task
 from icenav.state import Mode
 from icenav.validation import check_finite, check_joint_state, check_positive
 
@@ -243,58 +243,6 @@ class PoseStageResult:
 @dataclass(frozen=True)
 class _MeasurePose:
     pass
-
-
-class _Stepper:
-    """Runs a generator of move / measure requests one set-point per control cycle, inside a
-    box around ``q_view`` (shared mechanics of the refinement stages)."""
-
-    def __init__(
-        self,
-        q_view: Array,
-        q_start: Array,
-        radius: Array,
-        max_velocity: Array,
-        abort: Callable[[], bool] | None,
-    ) -> None:
-        self.q_view = q_view
-        self.radius = radius
-        self.lo = q_view - radius
-        self.hi = q_view + radius
-        self.max_velocity = max_velocity
-        self.abort = abort
-        self.cmd = q_start.copy()
-        self.last_dir = np.zeros(4)
-        self.queue: list[Array] = []
-        self.elapsed = 0.0
-        self.n_cmd = 0
-        self.max_off = np.zeros(4)
-
-    def send(self, q: Array) -> Array:
-        off = np.abs(q - self.q_view)
-        if np.any(off > self.radius * (1 + 1e-9) + 1e-12):
-            j = int(np.argmax(off / self.radius))
-            raise NeighbourhoodError(
-                f"set-point {q.tolist()} is {off[j]:.4g} from the view on joint {j}, "
-                f"outside the radius {self.radius[j]:.4g} (rad, rad, rad, mm)"
-            )
-        moved = np.sign(q - self.cmd)
-        self.last_dir = np.where(moved != 0, moved, self.last_dir)
-        self.max_off = np.maximum(self.max_off, off)
-        self.cmd = q.copy()
-        self.n_cmd += 1
-        return q.copy()
-
-    def queue_moves(self, targets: Sequence[Array], dt: float) -> None:
-        v = self.max_velocity * dt
-        for target in targets:
-            base = self.queue[-1] if self.queue else self.cmd
-            delta = target - base
-            n = max(1, math.ceil(float(np.max(np.abs(delta) / v)) - 1e-9))
-            f = np.arange(1, n + 1)[:, None] / n
-            pts = base + f * delta
-            pts[-1] = target
-            self.queue.extend(list(pts))
 
 
 class PoseStageTask:

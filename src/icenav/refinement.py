@@ -250,8 +250,11 @@ class SimulatedBeatImager:
 
     def acquire_beat(self) -> BeatClip:
         """One beat at the plant's true pose, frames at :meth:`frame_times` (phase order)."""
+        return self.clip_at_times(self.frame_times(float(self.clock())))
+
+    def clip_at_times(self, times: NDArray[np.float64]) -> BeatClip:
+        """Frames at the plant's true pose at ``times`` (s), in the order given."""
         pose = self.base2anatomy @ np.asarray(self.plant.state.tip2base)  # type: ignore[attr-defined]
-        times = self.frame_times(float(self.clock()))
         frames = tuple(
             self.renderer.render(pose, float(t), check=False)  # type: ignore[attr-defined]
             for t in times
@@ -472,6 +475,61 @@ _Request = _Move | _Measure
 """What the search asks for next: a move to a state, or one beat measured there."""
 
 
+class _Stepper:
+    """Runs a generator of move / measure requests one set-point per control cycle, inside a
+    box around ``q_view`` (shared mechanics of the refinement stages)."""
+
+    def __init__(
+        self,
+        q_view: Array,
+        q_start: Array,
+        radius: Array,
+        max_velocity: Array,
+        abort: Callable[[], bool] | None,
+        last_dir: Array | None = None,
+        label: str = "set-point",
+    ) -> None:
+        self.q_view = q_view
+        self.radius = radius
+        self.lo = q_view - radius
+        self.hi = q_view + radius
+        self.max_velocity = max_velocity
+        self.abort = abort
+        self.cmd = q_start.copy()
+        self.last_dir = np.zeros(4) if last_dir is None else last_dir.copy()
+        self.label = label
+        self.queue: list[Array] = []
+        self.elapsed = 0.0
+        self.n_cmd = 0
+        self.max_off = np.zeros(4)
+
+    def send(self, q: Array) -> Array:
+        off = np.abs(q - self.q_view)
+        if np.any(off > self.radius * (1 + 1e-9) + 1e-12):
+            j = int(np.argmax(off / self.radius))
+            raise NeighbourhoodError(
+                f"{self.label} {q.tolist()} is {off[j]:.4g} from the view on joint {j}, "
+                f"outside the radius {self.radius[j]:.4g} (rad, rad, rad, mm)"
+            )
+        moved = np.sign(q - self.cmd)
+        self.last_dir = np.where(moved != 0, moved, self.last_dir)
+        self.max_off = np.maximum(self.max_off, off)
+        self.cmd = q.copy()
+        self.n_cmd += 1
+        return q.copy()
+
+    def queue_moves(self, targets: Sequence[Array], dt: float) -> None:
+        v = self.max_velocity * dt
+        for target in targets:
+            base = self.queue[-1] if self.queue else self.cmd
+            delta = target - base
+            n = max(1, math.ceil(float(np.max(np.abs(delta) / v)) - 1e-9))
+            f = np.arange(1, n + 1)[:, None] / n
+            pts = base + f * delta
+            pts[-1] = target
+            self.queue.extend(list(pts))
+
+
 class RefinementTask:
     """Closed-loop refinement as a controller task (one set-point per control cycle).
 
@@ -545,15 +603,21 @@ class RefinementTask:
         self._hold_s = cfg.settle_s + imager.beat_duration_s
         # execution state
         self._gen = self._search()
-        self._queue: list[Array] = []  # pending set-points of the current move
+        # set-points of the current move, the box check and the sent-command bookkeeping;
+        # the return ended with the view's approach, hence its direction
+        self._run = _Stepper(
+            self.q_view,
+            self.q_start,
+            self.radius,
+            np.array(cfg.max_velocity),
+            None,
+            last_dir=self.direction,
+            label="refinement set-point",
+        )
         self._hold_left = 0.0
         self._measuring = False
         self._gen_done = False
-        self._cmd = self.q_start.copy()
-        self._last_dir = self.direction.copy()  # the return ended with the view's approach
         self._elapsed = 0.0
-        self._n_cmd = 0
-        self._max_off = np.zeros(4)
         self._status = RefinementStatus.RUNNING
         self._trials: list[TrialRecord] = []
         self._best_q = self.q_start.copy()
@@ -596,7 +660,7 @@ class RefinementTask:
         """Set-point targets to reach ``trial`` moving in the arrival direction at the end."""
         d = self.direction
         delta = trial - q_from
-        need = (d != 0) & ((delta * d < 0) | ((delta == 0) & (self._last_dir != d)))
+        need = (d != 0) & ((delta * d < 0) | ((delta == 0) & (self._run.last_dir != d)))
         targets = []
         if np.any(need):
             pre = np.clip(trial - d * np.array(self.config.overshoot), self.lo, self.hi)
@@ -694,7 +758,7 @@ class RefinementTask:
             yield _Move(target)
 
     def _cmd_target(self) -> Array:
-        return self._cmd.copy()
+        return self._run.cmd.copy()
 
     def _record(self, q: Array, s: float, accepted: bool) -> None:
         self._trials.append(TrialRecord(q.copy(), float(s), accepted, self._elapsed))
@@ -708,36 +772,9 @@ class RefinementTask:
     @property
     def progress(self) -> float:
         """Fraction of the evaluation budget used, in [0, 1] (1 when finished)."""
-        if self._gen_done and not self._queue:
+        if self._gen_done and not self._run.queue:
             return 1.0
         return min(1.0, self._n_eval / self.config.max_evaluations)
-
-    def _send(self, q: Array) -> Array:
-        off = np.abs(q - self.q_view)
-        if np.any(off > self.radius * (1 + 1e-9) + 1e-12):
-            j = int(np.argmax(off / self.radius))
-            raise NeighbourhoodError(
-                f"refinement set-point {q.tolist()} is {off[j]:.4g} from the view on joint {j}, "
-                f"outside the radius {self.radius[j]:.4g} (rad, rad, rad, mm)"
-            )
-        moved = np.sign(q - self._cmd)
-        self._last_dir = np.where(moved != 0, moved, self._last_dir)
-        self._max_off = np.maximum(self._max_off, off)
-        self._cmd = q.copy()
-        self._n_cmd += 1
-        return q.copy()
-
-    def _queue_moves(self, targets: list[Array], dt: float) -> None:
-        """Append straight set-point lines through ``targets`` at the refinement speed."""
-        v = np.array(self.config.max_velocity) * dt
-        for target in targets:
-            base = self._queue[-1] if self._queue else self._cmd
-            delta = target - base
-            n = max(1, math.ceil(float(np.max(np.abs(delta) / v)) - 1e-9))
-            f = np.arange(1, n + 1)[:, None] / n
-            pts = base + f * delta
-            pts[-1] = target
-            self._queue.extend(list(pts))
 
     def next_command(self, q_measured: Array, dt: float) -> Array | None:
         """The next motor set-point (4,), or None when the refinement has ended."""
@@ -748,9 +785,9 @@ class RefinementTask:
             self._status = RefinementStatus.ABORTED
             self._gen.close()
             self._gen_done = True
-            self._queue = []
+            self._run.queue = []
             return None
-        if self._gen_done and not self._queue:
+        if self._gen_done and not self._run.queue:
             return None
         self._elapsed += dt
         if self._status == RefinementStatus.RUNNING and self._elapsed > self.config.max_duration_s:
@@ -759,18 +796,18 @@ class RefinementTask:
             self._gen.close()
             self._gen_done = True
             self._measuring = False
-            self._queue = []
-            self._queue_moves(self._approach(self._cmd, self._best_q), dt)
+            self._run.queue = []
+            self._run.queue_moves(self._approach(self._run.cmd, self._best_q), dt)
         while True:
-            if self._queue:
-                return self._send(self._queue.pop(0))
+            if self._run.queue:
+                return self._run.send(self._run.queue.pop(0))
             if self._gen_done:
                 return None
             value: float | None = None
             if self._measuring:
                 if self._hold_left > 0:
                     self._hold_left -= dt
-                    return self._cmd.copy()
+                    return self._run.cmd.copy()
                 value = self.score(self.imager.acquire_beat())
                 self._n_eval += 1
                 self._measuring = False
@@ -785,7 +822,7 @@ class RefinementTask:
                 self._measuring = True
                 self._hold_left = self._hold_s
             else:
-                self._queue_moves([req.q], dt)
+                self._run.queue_moves([req.q], dt)
 
     def result(self) -> RefinementResult:
         """The outcome so far (final once :meth:`next_command` returned None)."""
@@ -794,14 +831,14 @@ class RefinementTask:
             q_start=self.q_start.copy(),
             q_final=self._best_q.copy()
             if self._status != RefinementStatus.ABORTED
-            else self._cmd.copy(),
+            else self._run.cmd.copy(),
             start_score=start,
             best_score=self._best_score,
             trials=tuple(self._trials),
             status=self._status,
             duration_s=self._elapsed,
-            n_commands=self._n_cmd,
-            max_offset=self._max_off.copy(),
+            n_commands=self._run.n_cmd,
+            max_offset=self._run.max_off.copy(),
         )
 
 

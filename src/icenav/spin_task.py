@@ -30,10 +30,11 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from icenav.calibration import _average_poses
 from icenav.errors import InvalidValueError
 from icenav.feedback import TipPoseServo
 from icenav.hysteresis import HysteresisCompensator
-from icenav.kinematics import DEFAULT_GEOMETRY, CatheterGeometry, forward
+from icenav.kinematics import DEFAULT_GEOMETRY, CatheterGeometry, _rigid_inverse, forward
 from icenav.state import Mode
 from icenav.validation import check_finite
 
@@ -53,10 +54,7 @@ def tracked_tip2base(tracker: Any) -> tuple[float, Array | None]:
     if frame.sensor2tracker is None:
         return float(frame.timestamp), None
     cfg = tracker.config
-    s2t = np.asarray(cfg.sensor2tip, dtype=np.float64)
-    tip2sensor = np.eye(4)
-    tip2sensor[:3, :3] = s2t[:3, :3].T
-    tip2sensor[:3, 3] = -s2t[:3, :3].T @ s2t[:3, 3]
+    tip2sensor = _rigid_inverse(np.asarray(cfg.sensor2tip, dtype=np.float64))
     pose = np.asarray(cfg.tracker2base) @ frame.sensor2tracker @ tip2sensor
     return float(frame.timestamp), pose
 
@@ -196,16 +194,8 @@ class SpinTask:
         self._last_stamp = stamp
         self._ref_waited += dt
         if len(self._ref_poses) >= self._ref_needed:
-            stack = np.stack(self._ref_poses)
-            mean = np.eye(4)
-            mean[:3, 3] = stack[:, :3, 3].mean(axis=0)
-            u, _, vt = np.linalg.svd(stack[:, :3, :3].sum(axis=0))  # chordal mean rotation
-            mean[:3, :3] = u @ np.diag([1.0, 1.0, float(np.sign(np.linalg.det(u @ vt)))]) @ vt
-            model0 = self.intended[0]
-            inv0 = np.eye(4)
-            inv0[:3, :3] = model0[:3, :3].T
-            inv0[:3, 3] = -model0[:3, :3].T @ model0[:3, 3]
-            self.reference_correction = mean @ inv0
+            mean = _average_poses(np.stack(self._ref_poses))  # chordal mean rotation
+            self.reference_correction = mean @ _rigid_inverse(self.intended[0])
         elif self._ref_waited >= self._ref_timeout:
             self._hold = False  # no tracker: open loop
             self.pose_source = None

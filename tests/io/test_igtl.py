@@ -6,6 +6,7 @@ pyigtl keeps only the latest message per device on the receiving side, so every 
 
 from __future__ import annotations
 
+import contextlib
 import json
 import signal
 import threading
@@ -64,12 +65,21 @@ def link() -> Iterator[tuple[IgtlBridge, pyigtl.OpenIGTLinkClient, list[IgtlRequ
         port=0, accepted_commands=frozenset({IgtlCommand.STOP, IgtlCommand.SAVE_VIEW})
     )
     bridge = IgtlBridge(config, on_command=received.append)
+    try:
+        with connected_client(bridge) as client:
+            yield bridge, client, received
+    finally:
+        bridge.close()
+
+
+@contextlib.contextmanager
+def connected_client(bridge: IgtlBridge) -> Iterator[pyigtl.OpenIGTLinkClient]:
+    """A real pyigtl client connected to ``bridge`` over loopback; stopped and closed after."""
     client = pyigtl.OpenIGTLinkClient(host="127.0.0.1", port=bridge.port)
     try:
         assert wait_for_client(bridge, TIMEOUT_S)
-        yield bridge, client, received
+        yield client
     finally:
-        bridge.close()
         client.stop()
         if client.socket is not None:
             client.socket.close()

@@ -20,9 +20,9 @@ from icenav.io.igtl import (
     IgtlBridge,
     IgtlCommand,
     IgtlConfig,
-    wait_for_client,
 )
 from icenav.io.igtl_stream import CommandForwarder, IgtlStreamer
+from tests.io.test_igtl import connected_client
 
 TIMEOUT_S = 15.0
 
@@ -45,18 +45,14 @@ def streamed() -> Iterator[tuple[SimSession, IgtlStreamer, pyigtl.OpenIGTLinkCli
     )
     session = make_sim_controller(seed=104)
     forwarder.ctrl = session.controller
-    client = pyigtl.OpenIGTLinkClient(host="127.0.0.1", port=bridge.port)
     streamer = IgtlStreamer(session.controller, bridge)
     try:
-        assert wait_for_client(bridge, TIMEOUT_S)
-        yield session, streamer, client
+        with connected_client(bridge) as client:
+            yield session, streamer, client
     finally:
         streamer.stop()
         session.close()
         bridge.close()
-        client.stop()
-        if client.socket is not None:
-            client.socket.close()
 
 
 def test_pose_image_and_sensor_reach_the_client(streamed: Any) -> None:

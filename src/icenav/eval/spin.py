@@ -239,7 +239,7 @@ def _effective_path(q_model: Array, cal: Calibrations) -> tuple[Array, Array]:
 
 def _commands(condition: str, q_model: Array, cal: Calibrations | None) -> Array:
     """Motor commands (APPROACH_STEPS + n, 4): the approach from rest, then the spin
-    (open-loop conditions; the closed loop's feed-forward is ``dense+hysteresis``)."""
+    (open-loop conditions; the closed loop builds its own, :func:`run_spin_closed_loop`)."""
     path = _approach_path(q_model)
     lim = DEFAULT_GEOMETRY.knob_limit
     if condition == "none":
@@ -251,7 +251,7 @@ def _commands(condition: str, q_model: Array, cal: Calibrations | None) -> Array
             raise ValueError(f"condition {condition!r} needs the transmission calibration")
         tc = cal.transmission
         return transmission_commands(q_model, tc.effective_map, tc.compensator)
-    if condition in ("dense+hysteresis", CLOSED_LOOP):
+    if condition == "dense+hysteresis":
         eff, bends = _effective_path(q_model, cal)
         comp = cal.compensator
         comp.reset(np.zeros(4))
