@@ -11,6 +11,7 @@ import pytest
 from icenav.errors import ConfigurationError, ShapeError, TrackerError
 from icenav.hysteresis import HysteresisCompensator, JointHysteresis
 from icenav.kinematics import forward
+from icenav.tracker_bias import TrackerBias
 from icenav.transmission import (
     CalibrationMotion,
     PairTransmission,
@@ -281,6 +282,17 @@ def test_transmission_commands_compose_like_the_spin() -> None:
     assert np.max(np.abs(z[20:] - q_model[:, :2])) < 0.5 * DEG  # savgol + dead-zone ramp only
     with pytest.raises(ConfigurationError, match="model_to_motor"):
         transmission_commands(q_model, object(), TendonCompensator(m))
+    # a tracker bias shifts the model path first (icenav.tracker_bias); none changes nothing
+    same = transmission_commands(
+        q_model, IdentityMap(), TendonCompensator(m), tracker_bias=TrackerBias.none()
+    )
+    np.testing.assert_allclose(same, cmd, atol=1e-9)
+    bias = TrackerBias(np.array([1.0, -1.0, 0.0]), np.zeros((3, 3)))
+    moved = transmission_commands(q_model, IdentityMap(), TendonCompensator(m), tracker_bias=bias)
+    shifted = bias.shift_model_path(q_model)
+    z = m.simulate(moved, x_start=[0.0, 0.0])
+    assert np.max(np.abs(z[20:] - shifted[:, :2])) < 0.5 * DEG
+    assert np.max(np.abs(shifted[:, :2] - q_model[:, :2])) > 0.5 * DEG
 
 
 def test_bad_input_is_refused() -> None:

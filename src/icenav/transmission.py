@@ -43,10 +43,11 @@ inside Gauss-Seidel sweeps over the pair (coupled through the bend and the tensi
 the model's current state, which is then advanced; inside the dead-zone (``|z*_j| < eps``)
 the command is interpolated between the solutions for ``+-eps`` (no jump across it). The
 roll and the distal twist keep the per-joint models of :mod:`icenav.hysteresis`.
-:func:`transmission_commands` composes it with F as ``dense+hysteresis`` does in
+:func:`transmission_commands` composes it with F; it is the ``dense+hysteresis`` condition of
 :mod:`icenav.eval.spin`::
 
-    model path -> preshape_model (twist) -> F_eff -> Savitzky-Golay -> TendonCompensator -> motors
+    model path -> [tracker-bias shift] -> preshape_model (twist) -> F_eff -> Savitzky-Golay
+               -> TendonCompensator -> motors
 
 Calibration (:func:`calibrate_transmission`): knob circles at 25 / 50 / 75 deg, both ways
 (~740 moves), with the dense raster; F_eff is a smoothed thin-plate RBF over the raster and
@@ -55,11 +56,13 @@ circle samples relabelled with the identified model's effective knobs
 refits the plays from the circles alone there (F and G kept).
 
 Measured on the twin's development catheters 50-52 (the spin protocol of ``icenav eval spin``,
-EM-tracked, mean; calibrated in the straight vessel): 2.1 / 2.2 / 2.3 mm and 2.2 / 2.7 / 3.4
-deg at 20 / 40 / 60 deg in the straight vessel, against 2.7 / 3.0 / 3.6 mm and 3.2 / 4.0 / 5.0
-deg for ``dense+hysteresis``; lower than it in the curved vessels too. Re-identified in the
+EM-tracked, mean; calibrated in the straight vessel; before the tracker-bias separation of
+:mod:`icenav.tracker_bias`): 2.1 / 2.2 / 2.3 mm and 2.2 / 2.7 / 3.4 deg at 20 / 40 / 60 deg in
+the straight vessel, against 2.7 / 3.0 / 3.6 mm and 3.2 / 4.0 / 5.0 deg for the per-knob model
+(``dense+knob-hysteresis``); lower than it in the curved vessels too. Re-identified in the
 curved vessel (:func:`reidentify_in_situ` with the roll sweeps there), the curved vessels add
-at most +1.0 mm / +1.4 deg to the straight result (steep, 60 deg).
+at most +1.0 mm / +1.4 deg to the straight result (steep, 60 deg). With the tracker bias
+separated: 1.5 / 1.5 / 1.8 mm (same catheters; held-out results in docs/results.md).
 """
 
 from __future__ import annotations
@@ -77,6 +80,7 @@ from icenav.compensation import CalibrationSet, ElasticityMap
 from icenav.errors import ConfigurationError, ShapeError, TrackerError
 from icenav.hysteresis import HysteresisCompensator
 from icenav.kinematics import DEFAULT_GEOMETRY, CatheterGeometry
+from icenav.tracker_bias import TrackerBias
 from icenav.trajectories import savgol_smooth
 from icenav.validation import check_finite
 
@@ -747,9 +751,10 @@ def transmission_commands(
     approach_steps: int = 20,
     savgol_window: int = 15,
     geometry: CatheterGeometry = DEFAULT_GEOMETRY,
+    tracker_bias: TrackerBias | None = None,
 ) -> Array:
-    """Motor commands (approach_steps + n, 4) for a model path (n, 4), as ``_commands`` of
-    :mod:`icenav.eval.spin` builds ``dense+hysteresis``, with the tendon inverse::
+    """Motor commands (approach_steps + n, 4) for a model path (n, 4): the ``dense+hysteresis``
+    condition of :mod:`icenav.eval.spin`::
 
         approach from rest -> twist pre-shape -> F_eff -> Savitzky-Golay -> TendonCompensator
 
@@ -761,11 +766,17 @@ def transmission_commands(
 
         return transmission_commands(q_model, cal.transmission.effective_map,
                                      cal.transmission.compensator)
+
+    With a ``tracker_bias`` (the calibration's, :mod:`icenav.tracker_bias`) the model path is
+    first shifted so the tracker reads the intended tip (F must then be built bias-free, as
+    :func:`calibrate_transmission` does with the same bias).
     """
 
     qm = check_finite(q_model, "q_model")
     if qm.ndim != 2 or qm.shape[1] != 4:
         raise ShapeError(f"q_model must have shape (n, 4), got {qm.shape}")
+    if tracker_bias is not None:
+        qm = tracker_bias.shift_model_path(qm, geometry)
     n_app = int(approach_steps)
     if n_app < 1:
         raise ConfigurationError(f"approach_steps must be >= 1, got {approach_steps}")
@@ -898,11 +909,16 @@ def calibrate_transmission(
     *,
     radii: Sequence[float] = (math.radians(25.0), math.radians(50.0), math.radians(75.0)),
     step: float = math.radians(3.0),
+    tracker_bias: TrackerBias | None = None,
     **kwargs: Any,
 ) -> TransmissionCalibration:
     """Drive the knob circles (:func:`circle_path`, ~800 moves for the default radii) from
     rest at zeros, then :func:`build_transmission` with the dense raster. ``kwargs`` go to
-    :func:`build_transmission`."""
+    :func:`build_transmission`. With a ``tracker_bias`` the raster's and the circles' tracked
+    tips are corrected for it first (then pass it to :func:`transmission_commands` too)."""
+    if tracker_bias is not None:
+        dense = tracker_bias.correct_calibration(dense)
+        tracker = tracker_bias.corrected(tracker)  # type: ignore[arg-type]
     path = circle_path(radii, step)
     circles = record_motion(move, tracker, path)
     move(np.zeros(4))
@@ -919,6 +935,7 @@ def reidentify_in_situ(
     radii: Sequence[float] = (math.radians(25.0), math.radians(50.0), math.radians(75.0)),
     step: float = math.radians(3.0),
     max_nfev: int = 60,
+    tracker_bias: TrackerBias | None = None,
 ) -> TransmissionCalibration:
     """Re-identify the plays in the vessel of use (e.g. a curved one) from knob circles
     alone (~800 moves, no raster), before a procedure.
@@ -928,12 +945,16 @@ def reidentify_in_situ(
     10 parameters are refitted with G fixed to the calibration's (``static_coefficients``),
     starting from the calibrated model, and F is kept. ``roll``: the per-joint model for the
     roll and twist in that vessel (e.g. :func:`icenav.calibration.identify_hysteresis` run
-    there); default: the calibration's. The robot must start at rest at zeros.
+    there); default: the calibration's. The robot must start at rest at zeros. With the
+    calibration's ``tracker_bias`` the circles' tracked tips are corrected for it (the bias
+    belongs to the tracker's field, not to the vessel).
     """
     if not isinstance(calibration, TransmissionCalibration):
         raise ConfigurationError(
             f"calibration must be a TransmissionCalibration, got {type(calibration).__name__}"
         )
+    if tracker_bias is not None:
+        tracker = tracker_bias.corrected(tracker)  # type: ignore[arg-type]
     path = circle_path(radii, step)
     circles = record_motion(move, tracker, path)
     move(np.zeros(4))

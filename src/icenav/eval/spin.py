@@ -14,11 +14,19 @@ Conditions:
 - ``dense``: F from the dense raster (smoothing spline), commands smoothed with a quadratic
   Savitzky-Golay filter, as the paper.
 - ``simplified``: F from the 5-point calibration (thin-plate RBF), smoothed likewise.
-- ``dense+hysteresis``: F built on the *effective* knob angles of the raster (the identified
-  backlash / dead-zone model run along the raster's command path), then the hysteresis
-  compensator pre-shapes the commands, roll included. Optionally (``--in-situ``) the
-  hysteresis sweeps (no raster) are repeated in a curved test vessel first; measured on the
-  development catheters it does not help (docs/calibration.md), so it is off by default.
+- ``dense+hysteresis`` (ours, open loop): the dead-zone and hysteresis of each tendon
+  (:mod:`icenav.transmission`, identified from the raster and knob circles) composed with F
+  built on its effective knob angles; the roll's and the image's twist play per joint
+  (:mod:`icenav.hysteresis`); the tracker's base-frame field bias separated by roll circles
+  (:mod:`icenav.tracker_bias`). In a curved test vessel the plays are re-identified there
+  before the spin (knob circles and roll sweeps, about 1,700 moves, no raster; F kept), as a
+  robot with a tip sensor can before a procedure; ``--straight-only`` skips that.
+- ``dense+knob-hysteresis`` (ours, the simpler model): one backlash / dead-zone per knob
+  (:mod:`icenav.hysteresis`, from single-knob sweeps), F on its effective knob angles, the
+  same roll/twist play and tracker-bias separation; always calibrated in the straight vessel
+  (re-identifying it in situ made position worse, docs/results.md).
+- ``dense+hysteresis+em`` (ours, closed loop): the ``dense+knob-hysteresis`` feed-forward
+  corrected at every sample by an integral servo on the EM-tracked tip (:mod:`icenav.feedback`).
 
 Errors: position RMSE = RMS distance between the measured tip and the intended tip (the
 model tip at the start; the model keeps it fixed); rotation RMSE = RMS angle of the rotation
@@ -53,6 +61,7 @@ from icenav.eval.metrics import rotation_angle
 from icenav.feedback import TipPoseServo
 from icenav.hysteresis import HysteresisCompensator
 from icenav.kinematics import DEFAULT_GEOMETRY, forward
+from icenav.tracker_bias import TrackerBias, identify_tracker_bias
 from icenav.trajectories import savgol_smooth, spin_trajectory
 from icenav.transmission import (
     TransmissionCalibration,
@@ -79,16 +88,15 @@ __all__ = [
 
 Array = NDArray[np.float64]
 
-CONDITIONS = ("none", "dense", "simplified", "dense+hysteresis", "dense+hysteresis+em")
-"""The conditions, in the order of the table. The last is closed loop: the dense +
-hysteresis feed-forward corrected online from the EM tracker (:mod:`icenav.feedback`)."""
+OURS = "dense+hysteresis"
+"""Our open-loop condition: dense F with the per-tendon dead-zone / hysteresis model."""
+KNOB_HYSTERESIS = "dense+knob-hysteresis"
+"""Our simpler open-loop condition: dense F with one backlash / dead-zone model per knob."""
 CLOSED_LOOP = "dense+hysteresis+em"
 """The closed-loop condition's name."""
-TRANSMISSION = "dense+transmission"
-"""Opt-in condition (``--conditions``; not in the default table): dense F with the
-per-tendon transmission model of :mod:`icenav.transmission`, identified from the raster and
-knob circles (about 800 more moves per catheter)."""
-ALL_CONDITIONS = (*CONDITIONS, TRANSMISSION)
+CONDITIONS = ("none", "dense", "simplified", OURS, KNOB_HYSTERESIS, CLOSED_LOOP)
+"""The conditions, in the order of the table (the paper's three, then ours)."""
+ALL_CONDITIONS = CONDITIONS
 """Every condition ``--conditions`` accepts."""
 SETTLE_UPDATES = 10
 """Closed loop: tracker updates at the start pose before the spin starts (1/8 s at 80 Hz)."""
@@ -120,7 +128,8 @@ class SpinRecord:
     bend_deg: int
     """Initial AP bend (deg)."""
     condition: str
-    """``none``, ``dense``, ``simplified``, ``dense+hysteresis`` or ``dense+hysteresis+em``
+    """``none``, ``dense``, ``simplified``, ``dense+hysteresis``, ``dense+knob-hysteresis`` or
+    ``dense+hysteresis+em``
     (closed loop on the EM tracker)."""
     position_rmse_mm: float
     """Tip position RMSE measured by the EM tracker (mm), the paper's protocol."""
@@ -151,7 +160,8 @@ class Calibrations:
     dense_effective: ElasticityMap
     """F from the dense raster in effective (hysteresis-free) knob angles."""
     compensator: HysteresisCompensator
-    """The identified hysteresis compensator."""
+    """The per-joint (knob, roll, twist) hysteresis compensator: ``dense+knob-hysteresis`` and
+    the closed loop use it whole, ``dense+hysteresis`` its roll and twist."""
     dense_set: CalibrationSet
     """The raw dense calibration set."""
     five_set: CalibrationSet
@@ -159,7 +169,12 @@ class Calibrations:
     seconds: float
     """Wall time of the calibration (s)."""
     transmission: TransmissionCalibration | None = None
-    """The per-tendon transmission calibration (only when ``dense+transmission`` is run)."""
+    """The per-tendon transmission calibration of ``dense+hysteresis`` (made by
+    :func:`run_vessel` when that condition runs)."""
+    tracker_bias: TrackerBias | None = None
+    """The tracker's base-frame field bias from the roll circles (:mod:`icenav.tracker_bias`),
+    used by our conditions (not by the paper's ``dense`` and ``simplified``); None: not
+    separated."""
 
 
 def _make_plant(seed: int, vessel: str) -> tuple[Any, Any]:
@@ -170,8 +185,9 @@ def _make_plant(seed: int, vessel: str) -> tuple[Any, Any]:
     return plant, tracker
 
 
-def calibrate(seed: int) -> Calibrations:
-    """Calibrate catheter ``seed`` in the straight vessel (dense, 5-point, hysteresis)."""
+def calibrate(seed: int, separate_bias: bool = True) -> Calibrations:
+    """Calibrate catheter ``seed`` in the straight vessel (dense, 5-point, hysteresis and,
+    with ``separate_bias``, the roll circles of :mod:`icenav.tracker_bias`)."""
     t0 = time.perf_counter()
     plant, tracker = _make_plant(seed, "straight")
     cid = f"sim-seed-{seed}"
@@ -185,7 +201,12 @@ def calibrate(seed: int) -> Calibrations:
     # effective knob angles along the raster's command path (from the relaxed start)
     eff = comp.effective_path(np.vstack([np.zeros(4), raster]))[1:]
     keep = [int(np.argmin(np.max(np.abs(raster - q), axis=1))) for q in dense.q_motor]
-    dense_eff = dense.with_motor_knobs(eff[keep, :2], method="dense-raster-effective")
+    # beyond the paper: the roll circles separate the tracker's base-frame bias (last, so the
+    # paper's calibrations see the same tracker samples as without them)
+    plant.reset()
+    bias = identify_tracker_bias(plant.move, tracker) if separate_bias else None
+    ours = dense if bias is None else bias.correct_calibration(dense)
+    dense_eff = ours.with_motor_knobs(eff[keep, :2], method="dense-raster-effective")
     return Calibrations(
         dense=ElasticityMap.build(dense),
         simplified=ElasticityMap.build(five),
@@ -194,6 +215,7 @@ def calibrate(seed: int) -> Calibrations:
         dense_set=dense,
         five_set=five,
         seconds=time.perf_counter() - t0,
+        tracker_bias=bias,
     )
 
 
@@ -221,11 +243,14 @@ def _approach_path(q_model: Array) -> Array:
 
 
 def _effective_path(q_model: Array, cal: Calibrations) -> tuple[Array, Array]:
-    """dense + hysteresis before the play inverse: the wanted effective joint states
+    """dense + knob hysteresis before the play inverse: the wanted effective joint states
     (APPROACH_STEPS + n, 4) (twist pre-shaped, F, Savitzky-Golay) and the intended bend of
     each (rad), for :meth:`HysteresisCompensator.command`."""
     path = _approach_path(q_model)
     lim = DEFAULT_GEOMETRY.knob_limit
+    if cal.tracker_bias is not None:
+        # aim where the tracker reads the intended tip (F is built bias-free)
+        path = cal.tracker_bias.shift_model_path(path)
     # the distal twist play: turn the image frame ahead
     model = cal.compensator.preshape_model(path)
     model[:, :2] = np.clip(model[:, :2], -lim, lim)
@@ -246,12 +271,14 @@ def _commands(condition: str, q_model: Array, cal: Calibrations | None) -> Array
         return path
     if cal is None:
         raise ValueError(f"condition {condition!r} needs the calibrations")
-    if condition == TRANSMISSION:
+    if condition == OURS:
         if cal.transmission is None:
             raise ValueError(f"condition {condition!r} needs the transmission calibration")
         tc = cal.transmission
-        return transmission_commands(q_model, tc.effective_map, tc.compensator)
-    if condition == "dense+hysteresis":
+        return transmission_commands(
+            q_model, tc.effective_map, tc.compensator, tracker_bias=cal.tracker_bias
+        )
+    if condition == KNOB_HYSTERESIS:
         eff, bends = _effective_path(q_model, cal)
         comp = cal.compensator
         comp.reset(np.zeros(4))
@@ -293,7 +320,7 @@ def run_spin_closed_loop(
     cal: Calibrations,
     servo: TipPoseServo | None = None,
 ) -> tuple[Array, Array, Array]:
-    """The spin of ``q_model`` (n, 4) with dense + hysteresis compensation corrected online
+    """The spin of ``q_model`` (n, 4) with dense + knob-hysteresis compensation corrected online
     from the EM tracker (:class:`icenav.feedback.TipPoseServo`).
 
     From a relaxed start, the approach runs open loop; at the start pose the servo takes
@@ -341,29 +368,37 @@ def run_vessel(
     n_samples: int = 360,
     conditions: Sequence[str] = CONDITIONS,
     keep_commands: dict[tuple[int, str], Array] | None = None,
-    in_situ: bool = False,
+    in_situ: bool = True,
 ) -> list[SpinRecord]:
     """The spins of one catheter in one vessel: a record per bend and condition.
 
-    With ``in_situ`` and a vessel other than the straight one, the hysteresis compensator of
-    ``dense+hysteresis`` is re-identified in the test vessel (:func:`identify_in_situ`)."""
-    if TRANSMISSION in conditions and cal.transmission is None:
+    With ``in_situ`` (default) and a vessel other than the straight one, the plays of
+    ``dense+hysteresis`` (tendons, roll, twist) are re-identified in the test vessel
+    (:func:`icenav.transmission.reidentify_in_situ`, :func:`identify_in_situ`); the other
+    conditions stay as calibrated in the straight vessel."""
+    if OURS in conditions and cal.transmission is None:
         plant, tracker = _make_plant(seed, "straight")  # calibrated straight, from rest
         cal = replace(
             cal,
             transmission=calibrate_transmission(
-                plant.move, tracker, cal.dense_set, raster_grid(), cal.compensator
+                plant.move,
+                tracker,
+                cal.dense_set,
+                raster_grid(),
+                cal.compensator,
+                tracker_bias=cal.tracker_bias,
             ),
         )
-    if in_situ and vessel != "straight" and TRANSMISSION in conditions:
+    if in_situ and vessel != "straight" and OURS in conditions:
         assert cal.transmission is not None
         plant, tracker = _make_plant(seed, vessel)  # the roll and the tendons together
         roll = identify_in_situ(seed, vessel)
         cal = replace(
-            cal, transmission=reidentify_in_situ(plant.move, tracker, cal.transmission, roll)
+            cal,
+            transmission=reidentify_in_situ(
+                plant.move, tracker, cal.transmission, roll, tracker_bias=cal.tracker_bias
+            ),
         )
-    if in_situ and vessel != "straight" and "dense+hysteresis" in conditions:
-        cal = replace(cal, compensator=identify_in_situ(seed, vessel))
     plant, tracker = _make_plant(seed, vessel)
     records = []
     for bend in bends_deg:
@@ -474,7 +509,8 @@ def _plot_curvature(records: Sequence[SpinRecord], out_dir: Path, seed: int) -> 
     colours = {
         "dense": "tab:red",
         "simplified": "tab:blue",
-        "dense+hysteresis": "tab:green",
+        OURS: "tab:green",
+        KNOB_HYSTERESIS: "tab:olive",
         CLOSED_LOOP: "tab:purple",
         "none": "tab:gray",
     }
@@ -483,8 +519,8 @@ def _plot_curvature(records: Sequence[SpinRecord], out_dir: Path, seed: int) -> 
         ("position_rmse_mm", "position RMSE (mm)", "curvature_position.png"),
         ("rotation_rmse_deg", "orientation RMSE (deg)", "curvature_rotation.png"),
     ):
-        fig, ax = plt.subplots(figsize=(5.5, 3.8))
-        for cond in ("dense", "simplified", "dense+hysteresis", CLOSED_LOOP):
+        fig, ax = plt.subplots(figsize=(6.5, 5.6))
+        for cond in ("dense", "simplified", KNOB_HYSTERESIS, OURS, CLOSED_LOOP):
             for vessel, ls in styles.items():
                 rs = sorted(
                     (r for r in records if r.condition == cond and r.vessel == vessel),
@@ -505,7 +541,8 @@ def _plot_curvature(records: Sequence[SpinRecord], out_dir: Path, seed: int) -> 
         ax.set_ylabel(label + ", EM tracked")
         ax.set_title(f"Vessel curvature (catheter seed {seed}; cf. the paper's Fig. 7)")
         ax.grid(alpha=0.3)
-        ax.legend(fontsize=6, ncol=3)
+        ax.set_ylim(bottom=0.0)
+        ax.legend(fontsize=6.5, ncol=3, loc="upper center", bbox_to_anchor=(0.5, -0.14))
         fig.tight_layout()
         path = out_dir / name
         fig.savefig(path, dpi=110)
@@ -651,14 +688,19 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--conditions",
         default=",".join(CONDITIONS),
-        help="comma-separated subset of "
-        + ", ".join(ALL_CONDITIONS)
-        + f" (default: all but {TRANSMISSION})",
+        help="comma-separated subset of " + ", ".join(ALL_CONDITIONS) + " (default: all)",
     )
     p.add_argument(
-        "--in-situ",
+        "--straight-only",
         action="store_true",
-        help="re-identify the hysteresis in the curved test vessel (default: the straight one)",
+        help="do not re-identify dense+hysteresis's plays in a curved test vessel (calibrated "
+        "in the straight vessel only, as the paper's conditions)",
+    )
+    p.add_argument(
+        "--no-bias-separation",
+        action="store_true",
+        help="skip the roll circles: our conditions keep the tracker's field bias in F, as "
+        "the paper's do (for comparison; docs/calibration.md section 4d)",
     )
     p.add_argument(
         "--study", action="store_true", help="also print the calibration-size / interpolant study"
@@ -689,11 +731,24 @@ def main(argv: Sequence[str] | None = None) -> int:
         print("icenav eval spin: bends must be in (0, 90] deg and --samples >= 10", file=sys.stderr)
         return 2
     t0 = time.perf_counter()
-    cal = calibrate(args.seed)
+    cal = calibrate(args.seed, separate_bias=not args.no_bias_separation)
     print(
         f"catheter seed {args.seed}: calibrated in the straight vessel in {cal.seconds:.1f} s "
-        f"(dense {cal.dense_set.n_samples} samples, 5-point, hysteresis sweeps)"
+        f"(dense {cal.dense_set.n_samples} samples, 5-point, hysteresis sweeps"
+        + (", roll circles)" if cal.tracker_bias is not None else ")")
     )
+    if cal.tracker_bias is not None:
+        tb = cal.tracker_bias
+        print(
+            "  tracker bias at the 20 / 40 / 60 deg spin points (mm, base x y): "
+            + ", ".join(
+                "{:.2f} {:.2f}".format(
+                    *tb.at(forward(np.array([math.radians(a), 0, 0, 0]))[:3, 3])[:2]
+                )
+                for a in (20, 40, 60)
+            )
+            + f"; fit residual {tb.rms_residual_mm:.2f} mm over {tb.n_samples} stops"
+        )
     for name, m in (("phi1", 0), ("phi2", 1), ("phi3", 2)):
         jm = cal.compensator.joints[m]
         if jm is not None:
@@ -717,7 +772,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         n_samples=args.samples,
         conditions=conds,
         keep_commands=commands,
-        in_situ=args.in_situ,
+        in_situ=not args.straight_only,
     )
     print(f"\nspin RMSE, vessel {args.vessel}: EM-tracked (paper's Table I) | true pose (mm deg)")
     print(format_table(records))
@@ -753,7 +808,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                     bends_deg=bends,
                     n_samples=args.samples,
                     conditions=conds,
-                    in_situ=args.in_situ,
+                    in_situ=not args.straight_only,
                 )
         for p in _plot_curvature(all_records, out, args.seed):
             print(f"wrote {p}")
