@@ -495,3 +495,35 @@ def test_no_export_button_without_an_export_directory() -> None:
     console._on_connect(FakeClient(1))
     assert console._panels[1].export is None
     assert "Export is off" in console.export_view("apex")
+
+
+def test_an_update_to_a_just_closed_browser_is_not_a_console_error() -> None:
+    """A browser that closes between the refresh taking its panel and updating it makes viser
+    warn that the update will not be delivered (an exception where warnings are errors):
+    benign, not shown as a console error; any other failure is."""
+    import threading
+    import time
+
+    ctl = RecordingController()
+    c = Console(ctl, port=0, refresh_hz=100.0)
+    raised = {"n": 0}
+    message = ["Queued a GuiUpdateMessage on a closed connection; it will never be delivered."]
+    done = threading.Event()
+
+    def refresh() -> None:
+        raised["n"] += 1
+        if raised["n"] >= 5:
+            done.set()
+        if message[0].startswith("boom"):
+            raise RuntimeError(message[0])
+        raise UserWarning(message[0])
+
+    with c:
+        c.refresh_once = refresh  # type: ignore[method-assign]
+        assert done.wait(5.0)
+        assert c.last_error == ""
+        message[0] = "boom: a real failure"
+        deadline = time.monotonic() + 5.0
+        while c.last_error == "" and time.monotonic() < deadline:
+            time.sleep(0.01)
+        assert c.last_error == "RuntimeError: boom: a real failure"
