@@ -1,4 +1,5 @@
-"""Kinematics speed: one FK, one IK, FK+IK, and batch FK of 1,000,000 configurations.
+"""Kinematics speed: one FK, one IK, FK+IK, one body Jacobian, and batch FK of 1,000,000
+configurations.
 
 Baseline, measured in the same run: the paper's formula written the straightforward way
 (4x4 matrices composed with numpy, Rodrigues via the matrix exponential form), called once
@@ -13,7 +14,7 @@ import time
 import numpy as np
 
 from benchmarks.common import Result, time_per_call
-from icenav.kinematics import CatheterGeometry, forward, inverse
+from icenav.kinematics import CatheterGeometry, forward, inverse, jacobian
 
 G = CatheterGeometry()
 
@@ -70,6 +71,8 @@ def main() -> list[Result]:
         naive_forward(row)
     loop_per = (time.perf_counter() - t0) / loop_n
     rate = n / best / 1e6
+    jac = time_per_call(lambda: jacobian(q, check=False))
+    jac_batch = time_per_call(lambda: jacobian(q[None], check=False))
     return [
         Result("FK, one call (check=False)", fk * 1e6, "us", naive * 1e6, "naive numpy FK"),
         Result("FK, one call (validated)", fk_checked * 1e6, "us", naive * 1e6, "naive numpy FK"),
@@ -80,6 +83,13 @@ def main() -> list[Result]:
             "us",
             target="< 30 us",
             met=both * 1e6 < 30,
+        ),
+        Result(
+            "body Jacobian, one call (scalar path, check=False)",
+            jac * 1e6,
+            "us",
+            jac_batch * 1e6,
+            "the batch path on one configuration",
         ),
         Result(
             "batch FK of 1e6, time per configuration",

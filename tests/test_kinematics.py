@@ -273,6 +273,18 @@ def test_jacobian_matches_finite_differences() -> None:
     np.testing.assert_allclose(batch[5], jacobian(qs[5]), atol=1e-12)
 
 
+def test_jacobian_scalar_path_equals_the_batch_path() -> None:
+    """One joint state takes a plain-float fast path; it must agree with the batch path
+    everywhere, including the series branch near the straight catheter."""
+    rng = np.random.default_rng(16)
+    qs = random_q(rng, 400)
+    qs[:40, :2] *= 1e-5  # below the series threshold
+    qs[40:45, :2] = 0.0
+    batch = jacobian(qs)
+    for q, jb in zip(qs, batch, strict=True):
+        np.testing.assert_allclose(jacobian(q), jb, rtol=0, atol=1e-12)
+
+
 # --- tip_jog ---------------------------------------------------------------------------
 
 
