@@ -18,6 +18,8 @@ MODULES = [
     "icenav.dicom",
     "icenav.errors",
     "icenav.eval.metrics",
+    "icenav.eval.spin",
+    "icenav.eval.spin_report",
     "icenav.feedback",
     "icenav.gating",
     "icenav.hw",

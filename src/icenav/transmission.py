@@ -60,9 +60,10 @@ EM-tracked, mean; calibrated in the straight vessel; before the tracker-bias sep
 :mod:`icenav.tracker_bias`): 2.1 / 2.2 / 2.3 mm and 2.2 / 2.7 / 3.4 deg at 20 / 40 / 60 deg in
 the straight vessel, against 2.7 / 3.0 / 3.6 mm and 3.2 / 4.0 / 5.0 deg for the per-knob model
 (``dense+knob-hysteresis``); lower than it in the curved vessels too. Re-identified in the
-curved vessel (:func:`reidentify_in_situ` with the roll sweeps there), the curved vessels add
-at most +1.0 mm / +1.4 deg to the straight result (steep, 60 deg). With the tracker bias
-separated: 1.5 / 1.5 / 1.8 mm (same catheters; held-out results in docs/results.md).
+curved vessel (:func:`reidentify_in_situ` with the roll sweeps there), the curved vessels added
+at most +1.0 mm / +1.4 deg to the straight result (steep, 60 deg; on the twin before its
+vessel review, docs/digital-twin.md section 2.2). With the tracker bias separated: 1.5 / 1.5 /
+1.8 mm (same catheters; held-out results, in every vessel, in docs/results.md).
 """
 
 from __future__ import annotations

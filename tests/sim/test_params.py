@@ -21,6 +21,24 @@ def test_same_seed_same_catheter_and_seeds_differ() -> None:
     assert len(samples) == 10
 
 
+@pytest.mark.parametrize(
+    ("seed", "handle_radius_ap_mm", "friction_coefficient", "bending_length_scale"),
+    [
+        (0, 2.3756243160839854, 0.5022332972547221, 0.9931747343577491),
+        (110, 2.363493330407603, 0.5165649671340136, 0.9988764540214591),
+    ],
+)
+def test_a_seed_stays_the_same_catheter(
+    seed: int, handle_radius_ap_mm: float, friction_coefficient: float, bending_length_scale: float
+) -> None:
+    """Golden values drawn before ``lumen_friction_coefficient`` was added (2026-11-23): a new
+    parameter goes last, so tuning seeds and held-out seeds keep their catheters."""
+    p = PlantParams.sample(seed)
+    assert p.handle_radius_ap_mm == handle_radius_ap_mm
+    assert p.friction_coefficient == friction_coefficient
+    assert p.bending_length_scale == bending_length_scale
+
+
 @pytest.mark.parametrize("seed", range(20))
 def test_samples_stay_within_tolerance(seed: int) -> None:
     nom = PlantParams.nominal()

@@ -1,8 +1,10 @@
 """``icenav eval spin``: the paper's image-spinning experiment (Table I, Fig. 5, Fig. 7).
 
-On the digital twin: one catheter (``--seed``) is calibrated in the straight vessel -- the
-dense 19 x 19 raster, the simplified 5-point search and (beyond the paper) the hysteresis
-sweeps -- then tested in the chosen vessel (``--vessel``). For each initial AP bend
+On the digital twin: each catheter (``--seed N``, or ``--seeds 110-119`` for many, in
+``--jobs`` processes) is calibrated in the straight vessel -- the dense 19 x 19 raster, the
+simplified 5-point search and (beyond the paper) the hysteresis sweeps, knob circles and roll
+circles -- then tested in the chosen vessels (``--vessel straight,moderate,steep``: the
+paper's curvature figure, calibrate straight, test curved). For each initial AP bend
 (20, 40, 60 deg) and each condition the image plane is spun 360 deg about the tip axis
 (phi1 = a cos t, phi2 = a sin t, phi3 = -t, 360 samples, t from 0 to 2 pi inclusive), the tip
 is measured by the EM tracker after every step, and the RMSE against the intended pose is
@@ -18,13 +20,13 @@ Conditions:
   (:mod:`icenav.transmission`, identified from the raster and knob circles) composed with F
   built on its effective knob angles; the roll's and the image's twist play per joint
   (:mod:`icenav.hysteresis`); the tracker's base-frame field bias separated by roll circles
-  (:mod:`icenav.tracker_bias`). In a curved test vessel the plays are re-identified there
-  before the spin (knob circles and roll sweeps, about 1,700 moves, no raster; F kept), as a
-  robot with a tip sensor can before a procedure; ``--straight-only`` skips that.
+  (:mod:`icenav.tracker_bias`). Calibrated in the straight vessel like every condition;
+  with ``--in-situ`` its plays are re-identified in a curved test vessel before the spin
+  (knob circles and roll sweeps, about 1,700 moves, no raster; F kept), as a robot with a tip
+  sensor can before a procedure.
 - ``dense+knob-hysteresis`` (ours, the simpler model): one backlash / dead-zone per knob
   (:mod:`icenav.hysteresis`, from single-knob sweeps), F on its effective knob angles, the
-  same roll/twist play and tracker-bias separation; always calibrated in the straight vessel
-  (re-identifying it in situ made position worse, docs/results.md).
+  same roll/twist play and tracker-bias separation.
 - ``dense+hysteresis+em`` (ours, closed loop): the ``dense+knob-hysteresis`` feed-forward
   corrected at every sample by an integral servo on the EM-tracked tip (:mod:`icenav.feedback`).
 
@@ -32,14 +34,16 @@ Errors: position RMSE = RMS distance between the measured tip and the intended t
 model tip at the start; the model keeps it fixed); rotation RMSE = RMS angle of the rotation
 between the intended orientation ``forward(q_model(t))`` (which includes the intended roll of
 the image plane) and the measured one. Missing tracker samples are left out of the EM
-errors (their count is reported).
+errors (their count is reported). The tables and plots are :mod:`icenav.eval.spin_report`.
 """
 
 from __future__ import annotations
 
 import argparse
+import concurrent.futures
 import json
 import math
+import multiprocessing
 import sys
 import time
 from collections.abc import Callable, Sequence
@@ -58,6 +62,14 @@ from icenav.calibration import (
 )
 from icenav.compensation import CalibrationSet, ElasticityMap, grid_subset_indices
 from icenav.eval.metrics import rotation_angle
+from icenav.eval.spin_report import (
+    BENDS_DEG,
+    format_table,
+    format_vessel_effect,
+    plot_commands,
+    plot_curvature,
+    plot_tip,
+)
 from icenav.feedback import TipPoseServo
 from icenav.hysteresis import HysteresisCompensator
 from icenav.kinematics import DEFAULT_GEOMETRY, forward
@@ -74,16 +86,18 @@ __all__ = [
     "ALL_CONDITIONS",
     "CONDITIONS",
     "Calibrations",
+    "CatheterRun",
     "SpinRecord",
     "calibrate",
     "calibration_study",
-    "format_table",
+    "evaluate_catheter",
     "identify_in_situ",
     "main",
-    "paper_table",
+    "parse_seeds",
     "run_spin",
     "run_spin_closed_loop",
     "run_vessel",
+    "with_transmission",
 ]
 
 Array = NDArray[np.float64]
@@ -106,19 +120,10 @@ the tracker's jitter; with the exact inverse (0) every jitter reversal jumps the
 across the whole play. Chosen with the servo's gain on development catheters 50-52,
 straight and steep vessels (of 0, 0.5, 1, 2, 3 deg; the open loop is best with 0 and keeps
 it)."""
-BENDS_DEG = (20, 40, 60)
-"""The paper's initial AP bends (deg)."""
 SAVGOL_WINDOW = 15
 """Savitzky-Golay window (samples = deg of spin) for the compensated commands."""
 APPROACH_STEPS = 20
 """Steps of the approach from the relaxed state to the start of the spin."""
-PAPER_RESULTS = Path("/work/shared/paper/results.json")
-"""The paper's numbers (Table I), if present."""
-_PAPER_FALLBACK = {
-    "none": [[5.5, 10.0], [11.0, 20.5], [14.8, 31.0]],
-    "dense": [[2.5, 3.0], [4.2, 8.6], [5.0, 10.3]],
-    "simplified": [[5.2, 5.8], [5.8, 13.6], [5.1, 13.4]],
-}
 
 
 @dataclass(frozen=True)
@@ -147,6 +152,9 @@ class SpinRecord:
     """Samples of the spin."""
     em_missing: int
     """Samples the tracker reported MISSING (left out of the EM errors)."""
+    in_situ: bool = False
+    """True: this condition's plays were re-identified in the (curved) test vessel before
+    the spin (``--in-situ``, ``dense+hysteresis`` only); False: as calibrated straight."""
 
 
 @dataclass(frozen=True)
@@ -359,38 +367,55 @@ def run_spin_closed_loop(
     return np.array(true), np.array(em), np.array(cmds)
 
 
+def with_transmission(seed: int, cal: Calibrations) -> Calibrations:
+    """``cal`` with the per-tendon transmission calibration of ``dense+hysteresis`` (knob
+    circles in the straight vessel, from rest; about 740 moves and 10 s of fitting), made
+    once."""
+    if cal.transmission is not None:
+        return cal
+    plant, tracker = _make_plant(seed, "straight")
+    return replace(
+        cal,
+        transmission=calibrate_transmission(
+            plant.move,
+            tracker,
+            cal.dense_set,
+            raster_grid(),
+            cal.compensator,
+            tracker_bias=cal.tracker_bias,
+        ),
+    )
+
+
 def run_vessel(
     seed: int,
     vessel: str,
-    cal: Calibrations,
+    cal: Calibrations | None,
     *,
     bends_deg: Sequence[int] = BENDS_DEG,
     n_samples: int = 360,
     conditions: Sequence[str] = CONDITIONS,
     keep_commands: dict[tuple[int, str], Array] | None = None,
-    in_situ: bool = True,
+    keep_tips: dict[tuple[int, str], Array] | None = None,
+    in_situ: bool = False,
 ) -> list[SpinRecord]:
     """The spins of one catheter in one vessel: a record per bend and condition.
 
-    With ``in_situ`` (default) and a vessel other than the straight one, the plays of
-    ``dense+hysteresis`` (tendons, roll, twist) are re-identified in the test vessel
-    (:func:`icenav.transmission.reidentify_in_situ`, :func:`identify_in_situ`); the other
-    conditions stay as calibrated in the straight vessel."""
-    if OURS in conditions and cal.transmission is None:
-        plant, tracker = _make_plant(seed, "straight")  # calibrated straight, from rest
-        cal = replace(
-            cal,
-            transmission=calibrate_transmission(
-                plant.move,
-                tracker,
-                cal.dense_set,
-                raster_grid(),
-                cal.compensator,
-                tracker_bias=cal.tracker_bias,
-            ),
-        )
-    if in_situ and vessel != "straight" and OURS in conditions:
-        assert cal.transmission is not None
+    Every condition is calibrated in the straight vessel (``cal``; the paper's protocol;
+    None only with condition ``none``, which needs no calibration).
+    With ``in_situ`` and a vessel other than the straight one, the plays of
+    ``dense+hysteresis`` (tendons, roll, twist) are re-identified in the test vessel first
+    (:func:`icenav.transmission.reidentify_in_situ`, :func:`identify_in_situ`).
+    ``keep_commands`` / ``keep_tips`` receive, per (bend, condition), the motor commands
+    (n, 4) and the true tip positions (n, 3) (mm, base frame) of the spin."""
+    if cal is None:
+        if any(c != "none" for c in conditions):
+            raise ValueError(f"conditions {list(conditions)} need the calibrations")
+    elif OURS in conditions:
+        cal = with_transmission(seed, cal)
+    in_situ = in_situ and vessel != "straight" and OURS in conditions
+    if in_situ:
+        assert cal is not None and cal.transmission is not None
         plant, tracker = _make_plant(seed, vessel)  # the roll and the tendons together
         roll = identify_in_situ(seed, vessel)
         cal = replace(
@@ -406,14 +431,19 @@ def run_vessel(
         intended = forward(sp.q_model, check=False)
         for cond in conditions:
             if cond == CLOSED_LOOP:
+                assert cal is not None  # checked above
                 true, em, cmd = run_spin_closed_loop(plant, tracker, sp.q_model, cal)
                 if keep_commands is not None:
                     keep_commands[(bend, cond)] = cmd
+                if keep_tips is not None:
+                    keep_tips[(bend, cond)] = true[:, :3, 3]
             else:
                 cmd = _commands(cond, sp.q_model, cal)
                 if keep_commands is not None:
                     keep_commands[(bend, cond)] = cmd[APPROACH_STEPS:]
                 true, em = run_spin(plant, tracker, cmd)
+            if keep_tips is not None:
+                keep_tips[(bend, cond)] = true[:, :3, 3]
             ok = np.all(np.isfinite(em.reshape(len(em), -1)), axis=1)
             tp, tr = _rmse(true, intended)
             ep, er = _rmse(em[ok], intended[ok]) if np.any(ok) else (math.nan, math.nan)
@@ -429,149 +459,10 @@ def run_vessel(
                     vessel=vessel,
                     n_samples=n_samples,
                     em_missing=int(np.sum(~ok)),
+                    in_situ=in_situ and cond == OURS,
                 )
             )
     return records
-
-
-def paper_table() -> dict[str, list[list[float]]]:
-    """The paper's Table I: condition -> [[pos mm, rot deg] per bend 20 / 40 / 60]."""
-    try:
-        doc = json.loads(PAPER_RESULTS.read_text(encoding="utf-8"))
-        t = doc["table_I_spinning_benchtop_straight"]
-        return {k: t[k] for k in ("none", "dense", "simplified")}
-    except (OSError, KeyError, ValueError):
-        return dict(_PAPER_FALLBACK)
-
-
-def format_table(records: Sequence[SpinRecord]) -> str:
-    """The printed table: ours (EM) beside the paper's, and the true-pose errors."""
-    paper = paper_table()
-    bends = sorted({r.bend_deg for r in records})
-    conds = [c for c in ALL_CONDITIONS if any(r.condition == c for r in records)]
-    lines = []
-    head = "condition".ljust(21) + "".join(
-        f"{b:>3d} deg: ours EM (paper) | true".ljust(44) for b in bends
-    )
-    lines.append(head)
-    for c in conds:
-        row = c.ljust(21)
-        for b in bends:
-            r = next(x for x in records if x.condition == c and x.bend_deg == b)
-            ref = ""
-            if c in paper and b in BENDS_DEG:
-                pp, pr = paper[c][BENDS_DEG.index(b)]
-                ref = f" ({pp:.1f}, {pr:.1f})"
-            else:
-                ref = " (-)"
-            cell = (
-                f"{r.position_rmse_mm:5.1f} mm {r.rotation_rmse_deg:5.1f} deg{ref}"
-                f" | {r.true_position_rmse_mm:4.1f} {r.true_rotation_rmse_deg:4.1f}"
-            )
-            row += cell.ljust(44)
-        lines.append(row)
-    return "\n".join(lines)
-
-
-# --- plots ---------------------------------------------------------------------------------
-
-
-def _plot_commands(commands: dict[tuple[int, str], Array], bend: int, out: Path) -> None:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    conds = [c for c in CONDITIONS if (bend, c) in commands]
-    fig, axes = plt.subplots(1, len(conds), figsize=(3.6 * len(conds), 3.2), sharey=True)
-    for ax, c in zip(np.atleast_1d(axes), conds, strict=True):
-        q = commands[(bend, c)]
-        ax.plot(np.degrees(q[:, 0]), label="phi1 (AP)")
-        ax.plot(np.degrees(q[:, 1]), label="phi2 (RL)")
-        ax.set_title(c)
-        ax.set_xlabel("time step")
-        ax.grid(alpha=0.3)
-    np.atleast_1d(axes)[0].set_ylabel("motor knob angle (deg)")
-    np.atleast_1d(axes)[0].legend(loc="lower left", fontsize=8)
-    fig.suptitle(f"Spin commands from ({bend} deg, 0) (cf. the paper's Fig. 5)")
-    fig.tight_layout()
-    fig.savefig(out, dpi=110)
-    plt.close(fig)
-
-
-def _plot_curvature(records: Sequence[SpinRecord], out_dir: Path, seed: int) -> list[Path]:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    styles = {"straight": "-", "moderate": ":", "steep": "--"}
-    colours = {
-        "dense": "tab:red",
-        "simplified": "tab:blue",
-        OURS: "tab:green",
-        KNOB_HYSTERESIS: "tab:olive",
-        CLOSED_LOOP: "tab:purple",
-        "none": "tab:gray",
-    }
-    paths = []
-    for key, label, name in (
-        ("position_rmse_mm", "position RMSE (mm)", "curvature_position.png"),
-        ("rotation_rmse_deg", "orientation RMSE (deg)", "curvature_rotation.png"),
-    ):
-        fig, ax = plt.subplots(figsize=(6.5, 5.6))
-        for cond in ("dense", "simplified", KNOB_HYSTERESIS, OURS, CLOSED_LOOP):
-            for vessel, ls in styles.items():
-                rs = sorted(
-                    (r for r in records if r.condition == cond and r.vessel == vessel),
-                    key=lambda r: r.bend_deg,
-                )
-                if not rs:
-                    continue
-                ax.plot(
-                    [r.bend_deg for r in rs],
-                    [getattr(r, key) for r in rs],
-                    ls,
-                    color=colours[cond],
-                    marker="o",
-                    ms=3,
-                    label=f"{cond}, {vessel}",
-                )
-        ax.set_xlabel("initial AP bend (deg)")
-        ax.set_ylabel(label + ", EM tracked")
-        ax.set_title(f"Vessel curvature (catheter seed {seed}; cf. the paper's Fig. 7)")
-        ax.grid(alpha=0.3)
-        ax.set_ylim(bottom=0.0)
-        ax.legend(fontsize=6.5, ncol=3, loc="upper center", bbox_to_anchor=(0.5, -0.14))
-        fig.tight_layout()
-        path = out_dir / name
-        fig.savefig(path, dpi=110)
-        plt.close(fig)
-        paths.append(path)
-    return paths
-
-
-def _plot_tip(records_true: dict[str, Array], bend: int, out: Path) -> None:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, ax = plt.subplots(figsize=(4.5, 4.2))
-    for c, pts in records_true.items():
-        ax.plot(pts[:, 0], pts[:, 1], label=c, lw=1)
-    q0 = np.array([math.radians(bend), 0.0, 0.0, 0.0])
-    p0 = forward(q0)[:3, 3]
-    ax.plot([p0[0]], [p0[1]], "k*", ms=10, label="intended")
-    ax.set_aspect("equal")
-    ax.set_xlabel("x (mm)")
-    ax.set_ylabel("y (mm)")
-    ax.set_title(f"True tip during the spin from {bend} deg")
-    ax.grid(alpha=0.3)
-    ax.legend(fontsize=7)
-    fig.tight_layout()
-    fig.savefig(out, dpi=110)
-    plt.close(fig)
 
 
 # --- calibration-size study ------------------------------------------------------------------
@@ -657,13 +548,188 @@ def calibration_study(
     return rows
 
 
-# --- CLI -------------------------------------------------------------------------------------
+# --- many catheters --------------------------------------------------------------------------
+
+
+def parse_seeds(text: str) -> list[int]:
+    """Catheter seeds from ``"110"``, ``"110-119"`` or ``"110,112,115-116"`` (sorted,
+    unique). Raises ValueError naming the bad part."""
+    seeds: set[int] = set()
+    for part in (p.strip() for p in str(text).split(",")):
+        if not part:
+            continue
+        lo, sep, hi = part.partition("-")
+        try:
+            a, b = (int(lo), int(hi)) if sep else (int(part), int(part))
+        except ValueError:
+            raise ValueError(
+                f"seeds must be integers or ranges like 110-119, got {part!r}"
+            ) from None
+        if a < 0 or b < a:
+            raise ValueError(f"seed range must be ascending and >= 0, got {part!r}")
+        seeds.update(range(a, b + 1))
+    if not seeds:
+        raise ValueError(f"no seed in {text!r}")
+    return sorted(seeds)
+
+
+@dataclass(frozen=True)
+class CatheterRun:
+    """Everything :func:`evaluate_catheter` made for one catheter."""
+
+    seed: int
+    """Catheter seed."""
+    records: list[SpinRecord]
+    """One record per vessel, bend and condition."""
+    calibration_text: list[str]
+    """What the calibration identified, as printed lines."""
+    commands: dict[tuple[str, int, str], Array]
+    """(vessel, bend, condition) -> motor commands of the spin (n, 4), if kept."""
+    tips: dict[tuple[str, int, str], Array]
+    """(vessel, bend, condition) -> true tip positions of the spin (n, 3) (mm), if kept."""
+    seconds: float
+    """Wall time (s)."""
+
+
+def _describe_calibration(seed: int, cal: Calibrations | None) -> list[str]:
+    if cal is None:
+        return [f"catheter {seed}: nothing to calibrate (condition none only)"]
+    lines = [
+        f"catheter {seed}: calibrated in the straight vessel in {cal.seconds:.1f} s "
+        f"(dense {cal.dense_set.n_samples} samples, 5-point, hysteresis sweeps"
+        + (", roll circles)" if cal.tracker_bias is not None else ")")
+    ]
+    if cal.tracker_bias is not None:
+        tb = cal.tracker_bias
+        at = [tb.at(forward(np.array([math.radians(a), 0, 0, 0]))[:3, 3]) for a in BENDS_DEG]
+        lines.append(
+            "  tracker bias at the 20 / 40 / 60 deg spin points (mm, base x y): "
+            + ", ".join(f"{b[0]:.2f} {b[1]:.2f}" for b in at)
+            + f"; fit residual {tb.rms_residual_mm:.2f} mm over {tb.n_samples} stops"
+        )
+    for name, m in (("phi1", 0), ("phi2", 1), ("phi3", 2)):
+        jm = cal.compensator.joints[m]
+        if jm is not None:
+            lines.append(
+                f"  {name}: backlash {math.degrees(jm.backlash):.2f} deg + "
+                f"{jm.backlash_slope:.3f} |x|, dead-zone {math.degrees(jm.dead_zone):.2f} deg, "
+                f"centre {math.degrees(jm.centre):.2f} deg"
+            )
+    c = cal.compensator
+    lines.append(
+        f"  per rad of bend: roll play {c.roll_play_per_bend:.3f}, twist play "
+        f"{c.twist_play_per_bend:.3f}; knob play per rad of the other knob "
+        f"{c.knob_play_per_bend:.3f}"
+    )
+    return lines
+
+
+def evaluate_catheter(
+    seed: int,
+    vessels: Sequence[str] = ("straight",),
+    *,
+    bends_deg: Sequence[int] = BENDS_DEG,
+    n_samples: int = 360,
+    conditions: Sequence[str] = CONDITIONS,
+    in_situ: bool = False,
+    separate_bias: bool = True,
+    keep: bool = False,
+) -> CatheterRun:
+    """Calibrate catheter ``seed`` in the straight vessel once, then run the spins in each of
+    ``vessels`` (:func:`run_vessel`). With ``keep`` the commands and true tips are kept (for
+    the plots). A module-level function, so ``--jobs`` can run catheters in processes."""
+    t0 = time.perf_counter()
+    needs_calibration = any(c != "none" for c in conditions)
+    cal = calibrate(seed, separate_bias=separate_bias) if needs_calibration else None
+    if cal is not None and OURS in conditions:
+        cal = with_transmission(seed, cal)
+    records: list[SpinRecord] = []
+    commands: dict[tuple[str, int, str], Array] = {}
+    tips: dict[tuple[str, int, str], Array] = {}
+    for vessel in vessels:
+        kc: dict[tuple[int, str], Array] = {}
+        kt: dict[tuple[int, str], Array] = {}
+        records += run_vessel(
+            seed,
+            vessel,
+            cal,
+            bends_deg=bends_deg,
+            n_samples=n_samples,
+            conditions=conditions,
+            keep_commands=kc if keep else None,
+            keep_tips=kt if keep else None,
+            in_situ=in_situ,
+        )
+        commands.update({(vessel, *k): v for k, v in kc.items()})
+        tips.update({(vessel, *k): v for k, v in kt.items()})
+    return CatheterRun(
+        seed=seed,
+        records=records,
+        calibration_text=_describe_calibration(seed, cal),
+        commands=commands,
+        tips=tips,
+        seconds=time.perf_counter() - t0,
+    )
+
+
+def _run_catheters(seeds: Sequence[int], jobs: int, **kwargs: Any) -> list[CatheterRun]:
+    """:func:`evaluate_catheter` for each seed, ``jobs`` at a time (processes), printing
+    progress as each catheter finishes; the runs come back in seed order."""
+    t0 = time.perf_counter()
+    runs: dict[int, CatheterRun] = {}
+
+    def report(run: CatheterRun) -> None:
+        runs[run.seed] = run
+        for line in run.calibration_text:
+            print(line)
+        print(
+            f"  catheter {run.seed} done in {run.seconds:.0f} s "
+            f"({len(runs)}/{len(seeds)} catheters, {time.perf_counter() - t0:.0f} s elapsed)",
+            flush=True,
+        )
+
+    first = seeds[0]
+    if jobs <= 1 or len(seeds) == 1:
+        for seed in seeds:
+            report(evaluate_catheter(seed, keep=seed == first, **kwargs))
+    else:
+        ctx = multiprocessing.get_context("spawn")  # no fork of a threaded parent
+        with concurrent.futures.ProcessPoolExecutor(max_workers=jobs, mp_context=ctx) as pool:
+            futures = [
+                pool.submit(evaluate_catheter, seed, keep=seed == first, **kwargs) for seed in seeds
+            ]
+            for fut in concurrent.futures.as_completed(futures):
+                report(fut.result())
+    return [runs[s] for s in seeds]
+
+
+def _write_plots(out: Path, runs: Sequence[CatheterRun], records: Sequence[SpinRecord]) -> None:
+    out.mkdir(parents=True, exist_ok=True)
+    first = runs[0]
+    if not first.commands:
+        return
+    vessel = min({k[0] for k in first.commands}, key=("straight", "moderate", "steep").index)
+    bend = max(k[1] for k in first.commands)
+    path = out / f"spin_commands_{bend}deg.png"
+    plot_commands({k[1:]: v for k, v in first.commands.items() if k[0] == vessel}, bend, path)
+    print(f"wrote {path} (catheter {first.seed}, {vessel} vessel)")
+    tips = {k[2]: v for k, v in first.tips.items() if k[0] == vessel and k[1] == bend}
+    path = out / f"spin_tip_{vessel}_{bend}deg.png"
+    plot_tip(tips, forward(np.array([math.radians(bend), 0, 0, 0]))[:3, 3], bend, path)
+    print(f"wrote {path}")
+    if len({r.vessel for r in records}) > 1:
+        for p in plot_curvature(records, out):
+            print(f"wrote {p}")
+    else:
+        print("(the curvature figure needs more than one vessel: --vessel straight,moderate,steep)")
 
 
 def _parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(
         prog="icenav eval spin",
-        description="The paper's image-spinning experiment (Table I) on the digital twin.",
+        description="The paper's image-spinning experiment (Table I, Figs. 5 and 7) on the "
+        "digital twin: calibrate each catheter in the straight vessel, spin in the test "
+        "vessels.",
     )
     p.add_argument(
         "--seed",
@@ -672,16 +738,25 @@ def _parser() -> argparse.ArgumentParser:
         help="catheter seed (calibrated and tested); seeds 0-9 tuned the twin",
     )
     p.add_argument(
+        "--seeds",
+        help="many catheters instead of --seed, e.g. 110-119 or 110,112: the tables give the "
+        "mean and the worst catheter",
+    )
+    p.add_argument(
         "--vessel",
-        choices=("straight", "moderate", "steep"),
         default="straight",
-        help="test vessel (calibration is always in the straight vessel)",
+        help="test vessel(s): straight, moderate, steep, comma-separated or 'all' (calibration "
+        "is always in the straight vessel; default straight)",
+    )
+    p.add_argument(
+        "--jobs", type=int, default=1, help="catheters evaluated in parallel (processes)"
     )
     p.add_argument("--json", type=Path, help="write the records (a JSON list) to this file")
     p.add_argument(
         "--plots",
         type=Path,
-        help="write spin_*.png and curvature_*.png (runs all three vessels) here",
+        help="write spin_commands_*.png, spin_tip_*.png and, with several vessels, "
+        "curvature_*.png here",
     )
     p.add_argument("--samples", type=int, default=360, help="samples per spin (default 360)")
     p.add_argument("--bends", default="20,40,60", help="initial AP bends in deg (default 20,40,60)")
@@ -691,10 +766,11 @@ def _parser() -> argparse.ArgumentParser:
         help="comma-separated subset of " + ", ".join(ALL_CONDITIONS) + " (default: all)",
     )
     p.add_argument(
-        "--straight-only",
+        "--in-situ",
         action="store_true",
-        help="do not re-identify dense+hysteresis's plays in a curved test vessel (calibrated "
-        "in the straight vessel only, as the paper's conditions)",
+        help="re-identify dense+hysteresis's plays in a curved test vessel before the spin "
+        "(needs the tip sensor in the vessel; the default is the paper's protocol: "
+        "calibrated in the straight vessel only)",
     )
     p.add_argument(
         "--no-bias-separation",
@@ -708,117 +784,76 @@ def _parser() -> argparse.ArgumentParser:
     return p
 
 
+def _fail(text: str) -> int:
+    print(f"icenav eval spin: {text}", file=sys.stderr)
+    return 2
+
+
 def main(argv: Sequence[str] | None = None) -> int:
-    """``icenav eval spin [--seed N] [--vessel V] [--json FILE] [--plots DIR]``."""
+    """``icenav eval spin [--seed N | --seeds A-B] [--vessel V[,V]] [--json F] [--plots D]``."""
     args = _parser().parse_args(list(argv or []))
     try:
         bends = [int(b) for b in args.bends.split(",") if b.strip()]
     except ValueError:
-        print(
-            f"icenav eval spin: --bends must be integers in deg, got {args.bends!r}",
-            file=sys.stderr,
-        )
-        return 2
+        return _fail(f"--bends must be integers in deg, got {args.bends!r}")
     conds = [c.strip() for c in args.conditions.split(",") if c.strip()]
     bad = [c for c in conds if c not in ALL_CONDITIONS]
     if bad or not conds:
-        print(
-            f"icenav eval spin: unknown condition(s) {bad}; choose from {ALL_CONDITIONS}",
-            file=sys.stderr,
-        )
-        return 2
-    if any(not (0 < b <= 90) for b in bends) or args.samples < 10:
-        print("icenav eval spin: bends must be in (0, 90] deg and --samples >= 10", file=sys.stderr)
-        return 2
+        return _fail(f"unknown condition(s) {bad}; choose from {ALL_CONDITIONS}")
+    if not bends or any(not (0 < b <= 90) for b in bends):
+        return _fail(f"--bends must be in (0, 90] deg, got {args.bends!r}")
+    if args.samples < 10:
+        return _fail(f"--samples must be >= 10, got {args.samples}")
+    vessel_names = ("straight", "moderate", "steep")
+    vessels = (
+        list(vessel_names)
+        if args.vessel.strip() == "all"
+        else [v.strip() for v in args.vessel.split(",") if v.strip()]
+    )
+    if not vessels or any(v not in vessel_names for v in vessels):
+        return _fail(f"--vessel must be among {vessel_names} or 'all', got {args.vessel!r}")
+    vessels = [v for v in vessel_names if v in vessels]
+    try:
+        seeds = parse_seeds(args.seeds) if args.seeds is not None else [args.seed]
+    except ValueError as exc:
+        return _fail(f"--seeds: {exc}")
+    if args.seeds is None and args.seed < 0:
+        return _fail(f"--seed must be >= 0, got {args.seed}")
+    if not 1 <= args.jobs <= 64:
+        return _fail(f"--jobs must be in [1, 64] processes, got {args.jobs}")
     t0 = time.perf_counter()
-    cal = calibrate(args.seed, separate_bias=not args.no_bias_separation)
     print(
-        f"catheter seed {args.seed}: calibrated in the straight vessel in {cal.seconds:.1f} s "
-        f"(dense {cal.dense_set.n_samples} samples, 5-point, hysteresis sweeps"
-        + (", roll circles)" if cal.tracker_bias is not None else ")")
+        f"icenav eval spin: {len(seeds)} catheter(s), vessels {', '.join(vessels)}, "
+        f"bends {bends} deg, {len(conds)} condition(s), {args.samples} samples per spin"
     )
-    if cal.tracker_bias is not None:
-        tb = cal.tracker_bias
-        print(
-            "  tracker bias at the 20 / 40 / 60 deg spin points (mm, base x y): "
-            + ", ".join(
-                "{:.2f} {:.2f}".format(
-                    *tb.at(forward(np.array([math.radians(a), 0, 0, 0]))[:3, 3])[:2]
-                )
-                for a in (20, 40, 60)
-            )
-            + f"; fit residual {tb.rms_residual_mm:.2f} mm over {tb.n_samples} stops"
-        )
-    for name, m in (("phi1", 0), ("phi2", 1), ("phi3", 2)):
-        jm = cal.compensator.joints[m]
-        if jm is not None:
-            print(
-                f"  {name}: backlash {math.degrees(jm.backlash):.2f} deg + "
-                f"{jm.backlash_slope:.3f} |x|, dead-zone {math.degrees(jm.dead_zone):.2f} deg, "
-                f"centre {math.degrees(jm.centre):.2f} deg"
-            )
-    c = cal.compensator
-    print(
-        f"  per rad of bend: roll play {c.roll_play_per_bend:.3f}, twist play "
-        f"{c.twist_play_per_bend:.3f}; knob play per rad of the other knob "
-        f"{c.knob_play_per_bend:.3f}"
-    )
-    commands: dict[tuple[int, str], Array] = {}
-    records = run_vessel(
-        args.seed,
-        args.vessel,
-        cal,
+    runs = _run_catheters(
+        seeds,
+        args.jobs,
+        vessels=vessels,
         bends_deg=bends,
         n_samples=args.samples,
         conditions=conds,
-        keep_commands=commands,
-        in_situ=not args.straight_only,
+        in_situ=args.in_situ,
+        separate_bias=not args.no_bias_separation,
     )
-    print(f"\nspin RMSE, vessel {args.vessel}: EM-tracked (paper's Table I) | true pose (mm deg)")
+    records = [r for run in runs for r in run.records]
+    print("\nspin RMSE (EM-tracked, the paper's protocol; the paper's Table I in parentheses)")
     print(format_table(records))
+    effect = format_vessel_effect(records)
+    if effect:
+        print("\n" + effect)
     if args.json is not None:
+        args.json.parent.mkdir(parents=True, exist_ok=True)
         args.json.write_text(json.dumps([asdict(r) for r in records], indent=1) + "\n")
-        print(f"\nwrote {args.json}")
+        print(f"\nwrote {args.json} ({len(records)} records)")
     if args.plots is not None:
-        out = args.plots
-        out.mkdir(parents=True, exist_ok=True)
-        bend = max(bends)
-        _plot_commands(commands, bend, out / f"spin_commands_{bend}deg.png")
-        plant, tracker = _make_plant(args.seed, args.vessel)
-        tips = {}
-        for c in conds:
-            if c == CLOSED_LOOP:
-                sp = spin_trajectory(
-                    [math.radians(bend), 0.0, 0.0, 0.0], args.samples, include_end=True
-                )
-                true, _, _ = run_spin_closed_loop(plant, tracker, sp.q_model, cal)
-                tips[c] = true[:, :3, 3]
-            elif (bend, c) in commands:
-                approach = np.linspace(np.zeros(4), commands[(bend, c)][0], APPROACH_STEPS + 1)
-                true, _ = run_spin(plant, tracker, np.vstack([approach[1:], commands[(bend, c)]]))
-                tips[c] = true[:, :3, 3]
-        _plot_tip(tips, bend, out / f"spin_tip_{args.vessel}_{bend}deg.png")
-        all_records = list(records)
-        for vessel in ("straight", "moderate", "steep"):
-            if vessel != args.vessel:
-                all_records += run_vessel(
-                    args.seed,
-                    vessel,
-                    cal,
-                    bends_deg=bends,
-                    n_samples=args.samples,
-                    conditions=conds,
-                    in_situ=not args.straight_only,
-                )
-        for p in _plot_curvature(all_records, out, args.seed):
-            print(f"wrote {p}")
-        print(f"wrote {out / f'spin_commands_{bend}deg.png'}")
+        _write_plots(args.plots, runs, records)
     if args.study:
         print(
             "\ncalibration study (RMS distance of the true tip from the model tip, "
             "reaching 150 random targets within +-60 deg from rest):"
         )
-        for row in calibration_study(args.seed):
+        for row in calibration_study(seeds[0]):
             print(
                 f"  {row['set']:<44s} {row['n_points']:>4d} pts  {row['interpolant']:<14s}"
                 f" {row['rms_mm']:5.2f} mm"

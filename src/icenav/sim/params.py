@@ -103,10 +103,12 @@ class PlantParams:
     stiffening: float = 0.08
     """Strain stiffening beta: EI grows by (1 + beta * bend_angle^2), dimensionless."""
     friction_coefficient: float = 0.6
-    """Tendon-sheath Coulomb friction coefficient mu (dimensionless)."""
+    """Effective tendon Coulomb friction coefficient mu of the handle exit and the bending
+    section (dimensionless): applies to ``shaft_curvature_rad`` and the section's own bend;
+    lumps lumen and section contact (tuned)."""
     shaft_curvature_rad: float = 0.6
     """Intrinsic total curvature of the tendon path with a straight vessel (handle, shaft
-    lie on the bench), rad."""
+    lie on the bench), rad, at the coefficient ``friction_coefficient``."""
     seal_play_mm: float = 0.03
     """Tension-independent half-width of the tendon play (seal and lumen friction), mm."""
     roll_play_rad: float = 0.014
@@ -122,6 +124,10 @@ class PlantParams:
     """Half-width of the axial lost motion with a straight vessel (mm)."""
     bending_length_scale: float = 1.0
     """True bending length / nominal bending length (dimensionless)."""
+    lumen_friction_coefficient: float = 0.2
+    """Coulomb friction coefficient of a tendon in the shaft's lined lumen (dimensionless):
+    applies to the vessel's curvature (PTFE on steel, 0.1-0.3, Do et al. 2014). Last field,
+    so that adding it left the other parameters of every seed as they were."""
 
     def __post_init__(self) -> None:
         for f in fields(self):
@@ -146,6 +152,7 @@ class PlantParams:
             slack_ap_mm=0.0,
             slack_rl_mm=0.0,
             friction_coefficient=0.0,
+            lumen_friction_coefficient=0.0,
             seal_play_mm=0.0,
             roll_play_rad=0.0,
             roll_play_per_bend=0.0,
@@ -215,6 +222,7 @@ _RANGES: dict[str, tuple[float, float]] = {
     "twist_play_per_bend": (0.0, 1.0),
     "translation_play_mm": (0.0, 5.0),
     "bending_length_scale": (0.8, 1.2),
+    "lumen_friction_coefficient": (0.0, 1.0),
 }
 """Physically sensible range of each parameter (outside it a ConfigurationError)."""
 
@@ -242,5 +250,6 @@ TOLERANCES: dict[str, tuple[Literal["rel", "abs"], float]] = {
     "twist_play_per_bend": ("rel", 0.20),
     "translation_play_mm": ("rel", 0.20),
     "bending_length_scale": ("rel", 0.015),
+    "lumen_friction_coefficient": ("rel", 0.20),
 }
 """Manufacturing tolerance of each parameter: ("rel", fraction) or ("abs", amount in its unit)."""

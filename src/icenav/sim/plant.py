@@ -6,16 +6,18 @@ image centre frame out. The chain (equations numbered as in ``docs/digital-twin.
 1. Handle (T1): knob j pulls tendon i by ``p_i = s_i r_h phi_j - slack_j`` (s_i = +-1, the
    antagonistic pair); ``p_i < 0`` means the tendon is slack: a dead-zone of
    ``+- slack_j / r_h`` around the cross-over where neither tendon of the pair is taut.
-2. Sheath (T2)-(T4): capstan friction along a path of total curvature
-   ``Theta_i = shaft + vessel + bend`` makes the distal pull ``d_i`` stick inside a band
-   ``[p_i - c T_i g+(mu Theta_i) - w0, p_i + c T_i g-(mu Theta_i) + w0]`` (a play operator whose
+2. Sheath (T2)-(T4): capstan friction along the tendon's path, with the exponent
+   ``x_i = mu (shaft + bend) + mu_lumen vessel``, makes the distal pull ``d_i`` stick inside a
+   band ``[p_i - c T_i g+(x_i) - w0, p_i + c T_i g-(x_i) + w0]`` (a play operator whose
    width grows with tension and curvature): hysteresis, path dependent, so the plant keeps
    internal state.
 3. Bending section (T5)-(T8): moment balance with anisotropic, coupled, strain-stiffening
    bending stiffness and compliant one-sided tendons (:mod:`icenav.sim.bending`).
-4. Roll and translation (T9): torsional and axial play between the handle and the bending
-   section; (T9b) a distal torsional play of the bent section turns the image frame about
-   its own axis.
+4. Roll and translation (T9): torsional and axial play between the robot's front unit (which
+   grips the shaft just proximal of the bending section, the paper's Section II) and the
+   section, so the vessel, which lies between the front and back units, does not widen it;
+   (T9b) a distal torsional play of the bent section turns the image frame about its own
+   axis.
 5. Pose (T10): constant-curvature arc of the solved curvature, then the roll, the translation
    and the ultrasound offset, as in :func:`icenav.kinematics.forward`.
 """
@@ -136,11 +138,8 @@ class CatheterPlant:
         self._section = Section(p, self._length)
         self._handle = (p.handle_radius_ap_mm, p.handle_radius_rl_mm)
         self._slack = (p.slack_ap_mm, p.slack_ap_mm, p.slack_rl_mm, p.slack_rl_mm)
-        theta_v = self.vessel.total_curvature_rad
-        self._theta_fixed = p.shaft_curvature_rad + theta_v
-        vessel_factor = math.exp(p.friction_coefficient * theta_v)
-        self._vessel_factor = vessel_factor
-        self._trans_play = p.translation_play_mm * vessel_factor
+        # Eq. (T2): the vessel's wrap at the lumen's coefficient (0 in the straight vessel)
+        self._x_vessel = p.lumen_friction_coefficient * self.vessel.total_curvature_rad
         self.reset()
 
     # --- state ---------------------------------------------------------------------------
@@ -273,18 +272,16 @@ class CatheterPlant:
         for j in range(1, n + 1):
             f = j / n
             self._substep(a1 + f * (phi1 - a1), a2 + f * (phi2 - a2))
-        # Eq. (T9): roll and translation follow the handle through a play
+        # Eq. (T9): roll and translation follow the front unit through a play
         bend = self._length * math.hypot(*self._u)
-        h = (
-            self.params.roll_play_rad + self.params.roll_play_per_bend * bend
-        ) * self._vessel_factor
+        h = self.params.roll_play_rad + self.params.roll_play_per_bend * bend
         tip_roll = self._roll + self._twist
         self._roll = _clip(self._roll, phi3 - h, phi3 + h)
         # the image frame follows the section's roll through the distal play (T9b)
         h = self.params.twist_play_per_bend * bend
         tip_roll = _clip(tip_roll, self._roll - h, self._roll + h)
         self._twist = tip_roll - self._roll
-        h = self._trans_play
+        h = self.params.translation_play_mm
         self._trans = _clip(self._trans, d4 - h, d4 + h)
         self._q = [phi1, phi2, phi3, d4]
         self._pose = self._pose_now()
@@ -296,7 +293,8 @@ class CatheterPlant:
         w0 = p.seal_play_mm
         ux, uy = self._u
         bend = self._length * math.hypot(ux, uy)
-        x = mu * (self._theta_fixed + bend)  # Eq. (T2): capstan exponent mu * Theta_i
+        # Eq. (T2): capstan exponent of the handle, the section's own bend and the vessel
+        x = mu * (p.shaft_curvature_rad + bend) + self._x_vessel
         gp = _g_plus(x)
         gm = _g_minus(x)
         pulls = self._pulls(phi1, phi2)
