@@ -199,3 +199,18 @@ def test_separating_the_tracker_bias_lowers_our_tracked_error() -> None:
         )
         errs.append(rec.position_rmse_mm)
     assert errs[0] < 0.75 * errs[1]
+
+
+def test_plots_of_one_vessel_run_the_others_for_the_curvature_figure(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    out = tmp_path / "one.json"
+    argv = ["--seed", "110", "--conditions", "none", "--samples", "24", "--bends", "40"]
+    assert (
+        spin.main([*argv, "--vessel", "steep", "--json", str(out), "--plots", str(tmp_path)]) == 0
+    )
+    assert "the others for the curvature figure only" in capsys.readouterr().out
+    records = json.loads(out.read_text())
+    assert [r["vessel"] for r in records] == ["steep"]  # the table and the file keep one
+    assert (tmp_path / "curvature_rotation.png").stat().st_size > 10_000
+    assert (tmp_path / "spin_tip_steep_40deg.png").exists()

@@ -703,12 +703,15 @@ def _run_catheters(seeds: Sequence[int], jobs: int, **kwargs: Any) -> list[Cathe
     return [runs[s] for s in seeds]
 
 
-def _write_plots(out: Path, runs: Sequence[CatheterRun], records: Sequence[SpinRecord]) -> None:
+def _write_plots(
+    out: Path, runs: Sequence[CatheterRun], records: Sequence[SpinRecord], vessel: str
+) -> None:
+    """Fig. 5 (commands) and the true tip of the first catheter in ``vessel``; Fig. 7
+    (curvature) from every record."""
     out.mkdir(parents=True, exist_ok=True)
     first = runs[0]
     if not first.commands:
         return
-    vessel = min({k[0] for k in first.commands}, key=("straight", "moderate", "steep").index)
     bend = max(k[1] for k in first.commands)
     path = out / f"spin_commands_{bend}deg.png"
     plot_commands({k[1:]: v for k, v in first.commands.items() if k[0] == vessel}, bend, path)
@@ -717,11 +720,8 @@ def _write_plots(out: Path, runs: Sequence[CatheterRun], records: Sequence[SpinR
     path = out / f"spin_tip_{vessel}_{bend}deg.png"
     plot_tip(tips, forward(np.array([math.radians(bend), 0, 0, 0]))[:3, 3], bend, path)
     print(f"wrote {path}")
-    if len({r.vessel for r in records}) > 1:
-        for p in plot_curvature(records, out):
-            print(f"wrote {p}")
-    else:
-        print("(the curvature figure needs more than one vessel: --vessel straight,moderate,steep)")
+    for p in plot_curvature(records, out):
+        print(f"wrote {p}")
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -755,8 +755,8 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--plots",
         type=Path,
-        help="write spin_commands_*.png, spin_tip_*.png and, with several vessels, "
-        "curvature_*.png here",
+        help="write spin_commands_*.png and spin_tip_*.png (Fig. 5) and curvature_*.png "
+        "(Fig. 7; with one --vessel the other two are run for it) here",
     )
     p.add_argument("--samples", type=int, default=360, help="samples per spin (default 360)")
     p.add_argument("--bends", default="20,40,60", help="initial AP bends in deg (default 20,40,60)")
@@ -822,21 +822,26 @@ def main(argv: Sequence[str] | None = None) -> int:
     if not 1 <= args.jobs <= 64:
         return _fail(f"--jobs must be in [1, 64] processes, got {args.jobs}")
     t0 = time.perf_counter()
+    run_vessels = vessels
+    if args.plots is not None and len(vessels) == 1:
+        run_vessels = list(vessel_names)  # Fig. 7 needs every vessel; the table keeps one
     print(
-        f"icenav eval spin: {len(seeds)} catheter(s), vessels {', '.join(vessels)}, "
-        f"bends {bends} deg, {len(conds)} condition(s), {args.samples} samples per spin"
+        f"icenav eval spin: {len(seeds)} catheter(s), vessels {', '.join(run_vessels)}"
+        + (" (the others for the curvature figure only)" if run_vessels != vessels else "")
+        + f", bends {bends} deg, {len(conds)} condition(s), {args.samples} samples per spin"
     )
     runs = _run_catheters(
         seeds,
         args.jobs,
-        vessels=vessels,
+        vessels=run_vessels,
         bends_deg=bends,
         n_samples=args.samples,
         conditions=conds,
         in_situ=args.in_situ,
         separate_bias=not args.no_bias_separation,
     )
-    records = [r for run in runs for r in run.records]
+    all_records = [r for run in runs for r in run.records]
+    records = [r for r in all_records if r.vessel in vessels]
     print("\nspin RMSE (EM-tracked, the paper's protocol; the paper's Table I in parentheses)")
     print(format_table(records))
     effect = format_vessel_effect(records)
@@ -845,9 +850,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     if args.json is not None:
         args.json.parent.mkdir(parents=True, exist_ok=True)
         args.json.write_text(json.dumps([asdict(r) for r in records], indent=1) + "\n")
-        print(f"\nwrote {args.json} ({len(records)} records)")
+        print(f"\nwrote {args.json} ({len(records)} record(s))")
     if args.plots is not None:
-        _write_plots(args.plots, runs, records)
+        _write_plots(args.plots, runs, all_records, vessels[0])
     if args.study:
         print(
             "\ncalibration study (RMS distance of the true tip from the model tip, "
