@@ -20,7 +20,7 @@ from icenav.calibration import (
     raster_grid,
 )
 from icenav.compensation import ElasticityMap
-from icenav.errors import ConfigurationError, TrackerError
+from icenav.errors import ConfigurationError, JointLimitError, TrackerError
 from icenav.hw.base import JointState, RobotStatus
 from icenav.kinematics import forward
 
@@ -202,3 +202,59 @@ def test_procedures_drive_a_robot_backend() -> None:
     assert len(backend.commands) == len(settled) == q.shape[0] == run.calibration.n_samples
     with pytest.raises(ConfigurationError, match="RobotBackend or a callable"):
         as_mover(42)  # type: ignore[arg-type]
+
+
+def test_a_plan_visits_its_states_and_reads_where_it_says() -> None:
+    from icenav.calibration import MotionPlan, execute_plan
+
+    cath = SyntheticCatheter()
+    tracker = Tracker(cath)
+    a = MotionPlan.make(raster_grid(45 * DEG), "raster", n_average=2)
+    b = MotionPlan.make(np.zeros((2, 4)), "rest", n_average=0, retries=0)
+    plan = MotionPlan.concat([a, b])
+    assert plan.n == 27 and plan.segments == ((0, 25, "raster"), (25, 27, "rest"))
+    assert plan.phase_at(26) == "rest" and plan.segment("raster") == slice(0, 25)
+    reports: list[Progress] = []
+    rec = execute_plan(cath.move, tracker, plan, progress=reports.append)
+    assert cath.moves == 27 and [r.done for r in reports] == list(range(1, 28))
+    assert reports[-1].phase == "rest"
+    assert rec.measured.tolist() == [True] * 25 + [False] * 2
+    assert rec.attempts.tolist() == [2] * 25 + [0, 0]
+    q, poses = rec.part("raster")
+    fresh = SyntheticCatheter()  # the same as the raster procedure reads it
+    run = calibrate_points(fresh.move, Tracker(fresh), q, n_average=2)
+    np.testing.assert_array_equal(run.calibration.tip2base, poses)
+    with pytest.raises(KeyError, match="no segment 'sweep'"):
+        rec.part("sweep")
+    for bad, match in (
+        (dict(n_average=np.array([1, -1])), "n_average must be 2 integers >= 0"),
+        (dict(retries=np.array([0.5, 1.0])), "retries must be 2 integers"),
+        (dict(segments=((0, 1, "a"),)), "cover 1 of 2"),
+        (dict(segments=((1, 2, "a"),)), "consecutive"),
+    ):
+        kwargs = dict(
+            q_motor=np.zeros((2, 4)),
+            n_average=np.array([1, 1]),
+            retries=np.array([0, 0]),
+            segments=((0, 2, "a"),),
+        )
+        kwargs.update(bad)
+        with pytest.raises(ConfigurationError, match=match):
+            MotionPlan(**kwargs)  # type: ignore[arg-type]
+    with pytest.raises(JointLimitError, match="phi1 = 3 rad .* is outside"):
+        execute_plan(cath.move, tracker, MotionPlan.make([[3.0, 0, 0, 0]], "far"))
+
+
+def test_hysteresis_plan_fitted_equals_the_procedure() -> None:
+    """identify_hysteresis is its plan executed and fitted: the same moves, the same fit."""
+    from icenav.calibration import execute_plan, fit_hysteresis, hysteresis_plan
+
+    a = SyntheticCatheter(r=(3 * DEG, 2 * DEG, 1.5 * DEG), d=2 * DEG, roll_per_bend=0.06)
+    b = SyntheticCatheter(r=(3 * DEG, 2 * DEG, 1.5 * DEG), d=2 * DEG, roll_per_bend=0.06)
+    direct = identify_hysteresis(a.move, Tracker(a))
+    hplan = hysteresis_plan()
+    planned = fit_hysteresis(hplan, execute_plan(b.move, Tracker(b), hplan.plan))
+    assert a.moves == b.moves == hplan.plan.n == direct.n_moves
+    for ma, mb in zip(direct.compensator.joints, planned.compensator.joints, strict=True):
+        assert ma == mb
+    assert direct.compensator.roll_play_per_bend == planned.compensator.roll_play_per_bend

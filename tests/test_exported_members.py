@@ -43,6 +43,7 @@ MODULES = [
     "icenav.state",
     "icenav.store",
     "icenav.tracking",
+    "icenav.tracker_bias",
     "icenav.trajectories",
     "icenav.transmission",
     "icenav.validation",

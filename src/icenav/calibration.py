@@ -23,6 +23,14 @@ Procedures (paper Sec. IV-A, "Model scenarios" and "Model calibration"):
 - :func:`identify_hysteresis`: short up/down sweeps of each knob and of the roll, fitted
   with :func:`icenav.hysteresis.identify`.
 
+Every fixed motion is a :class:`MotionPlan` (where to go, how many tracker samples to average
+there) executed by :func:`execute_plan` into a :class:`Recording`, and fitted separately
+(:func:`hysteresis_plan` and :func:`fit_hysteresis`; the knob circles and roll circles of
+:mod:`icenav.transmission` and :mod:`icenav.tracker_bias` likewise). So the same plans run
+here synchronously (the bench, the twin) and inside the controller's loop as a task
+(:class:`icenav.controller.PlanTask`), whose fits run the same code. The 5-point search is
+adaptive (each move depends on the last reading) and stays a procedure.
+
 Missing samples are retried, then skipped with a :class:`SkippedSample` record (also logged
 as a warning on the ``icenav.calibration`` logger). Progress goes to a callback.
 """
@@ -39,25 +47,32 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from icenav.compensation import CalibrationSet
-from icenav.errors import ConfigurationError, TrackerError
+from icenav.errors import ConfigurationError, ShapeError, TrackerError
 from icenav.hw.base import RobotBackend
 from icenav.hysteresis import HysteresisCompensator, HysteresisFit, identify, sweep_path
 from icenav.kinematics import DEFAULT_GEOMETRY, CatheterGeometry, forward
 from icenav.kinematics import inverse as kin_inverse
-from icenav.validation import check_joint_state
+from icenav.validation import check_finite, check_joint_state
 
 __all__ = [
     "CalibrationRun",
     "HysteresisIdentification",
+    "HysteresisPlan",
+    "MotionPlan",
     "Mover",
     "Progress",
+    "Recording",
     "SkippedSample",
     "TipTracker",
     "as_mover",
     "calibrate_dense",
     "calibrate_five_point",
     "calibrate_points",
+    "calibration_set_from",
+    "execute_plan",
+    "fit_hysteresis",
     "five_point_targets",
+    "hysteresis_plan",
     "identify_hysteresis",
     "raster_grid",
 ]
@@ -170,7 +185,10 @@ def _measure(tracker: TipTracker, retries: int, n_average: int) -> tuple[Array |
 
 
 def _average_poses(poses: Array) -> Array:
-    """Mean of poses (n, 4, 4): mean position, rotation projected from the mean matrix."""
+    """Mean of poses (n, 4, 4): mean position, rotation projected from the mean matrix (one
+    pose: itself)."""
+    if poses.shape[0] == 1:
+        return np.array(poses[0])
     out = np.eye(4)
     out[:3, 3] = poses[:, :3, 3].mean(axis=0)
     m = poses[:, :3, :3].mean(axis=0)
@@ -188,6 +206,173 @@ def _check_counts(retries: int, n_average: int) -> None:
         raise ConfigurationError(f"retries must be >= 0, got {retries}")
     if int(n_average) < 1:
         raise ConfigurationError(f"n_average must be >= 1, got {n_average}")
+
+
+# --- motion plans ----------------------------------------------------------------------------
+
+
+@dataclass(frozen=True, eq=False)
+class MotionPlan:
+    """A fixed calibration motion: the motor joint states to visit in order and how many
+    tracker samples to average at each, once the robot has arrived there."""
+
+    q_motor: Array
+    """(n, 4) motor joint states (rad, rad, rad, mm), visited in order."""
+    n_average: NDArray[np.int64]
+    """(n,) tracker samples averaged at each state; 0: pass through without reading."""
+    retries: NDArray[np.int64]
+    """(n,) MISSING samples tolerated at each state before it is recorded as not measured."""
+    segments: tuple[tuple[int, int, str], ...]
+    """(start, stop, phase): consecutive index ranges covering the plan, named for progress
+    reports and for the fits (``sweep phi1``, ``knob circles``, ...)."""
+
+    def __post_init__(self) -> None:
+        q = check_finite(self.q_motor, "q_motor")
+        if q.ndim != 2 or q.shape[1] != 4:
+            raise ShapeError(f"a plan's q_motor must have shape (n, 4), got {q.shape}")
+        n = q.shape[0]
+        counts = []
+        for name in ("n_average", "retries"):
+            v = np.asarray(getattr(self, name))
+            if v.shape != (n,) or not np.issubdtype(v.dtype, np.integer) or np.any(v < 0):
+                raise ConfigurationError(
+                    f"a plan's {name} must be {n} integers >= 0, got {v.dtype} {v.shape}"
+                )
+            counts.append(v.astype(np.int64))
+        stop = 0
+        for start, end, phase in self.segments:
+            if start != stop or end < start or not isinstance(phase, str):
+                raise ConfigurationError(
+                    f"plan segments must be consecutive (start, stop, name) ranges, got "
+                    f"{self.segments}"
+                )
+            stop = end
+        if stop != n:
+            raise ConfigurationError(f"plan segments cover {stop} of {n} states")
+        for a in (q, *counts):
+            a.setflags(write=False)
+        object.__setattr__(self, "q_motor", q)
+        object.__setattr__(self, "n_average", counts[0])
+        object.__setattr__(self, "retries", counts[1])
+
+    @classmethod
+    def make(
+        cls, q_motor: ArrayLike, phase: str, n_average: ArrayLike = 1, retries: ArrayLike = 10
+    ) -> MotionPlan:
+        """One segment named ``phase``; ``n_average`` and ``retries`` scalars or (n,)."""
+        q = check_finite(q_motor, "q_motor")
+        if q.ndim != 2 or q.shape[1] != 4:
+            raise ShapeError(f"q_motor must have shape (n, 4), got {q.shape}")
+        n = q.shape[0]
+        return cls(
+            q_motor=q,
+            n_average=np.broadcast_to(np.asarray(n_average, dtype=np.int64), (n,)).copy(),
+            retries=np.broadcast_to(np.asarray(retries, dtype=np.int64), (n,)).copy(),
+            segments=((0, n, phase),),
+        )
+
+    @classmethod
+    def concat(cls, plans: Sequence[MotionPlan]) -> MotionPlan:
+        """The plans one after the other (their segments kept, shifted)."""
+        if not plans:
+            raise ConfigurationError("concat needs at least one plan")
+        segments: list[tuple[int, int, str]] = []
+        offset = 0
+        for p in plans:
+            segments += [(a + offset, b + offset, name) for a, b, name in p.segments]
+            offset += p.n
+        return cls(
+            q_motor=np.vstack([p.q_motor for p in plans]),
+            n_average=np.concatenate([p.n_average for p in plans]),
+            retries=np.concatenate([p.retries for p in plans]),
+            segments=tuple(segments),
+        )
+
+    @property
+    def n(self) -> int:
+        """Number of states."""
+        return int(self.q_motor.shape[0])
+
+    def phase_at(self, i: int) -> str:
+        """The name of the segment that state ``i`` belongs to."""
+        for a, b, name in self.segments:
+            if a <= i < b:
+                return name
+        raise IndexError(f"state {i} is not in a plan of {self.n}")
+
+    def segment(self, phase: str) -> slice:
+        """Index range of the (first) segment named ``phase``."""
+        for a, b, name in self.segments:
+            if name == phase:
+                return slice(a, b)
+        raise KeyError(f"no segment {phase!r} in the plan ({[s[2] for s in self.segments]})")
+
+
+@dataclass(frozen=True, eq=False)
+class Recording:
+    """What a :class:`MotionPlan` measured."""
+
+    plan: MotionPlan
+    """The plan that was executed."""
+    tip2base: Array
+    """(n, 4, 4) tracked tip pose at each state, averaged (mm, base frame); NaN where the
+    plan did not read the tracker or it stayed MISSING through the retries."""
+    attempts: NDArray[np.int64]
+    """(n,) tracker readings made at each state."""
+
+    def __post_init__(self) -> None:
+        n = self.plan.n
+        t = np.asarray(self.tip2base, dtype=np.float64)
+        if t.shape != (n, 4, 4):
+            raise ShapeError(f"a recording of {n} states needs tip2base (n, 4, 4), got {t.shape}")
+        a = np.asarray(self.attempts, dtype=np.int64)
+        if a.shape != (n,):
+            raise ShapeError(f"a recording of {n} states needs attempts (n,), got {a.shape}")
+        t.setflags(write=False)
+        a.setflags(write=False)
+        object.__setattr__(self, "tip2base", t)
+        object.__setattr__(self, "attempts", a)
+
+    @property
+    def measured(self) -> NDArray[np.bool_]:
+        """(n,) states with a tracked pose."""
+        return np.all(np.isfinite(self.tip2base.reshape(self.plan.n, -1)), axis=1)
+
+    def part(self, phase: str) -> tuple[Array, Array]:
+        """Motor states (m, 4) and poses (m, 4, 4) (NaN: not measured) of a segment."""
+        sl = self.plan.segment(phase)
+        return self.plan.q_motor[sl], self.tip2base[sl]
+
+
+def execute_plan(
+    robot: RobotBackend | Mover,
+    tracker: TipTracker,
+    plan: MotionPlan,
+    *,
+    settle: Callable[[], None] | None = None,
+    progress: ProgressFn | None = None,
+    geometry: CatheterGeometry = DEFAULT_GEOMETRY,
+) -> Recording:
+    """Drive ``plan`` state by state and read the tracker where it says (averaging its
+    ``n_average`` samples, retrying MISSING ones up to its ``retries``); progress after each
+    state. The controller runs the same plans as a task (:class:`icenav.controller.PlanTask`).
+    """
+    if not isinstance(plan, MotionPlan):
+        raise ConfigurationError(f"plan must be a MotionPlan, got {type(plan).__name__}")
+    check_joint_state(plan.q_motor, geometry.joint_limits, name="plan q_motor")
+    move = as_mover(robot, settle)
+    poses = np.full((plan.n, 4, 4), np.nan)
+    attempts = np.zeros(plan.n, dtype=np.int64)
+    for i, q in enumerate(plan.q_motor):
+        move(q)
+        k = int(plan.n_average[i])
+        if k > 0:
+            pose, attempts[i] = _measure(tracker, int(plan.retries[i]), k)
+            if pose is not None:
+                poses[i] = pose
+        if progress is not None:
+            progress(Progress(done=i + 1, total=plan.n, q_motor=q.copy(), phase=plan.phase_at(i)))
+    return Recording(plan=plan, tip2base=poses, attempts=attempts)
 
 
 def raster_grid(step: float = math.radians(10.0), limit: float = math.radians(90.0)) -> Array:
@@ -234,15 +419,37 @@ def calibrate_points(
     q = check_joint_state(q_points, geometry.joint_limits, name="q_points")
     if q.ndim != 2:
         raise ConfigurationError(f"q_points must have shape (n, 4), got {q.shape}")
-    move = as_mover(robot, settle)
+    plan = MotionPlan.make(q, method, n_average=n_average, retries=retries)
+    return calibration_set_from(
+        execute_plan(robot, tracker, plan, settle=settle, progress=progress, geometry=geometry),
+        catheter_id=catheter_id,
+        vessel=vessel,
+    )
+
+
+def calibration_set_from(
+    recording: Recording,
+    phase: str | None = None,
+    *,
+    catheter_id: str = "",
+    vessel: str = "straight",
+) -> CalibrationRun:
+    """The measured states of a recording (or of its segment ``phase``) as a calibration set
+    named after the segment; unmeasured states that the plan read are skipped (logged)."""
+    plan = recording.plan
+    sl = slice(0, plan.n) if phase is None else plan.segment(phase)
+    method = plan.phase_at(sl.start) if phase is None and plan.n else (phase or "points")
+    q = plan.q_motor[sl]
     kept_q: list[Array] = []
     kept_t: list[Array] = []
     skipped: list[SkippedSample] = []
-    for i, qi in enumerate(q):
-        move(qi)
-        pose, attempts = _measure(tracker, retries, n_average)
-        if pose is None:
-            rec = SkippedSample(q_motor=qi.copy(), attempts=attempts, reason="tracker MISSING")
+    for i, (qi, pose, k, attempts) in enumerate(
+        zip(q, recording.tip2base[sl], plan.n_average[sl], recording.attempts[sl], strict=True)
+    ):
+        if k == 0:
+            continue
+        if not np.all(np.isfinite(pose)):
+            rec = SkippedSample(q_motor=qi.copy(), attempts=int(attempts), reason="tracker MISSING")
             log.warning(
                 "calibration sample %d at q=%s skipped: tracker MISSING after %d attempts",
                 i,
@@ -252,9 +459,7 @@ def calibrate_points(
             skipped.append(rec)
         else:
             kept_q.append(qi.copy())
-            kept_t.append(pose)
-        if progress is not None:
-            progress(Progress(done=i + 1, total=q.shape[0], q_motor=qi.copy(), phase=method))
+            kept_t.append(np.array(pose))
     if len(kept_q) < 3:
         raise TrackerError(
             f"only {len(kept_q)} of {q.shape[0]} calibration samples were measured; "
@@ -437,44 +642,29 @@ class HysteresisIdentification:
     """Robot moves made."""
 
 
-def _sweep(
-    move: Mover,
-    tracker: TipTracker,
-    path: Array,
-    joint: int,
-    base: Array,
-    retries: int,
-    progress: ProgressFn | None,
-    geometry: CatheterGeometry,
-    both: bool = False,
-) -> Any:
-    """Sweep one joint along ``path`` from ``base``; observed output per sample (NaN when
-    missing): the bend in the knob's plane (knobs); for the roll, phi3 of the model inverse
-    kinematics when straight, the azimuth of the tip about the base z axis when bent (rad)."""
-    poses: list[Array | None] = []
-    for i, x in enumerate(path):
-        q = base.copy()
-        q[joint] = x
-        move(q)
-        pose, _ = _measure(tracker, retries, 1)
-        poses.append(pose)
-        if progress is not None:
-            progress(Progress(done=i + 1, total=path.size, q_motor=q, phase=f"sweep joint {joint}"))
-    y = np.full(path.size, np.nan)
-    valid = [i for i, p in enumerate(poses) if p is not None]
-    if not valid:
-        return path, y
-    t = np.array([poses[i] for i in valid])
+def _observe_sweep(
+    x: Array, poses: Array, joint: int, base: Array, geometry: CatheterGeometry
+) -> tuple[Array, Array]:
+    """Observed output of a sweep of ``joint`` (values ``x`` (m,), tracked poses (m, 4, 4),
+    NaN where missing) from ``base``: the bend in the knob's plane (knobs); for the roll,
+    the azimuth of the tip about the base z axis when bent, else phi3 of the model inverse
+    kinematics (rad). Also returns the image frame's roll (phi3 of the model inverse
+    kinematics; NaN for the knobs)."""
+    y = np.full(x.size, np.nan)
+    y_frame = np.full(x.size, np.nan)
+    valid = np.flatnonzero(np.all(np.isfinite(poses.reshape(x.size, -1)), axis=1))
+    if valid.size == 0:
+        return y, y_frame
+    t = poses[valid]
     qm = kin_inverse(t, geometry, check=False)
     if joint == 2:
-        y_frame = np.full(path.size, np.nan)
         y_frame[valid] = np.unwrap(qm[:, 2])  # the roll of the model for the image frame
         if math.hypot(base[0], base[1]) > 0.1:
             # bent: the azimuth of the tip about the base axis turns with the base roll only
             y[valid] = np.unwrap(np.arctan2(t[:, 1, 3], t[:, 0, 3]))
         else:
-            y = y_frame
-        return (path, y, y_frame) if both else (path, y)
+            y = y_frame.copy()
+        return y, y_frame
     k2 = qm[:, :2]
     # principal direction of the tip's bend during the sweep
     _, _, vt = np.linalg.svd(k2 - k2.mean(axis=0), full_matrices=False)
@@ -482,7 +672,149 @@ def _sweep(
     if d[joint] < 0:
         d = -d
     y[valid] = k2 @ d
-    return path, y
+    return y, y_frame
+
+
+@dataclass(frozen=True, eq=False)
+class HysteresisPlan:
+    """The sweeps of :func:`identify_hysteresis` as a :class:`MotionPlan`, with what the fit
+    needs to read them."""
+
+    plan: MotionPlan
+    """Segments ``sweep phi1``, ``sweep phi1, phi2 bent``, ``sweep phi2``, ``sweep phi3``,
+    ``sweep phi3, phi1 bent``, ``bend check`` (those of the joints asked for), the moves
+    between them unread."""
+    sweep: Array
+    """(m,) joint values of one sweep (rad): 0 -> +A -> -A -> +A -> 0 of the knobs."""
+    roll_sweep: Array
+    """(m',) the same for the roll."""
+    joints: tuple[int, ...]
+    """Joints swept (0, 1, 2: phi1, phi2, phi3)."""
+    bend: float
+    """Knob angle of the bent sweeps (rad; 0: none)."""
+
+
+def hysteresis_plan(
+    *,
+    amplitude: float = math.radians(60.0),
+    step: float = math.radians(1.5),
+    roll_amplitude: float = math.radians(60.0),
+    roll_bend: float = math.radians(50.0),
+    joints: Sequence[int] = (0, 1, 2),
+    retries: int = 10,
+) -> HysteresisPlan:
+    """The sweeps: each joint of ``joints`` 0 -> +A -> -A -> +A -> 0 with the others at 0,
+    one tracker sample per step; phi1 again with phi2 at ``roll_bend``, phi3 again with phi1
+    at ``roll_bend`` and then a 5-sample reading of the bend there (0: no bent sweeps). The
+    robot starts and ends at zeros (unread moves)."""
+    _check_counts(retries, 1)
+    js = tuple(int(j) for j in joints)
+    for j in js:
+        if j not in (0, 1, 2):
+            raise ConfigurationError(f"joints must be among 0, 1, 2 (phi1..phi3), got {j}")
+    sweep = sweep_path(amplitude, step)
+    roll_sweep = sweep_path(roll_amplitude, step)
+    zero = np.zeros((1, 4))
+    parts: list[MotionPlan] = []
+
+    def swept(path: Array, joint: int, base: Array, phase: str) -> MotionPlan:
+        q = np.tile(base, (path.size, 1))
+        q[:, joint] = path
+        return MotionPlan.make(q, phase, n_average=1, retries=retries)
+
+    def unread(q: Array, phase: str) -> MotionPlan:
+        return MotionPlan.make(np.atleast_2d(q), phase, n_average=0, retries=0)
+
+    for j in js:
+        path = roll_sweep if j == 2 else sweep
+        parts += [unread(zero, "to zero"), swept(path, j, np.zeros(4), f"sweep phi{j + 1}")]
+        if j == 0 and roll_bend > 0.0:
+            base = np.array([0.0, roll_bend, 0.0, 0.0])
+            parts += [unread(base, "to zero"), swept(path, 0, base, "sweep phi1, phi2 bent")]
+        if j == 2 and roll_bend > 0.0:
+            base = np.array([roll_bend, 0.0, 0.0, 0.0])
+            parts += [
+                unread(base, "to zero"),
+                swept(path, 2, base, "sweep phi3, phi1 bent"),
+                MotionPlan.make(base[None, :], "bend check", n_average=5, retries=retries),
+            ]
+    parts.append(unread(zero, "to zero"))
+    return HysteresisPlan(
+        plan=MotionPlan.concat(parts),
+        sweep=sweep,
+        roll_sweep=roll_sweep,
+        joints=js,
+        bend=float(roll_bend),
+    )
+
+
+def fit_hysteresis(
+    hplan: HysteresisPlan,
+    recording: Recording,
+    geometry: CatheterGeometry = DEFAULT_GEOMETRY,
+) -> HysteresisIdentification:
+    """Fit the models of :func:`identify_hysteresis` to the recorded sweeps of ``hplan``."""
+    if recording.plan is not hplan.plan and recording.plan.segments != hplan.plan.segments:
+        raise ConfigurationError("the recording is not of this hysteresis plan")
+    models: list[Any] = [None, None, None, None]
+    fits: list[HysteresisFit] = []
+    per_bend = 0.0
+    knob_per_bend = 0.0
+    twist_per_bend = 0.0
+    bend = hplan.bend
+
+    def observed(phase: str, joint: int) -> tuple[Array, Array, Array]:
+        q, poses = recording.part(phase)
+        x = q[:, joint].copy()
+        y, y_frame = _observe_sweep(x, poses, joint, q[0], geometry)
+        return x, y, y_frame
+
+    for j in hplan.joints:
+        roll = j == 2
+        x, y, _ = observed(f"sweep phi{j + 1}", j)
+        fit = identify(
+            x, y, cubic=not roll, with_dead_zone=not roll, max_slope=0.0 if roll else 0.2
+        )
+        models[j] = fit.model
+        fits.append(fit)
+        if j == 0 and bend > 0.0:
+            # the same sweep with the other knob bent: the play grows with the other bend
+            x, y, _ = observed("sweep phi1, phi2 bent", 0)
+            bent_fit = identify(x, y, cubic=True, with_dead_zone=True)
+            mean_abs = float(np.mean(np.abs(x)))
+            w_bent = bent_fit.model.backlash + bent_fit.model.backlash_slope * mean_abs
+            w_straight = fit.model.backlash + fit.model.backlash_slope * mean_abs
+            knob_per_bend = min(max(0.0, (w_bent - w_straight) / bend), 0.5)
+        if roll and bend > 0.0:
+            x, y, y_frame = observed("sweep phi3, phi1 bent", 2)
+            wide = math.radians(30.0)
+            bent = identify(x, y, cubic=False, with_dead_zone=False, max_slope=0.0, max_width=wide)
+            frame = identify(
+                x, y_frame, cubic=False, with_dead_zone=False, max_slope=0.0, max_width=wide
+            )
+            # the true bend during that sweep, from the tracked poses
+            _, check = recording.part("bend check")
+            pose = check[0]
+            true_bend = (
+                bend
+                if not np.all(np.isfinite(pose))
+                else math.acos(max(-1.0, min(1.0, float(pose[2, 2]))))
+            )
+            per_bend = min(max(0.0, (bent.model.backlash - fit.model.backlash) / true_bend), 0.5)
+            # the image frame lags further than the base: the distal twist play
+            twist_per_bend = min(
+                max(0.0, (frame.model.backlash - bent.model.backlash) / true_bend), 0.5
+            )
+    return HysteresisIdentification(
+        compensator=HysteresisCompensator(
+            models,
+            roll_play_per_bend=per_bend,
+            knob_play_per_bend=knob_per_bend,
+            twist_play_per_bend=twist_per_bend,
+        ),
+        fits=tuple(fits),
+        n_moves=hplan.plan.n,
+    )
 
 
 def identify_hysteresis(
@@ -499,7 +831,8 @@ def identify_hysteresis(
     progress: ProgressFn | None = None,
     geometry: CatheterGeometry = DEFAULT_GEOMETRY,
 ) -> HysteresisIdentification:
-    """Identify backlash and dead-zone of the knobs (and the roll's play) by sweeps.
+    """Identify backlash and dead-zone of the knobs (and the roll's play) by sweeps:
+    :func:`hysteresis_plan` executed (:func:`execute_plan`) and fitted (:func:`fit_hysteresis`).
 
     Each joint in ``joints`` is swept 0 -> +A -> -A -> +A -> 0 with the others at 0, and
     :func:`icenav.hysteresis.identify` fits the model to the tracked response (knobs: the
@@ -512,70 +845,15 @@ def identify_hysteresis(
     AP knob a second time with the RL knob at ``roll_bend``: the growth of its mean play
     gives ``knob_play_per_bend`` (the other pair's bend adds sheath friction).
     """
-    move = as_mover(robot, settle)
-    models: list[Any] = [None, None, None, None]
-    fits: list[HysteresisFit] = []
-    n_moves = 0
-    per_bend = 0.0
-    knob_per_bend = 0.0
-    twist_per_bend = 0.0
-    for j in joints:
-        if j not in (0, 1, 2):
-            raise ConfigurationError(f"joints must be among 0, 1, 2 (phi1..phi3), got {j}")
-        amp = roll_amplitude if j == 2 else amplitude
-        path = sweep_path(amp, step)
-        move(np.zeros(4))
-        x, y = _sweep(move, tracker, path, j, np.zeros(4), retries, progress, geometry)
-        n_moves += path.size + 1
-        roll = j == 2
-        fit = identify(
-            x, y, cubic=not roll, with_dead_zone=not roll, max_slope=0.0 if roll else 0.2
-        )
-        models[j] = fit.model
-        fits.append(fit)
-        if j == 0 and roll_bend > 0.0:
-            # the same sweep with the other knob bent: the play grows with the other bend
-            base = np.array([0.0, roll_bend, 0.0, 0.0])
-            move(base)
-            x, y = _sweep(move, tracker, path, j, base, retries, progress, geometry)
-            n_moves += path.size + 1
-            bent_fit = identify(x, y, cubic=True, with_dead_zone=True)
-            mean_abs = float(np.mean(np.abs(x)))
-            w_bent = bent_fit.model.backlash + bent_fit.model.backlash_slope * mean_abs
-            w_straight = fit.model.backlash + fit.model.backlash_slope * mean_abs
-            knob_per_bend = max(0.0, (w_bent - w_straight) / roll_bend)
-            knob_per_bend = min(knob_per_bend, 0.5)
-        if roll and roll_bend > 0.0:
-            base = np.array([roll_bend, 0.0, 0.0, 0.0])
-            move(base)
-            x, y, y_frame = _sweep(
-                move, tracker, path, j, base, retries, progress, geometry, both=True
-            )
-            n_moves += path.size + 1
-            wide = math.radians(30.0)
-            bent = identify(x, y, cubic=False, with_dead_zone=False, max_slope=0.0, max_width=wide)
-            frame = identify(
-                x, y_frame, cubic=False, with_dead_zone=False, max_slope=0.0, max_width=wide
-            )
-            # the true bend during that sweep, from the tracked poses
-            move(base)
-            pose, _ = _measure(tracker, retries, 5)
-            true_bend = (
-                roll_bend if pose is None else math.acos(max(-1.0, min(1.0, float(pose[2, 2]))))
-            )
-            per_bend = max(0.0, (bent.model.backlash - fit.model.backlash) / true_bend)
-            per_bend = min(per_bend, 0.5)
-            # the image frame lags further than the base: the distal twist play
-            twist_per_bend = max(0.0, (frame.model.backlash - bent.model.backlash) / true_bend)
-            twist_per_bend = min(twist_per_bend, 0.5)
-    move(np.zeros(4))
-    return HysteresisIdentification(
-        compensator=HysteresisCompensator(
-            models,
-            roll_play_per_bend=per_bend,
-            knob_play_per_bend=knob_per_bend,
-            twist_play_per_bend=twist_per_bend,
-        ),
-        fits=tuple(fits),
-        n_moves=n_moves + 1,
+    hplan = hysteresis_plan(
+        amplitude=amplitude,
+        step=step,
+        roll_amplitude=roll_amplitude,
+        roll_bend=roll_bend,
+        joints=joints,
+        retries=retries,
     )
+    rec = execute_plan(
+        robot, tracker, hplan.plan, settle=settle, progress=progress, geometry=geometry
+    )
+    return fit_hysteresis(hplan, rec, geometry)

@@ -46,7 +46,14 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from icenav.calibration import ProgressFn, TipTracker, calibrate_points
+from icenav.calibration import (
+    MotionPlan,
+    ProgressFn,
+    Recording,
+    TipTracker,
+    calibration_set_from,
+    execute_plan,
+)
 from icenav.compensation import CalibrationSet
 from icenav.errors import ConfigurationError, ShapeError, TrackerError
 from icenav.kinematics import DEFAULT_GEOMETRY, CatheterGeometry, forward
@@ -54,12 +61,15 @@ from icenav.validation import check_finite
 
 __all__ = [
     "BiasCorrectedTracker",
-    "DEFAULT_ROLL_BENDS",
     "DEFAULT_ROLLS",
+    "DEFAULT_ROLL_BENDS",
+    "ROLL_CIRCLES",
     "TrackerBias",
     "fit_tracker_bias",
+    "fit_tracker_bias_from",
     "identify_tracker_bias",
     "roll_circle_path",
+    "roll_circle_plan",
 ]
 
 Array = NDArray[np.float64]
@@ -320,6 +330,50 @@ def fit_tracker_bias(
     )
 
 
+ROLL_CIRCLES = "roll circles"
+"""Segment name of the roll circles in a :class:`icenav.calibration.MotionPlan`."""
+
+
+def roll_circle_plan(
+    bends: Sequence[float] = DEFAULT_ROLL_BENDS,
+    rolls: Sequence[float] = DEFAULT_ROLLS,
+    n_average: int = 8,
+    retries: int = 10,
+) -> MotionPlan:
+    """The roll circles (:func:`roll_circle_path`) as a plan, every stop read (averaging
+    ``n_average`` samples; the fit uses the roll stops, not the pre-roll moves), then back
+    to rest at zeros."""
+    path, _ = roll_circle_path(bends, rolls)
+    return MotionPlan.concat(
+        [
+            MotionPlan.make(path, ROLL_CIRCLES, n_average=n_average, retries=retries),
+            MotionPlan.make(np.zeros((1, 4)), "to zero", n_average=0, retries=0),
+        ]
+    )
+
+
+def fit_tracker_bias_from(
+    recording: Recording,
+    bends: Sequence[float] = DEFAULT_ROLL_BENDS,
+    rolls: Sequence[float] = DEFAULT_ROLLS,
+) -> TrackerBias:
+    """:func:`fit_tracker_bias` on the recorded roll circles of :func:`roll_circle_plan`
+    (the same ``bends`` and ``rolls``)."""
+    path, measured = roll_circle_path(bends, rolls)
+    q, _ = recording.part(ROLL_CIRCLES)
+    if q.shape != path.shape or not np.array_equal(q, path):
+        raise ConfigurationError("the recording's roll circles are not those of these bends/rolls")
+    pose_of = np.cumsum(~measured) - 1
+    cal = calibration_set_from(recording, ROLL_CIRCLES).calibration
+    # keep the measured stops (the pre-roll moves are in the path, not in the fit)
+    idx = [int(np.argmin(np.max(np.abs(path - qi), axis=1))) for qi in cal.q_motor]
+    keep = [i for i, j in enumerate(idx) if measured[j]]
+    if len(keep) < 6:
+        raise TrackerError(f"only {len(keep)} roll-circle stops were tracked; need >= 6")
+    sel = np.array(keep)
+    return fit_tracker_bias(cal.q_motor[sel], cal.tip2base[sel], pose_of[np.array(idx)[sel]])
+
+
 def identify_tracker_bias(
     move: Callable[[Array], object],
     tracker: TipTracker,
@@ -330,26 +384,9 @@ def identify_tracker_bias(
     progress: ProgressFn | None = None,
     geometry: CatheterGeometry = DEFAULT_GEOMETRY,
 ) -> TrackerBias:
-    """Drive the roll circles (:func:`roll_circle_path`; 36 moves by default), track the tip
+    """Drive the roll circles (:func:`roll_circle_plan`; 36 moves by default), track the tip
     at each stop (averaged over ``n_average`` samples) and fit :func:`fit_tracker_bias`.
     The robot ends at rest (zeros)."""
-    path, measured = roll_circle_path(bends, rolls)
-    pose_of = np.cumsum(~measured) - 1
-    run = calibrate_points(
-        move,
-        tracker,
-        path,
-        n_average=n_average,
-        progress=progress,
-        method="roll-circles",
-        geometry=geometry,
-    )
-    move(np.zeros(4))
-    cal = run.calibration
-    # keep the measured stops (the pre-roll moves are in the path, not in the fit)
-    idx = [int(np.argmin(np.max(np.abs(path - qi), axis=1))) for qi in cal.q_motor]
-    keep = [i for i, j in enumerate(idx) if measured[j]]
-    if len(keep) < 6:
-        raise TrackerError(f"only {len(keep)} roll-circle stops were tracked; need >= 6")
-    sel = np.array(keep)
-    return fit_tracker_bias(cal.q_motor[sel], cal.tip2base[sel], pose_of[np.array(idx)[sel]])
+    plan = roll_circle_plan(bends, rolls, n_average)
+    rec = execute_plan(move, tracker, plan, progress=progress, geometry=geometry)
+    return fit_tracker_bias_from(rec, bends, rolls)

@@ -77,6 +77,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.optimize import brentq, least_squares
 
+from icenav.calibration import MotionPlan, Recording, execute_plan
 from icenav.compensation import CalibrationSet, ElasticityMap
 from icenav.errors import ConfigurationError, ShapeError, TrackerError
 from icenav.hysteresis import HysteresisCompensator
@@ -88,6 +89,7 @@ from icenav.validation import check_finite
 __all__ = [
     "CalibrationMotion",
     "F_SMOOTHING",
+    "KNOB_CIRCLES",
     "PairTransmission",
     "TendonCompensator",
     "TendonTransmission",
@@ -96,9 +98,11 @@ __all__ = [
     "build_transmission",
     "calibrate_transmission",
     "circle_path",
+    "circle_plan",
     "g_minus",
     "g_plus",
     "identify_transmission",
+    "motion_from",
     "observed_knobs",
     "record_motion",
     "reidentify_in_situ",
@@ -408,6 +412,43 @@ class CalibrationMotion:
             object.__setattr__(self, "tip2base", t)
 
 
+KNOB_CIRCLES = "knob circles"
+"""Segment name of the knob circles in a :class:`icenav.calibration.MotionPlan`."""
+
+
+def circle_plan(
+    radii: Sequence[float] = (math.radians(25.0), math.radians(50.0), math.radians(75.0)),
+    step: float = math.radians(3.0),
+) -> MotionPlan:
+    """The knob circles (:func:`circle_path`) as a plan from rest: one tracker sample per
+    move, no retry (a MISSING sample is a gap), then back to rest at zeros."""
+    return MotionPlan.concat(
+        [
+            MotionPlan.make(circle_path(radii, step), KNOB_CIRCLES, n_average=1, retries=0),
+            MotionPlan.make(np.zeros((1, 4)), "to zero", n_average=0, retries=0),
+        ]
+    )
+
+
+def motion_from(
+    recording: Recording,
+    phase: str = KNOB_CIRCLES,
+    tracker_bias: TrackerBias | None = None,
+    geometry: CatheterGeometry = DEFAULT_GEOMETRY,
+) -> CalibrationMotion:
+    """The recorded segment ``phase`` as a :class:`CalibrationMotion` (observed knobs from the
+    tracked tips; NaN where MISSING), with ``tracker_bias`` removed from the tips if given."""
+    q, poses = recording.part(phase)
+    poses = np.array(poses)
+    ok = np.all(np.isfinite(poses.reshape(q.shape[0], -1)), axis=1)
+    if tracker_bias is not None and np.any(ok):
+        poses[ok] = tracker_bias.correct_poses(poses[ok])
+    obs = np.full((q.shape[0], 2), np.nan)
+    if np.any(ok):
+        obs[ok] = observed_knobs(poses[ok], geometry)
+    return CalibrationMotion(q_motor=np.array(q), observed=obs, tip2base=poses)
+
+
 def record_motion(
     move: Callable[[Array], object],
     tracker: object,
@@ -420,20 +461,11 @@ def record_motion(
     q = check_finite(q_path, "q_path")
     if q.ndim != 2 or q.shape[1] != 4:
         raise ShapeError(f"q_path must have shape (n, 4), got {q.shape}")
-    measure = getattr(tracker, "measure_tip2base", None)
-    if not callable(measure):
+    if not callable(getattr(tracker, "measure_tip2base", None)):
         raise TrackerError("tracker must have a measure_tip2base() method")
-    poses = np.full((q.shape[0], 4, 4), np.nan)
-    for i, row in enumerate(q):
-        move(row)
-        m = measure()
-        if m is not None:
-            poses[i] = np.asarray(m, dtype=np.float64)
-    obs = np.full((q.shape[0], 2), np.nan)
-    ok = np.all(np.isfinite(poses.reshape(q.shape[0], -1)), axis=1)
-    if np.any(ok):
-        obs[ok] = observed_knobs(poses[ok], geometry)
-    return CalibrationMotion(q_motor=q, observed=obs, tip2base=poses)
+    plan = MotionPlan.make(q, KNOB_CIRCLES, n_average=1, retries=0)
+    rec = execute_plan(move, tracker, plan, geometry=geometry)  # type: ignore[arg-type]
+    return motion_from(rec, geometry=geometry)
 
 
 # --- identification --------------------------------------------------------------------------
