@@ -38,7 +38,7 @@ from typing import Any, Literal, Protocol
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from icenav.calibration import five_point_targets, raster_grid
+from icenav.calibration import MotionPlan, Recording, five_point_targets, raster_grid
 from icenav.compensation import CalibrationSet, ElasticityMap
 from icenav.errors import ConfigurationError, IcenavError, InvalidValueError, PlanningError
 from icenav.hw.base import RobotBackend, RobotStatus
@@ -70,6 +70,7 @@ __all__ = [
     "ControllerConfig",
     "KnobMap",
     "PathTask",
+    "PlanTask",
     "TRANSITIONS",
 ]
 
@@ -107,6 +108,10 @@ class KnobMap(Protocol):
     def motor_to_model(self, q_motor: ArrayLike, *, check: bool = True) -> Array:
         """Model joint state(s) (..., 4) that the motor joint state(s) realise (F^-1)."""
         ...
+
+
+# A KnobMap with state (icenav.tendon_map.TendonKnobMap) also has ``observe(q_motor)``: the
+# controller calls it with every command it sends, so the map knows the transmission's state.
 
 
 class AutomaticTask(Protocol):
@@ -168,6 +173,10 @@ class ControllerConfig:
     """Servo the spin on the EM tracker when one is configured with a registration
     (``tracker.config.tracker2base`` and ``sensor2tip``): :class:`icenav.spin_task.SpinTask`
     with a :class:`icenav.feedback.TipPoseServo` (``docs/calibration.md``, section 4b)."""
+    plan_settle_s: float = 0.1
+    """Wait at each tracked state of the dense + hysteresis calibration before reading the
+    tracker (s); its sweeps and circles move 1.5-3 deg at a time (the whole calibration
+    takes about 12 minutes at the controller's pace)."""
     geometry: CatheterGeometry = DEFAULT_GEOMETRY
     """Catheter geometry and joint limits (the motor limits equal the model limits)."""
 
@@ -185,6 +194,10 @@ class ControllerConfig:
             )
         if int(self.publish_every) < 1:
             raise ConfigurationError(f"publish_every must be >= 1 cycle, got {self.publish_every}")
+        if not (math.isfinite(self.plan_settle_s) and 0.0 <= self.plan_settle_s <= 10.0):
+            raise ConfigurationError(
+                f"plan_settle_s must be in [0, 10] s, got {self.plan_settle_s} s"
+            )
 
     @property
     def dt(self) -> float:
@@ -260,14 +273,106 @@ class PathTask:
         return np.asarray(self.path[i] + s * (self.path[i + 1] - self.path[i]))
 
 
-class CalibrationTask:
+class PlanTask:
+    """Drive a :class:`icenav.calibration.MotionPlan` inside the control loop and read the
+    tracker where it says: the calibration motions of :mod:`icenav.calibration`, with every
+    move under the controller's limits, stop and e-stop.
+
+    For each state: move there at bounded speed (a :class:`PathTask`); where the plan reads
+    the tracker, wait ``settle_s`` for the catheter and the tracker, then ``measure(n)``
+    (n = the plan's ``n_average``, one attempt per cycle; a MISSING attempt is retried up to
+    the plan's ``retries``, then the state is recorded as not measured). When all states are
+    done, ``on_done(recording)`` is called (from the control thread) and the task ends.
+    """
+
+    def __init__(
+        self,
+        plan: MotionPlan,
+        measure: Callable[[int], Array | None],
+        on_done: Callable[[Recording], None],
+        *,
+        max_velocity: Array,
+        label: str,
+        settle_s: float = 0.3,
+        ramp_s: float = 0.3,
+        phase_in_label: bool = True,
+    ) -> None:
+        if not isinstance(plan, MotionPlan):
+            raise InvalidValueError(f"plan must be a MotionPlan, got {type(plan).__name__}")
+        self.mode = Mode.CALIBRATING
+        self._base_label = label
+        self.label = label
+        self._plan = plan
+        self._measure = measure
+        self._on_done = on_done
+        self._vmax = np.asarray(max_velocity, dtype=np.float64)
+        if not (math.isfinite(settle_s) and settle_s >= 0.0):
+            raise InvalidValueError(f"settle_s must be >= 0 s, got {settle_s!r}")
+        self._settle_s = float(settle_s)
+        self._ramp_s = float(ramp_s)
+        self._phase_in_label = bool(phase_in_label)
+        self._i = 0
+        self._move: PathTask | None = None
+        self._wait = 0.0
+        self._misses = 0
+        self._attempts = 0
+        self._poses = np.full((plan.n, 4, 4), np.nan)
+        self._tries = np.zeros(plan.n, dtype=np.int64)
+        self._done = False
+
+    @property
+    def progress(self) -> float:
+        return min(1.0, self._i / self._plan.n)
+
+    def next_command(self, q_measured: Array, dt: float) -> Array | None:
+        if self._done:
+            return None
+        plan = self._plan
+        if self._i >= plan.n:
+            self._done = True
+            self._on_done(Recording(plan=plan, tip2base=self._poses, attempts=self._tries))
+            return None
+        target = plan.q_motor[self._i]
+        if self._move is None:
+            self._move = PathTask(
+                np.vstack([q_measured, target]),
+                self._vmax,
+                mode=self.mode,
+                label=self.label,
+                ramp_s=self._ramp_s,
+            )
+            self._wait = 0.0
+            self._misses = 0
+            self._attempts = 0
+            if self._phase_in_label:
+                self.label = f"{self._base_label}: {plan.phase_at(self._i)}"
+        q_next = self._move.next_command(q_measured, dt)
+        if q_next is not None:
+            return q_next
+        n = int(plan.n_average[self._i])
+        if n > 0:
+            self._wait += dt
+            if self._wait < self._settle_s:
+                return target
+            self._attempts += 1
+            pose = self._measure(n)
+            if pose is None and self._misses < int(plan.retries[self._i]):
+                self._misses += 1
+                return target
+            if pose is not None:
+                self._poses[self._i] = np.asarray(pose, dtype=np.float64)
+            self._tries[self._i] = self._attempts
+        self._i += 1
+        self._move = None
+        return target
+
+
+class CalibrationTask(PlanTask):
     """Drive a calibration raster and measure the tip with the tracker at each point.
 
-    For each motor state of ``points``: move there at bounded speed (a :class:`PathTask`),
-    wait ``settle_s`` for the catheter and the tracker, then average ``n_average`` tracker
-    samples; a MISSING sample is retried ``retries`` times, then skipped (reported). When
-    all points are done, ``on_samples(q_motor (n, 4), tip2base (n, 4, 4), skipped)`` is
-    called (from the control thread) and the task ends.
+    A :class:`PlanTask` of ``points`` (each read with ``measure()``, retried ``retries``
+    times, then skipped); when all points are done, ``on_samples(q_motor (n, 4), tip2base
+    (n, 4, 4), skipped)`` gets the measured ones (from the control thread).
     """
 
     def __init__(
@@ -281,59 +386,19 @@ class CalibrationTask:
         settle_s: float = 0.3,
         retries: int = 3,
     ) -> None:
-        self.mode = Mode.CALIBRATING
-        self.label = label
-        self._points = np.asarray(points, dtype=np.float64)
-        self._measure = measure
-        self._on_samples = on_samples
-        self._vmax = np.asarray(max_velocity, dtype=np.float64)
-        self._settle_s = settle_s
-        self._retries = retries
-        self._i = 0
-        self._move: PathTask | None = None
-        self._wait = 0.0
-        self._tries = 0
-        self._q: list[Array] = []
-        self._t: list[Array] = []
-        self._skipped = 0
-        self._done = False
+        def done(rec: Recording) -> None:
+            ok = rec.measured
+            on_samples(rec.plan.q_motor[ok], rec.tip2base[ok], int(np.sum(~ok)))
 
-    @property
-    def progress(self) -> float:
-        return min(1.0, self._i / len(self._points))
-
-    def next_command(self, q_measured: Array, dt: float) -> Array | None:
-        if self._done:
-            return None
-        if self._i >= len(self._points):
-            self._done = True
-            self._on_samples(np.array(self._q), np.array(self._t), self._skipped)
-            return None
-        target = self._points[self._i]
-        if self._move is None:
-            self._move = PathTask(
-                np.vstack([q_measured, target]), self._vmax, mode=self.mode, label=self.label
-            )
-            self._wait = 0.0
-            self._tries = 0
-        q_next = self._move.next_command(q_measured, dt)
-        if q_next is not None:
-            return q_next
-        self._wait += dt
-        if self._wait < self._settle_s:
-            return target
-        pose = self._measure()
-        if pose is None and self._tries < self._retries:
-            self._tries += 1
-            return target
-        if pose is None:
-            self._skipped += 1
-        else:
-            self._q.append(np.array(q_measured, dtype=np.float64))
-            self._t.append(np.asarray(pose, dtype=np.float64))
-        self._i += 1
-        self._move = None
-        return target
+        super().__init__(
+            MotionPlan.make(points, "calibration", n_average=1, retries=retries),
+            lambda _n: measure(),
+            done,
+            max_velocity=max_velocity,
+            label=label,
+            settle_s=settle_s,
+            phase_in_label=False,
+        )
 
 
 class _PlanningTask:
@@ -811,6 +876,10 @@ class Controller:
             self._task = None
             self._message = f"command refused: {exc}"
             self._q_cmd = self._q.copy()
+            return
+        observe = getattr(self.compensation, "observe", None)
+        if observe is not None:  # a compensation with state follows every command sent
+            observe(clipped)
 
     # --- compensation -------------------------------------------------------------------
 
@@ -984,11 +1053,17 @@ class Controller:
     def _start_calibration(self, kind: CalibrationKind) -> None:
         """Dense 10 deg raster (19 x 19 = 361 points over +-90 deg) or the simplified
         5-point calibration (centre, +-90 deg AP, +-90 deg RL), then build the elasticity
-        map F in a background thread and switch the compensation on when it is ready."""
+        map F in a background thread and switch the compensation on when it is ready; or
+        ``dense+hysteresis``: :func:`icenav.catheter_calibration.catheter_plan` (the raster,
+        hysteresis sweeps, roll and knob circles, about 2,100 states) and the per-tendon
+        compensation (:class:`icenav.tendon_map.TendonKnobMap`)."""
         if self.tracker is None:
             self._message = "calibration needs a tracker"
             return
         g = self.config.geometry
+        if kind == "dense+hysteresis":
+            self._start_catheter_calibration()
+            return
         if kind == "dense":
             points = raster_grid(math.radians(10.0), g.knob_limit)
         elif kind == "five_point":
@@ -996,7 +1071,9 @@ class Controller:
             points = np.zeros((5, 4))
             points[:, :2] = knobs
         else:
-            self._message = f"unknown calibration {kind!r}: use 'dense' or 'five_point'"
+            self._message = (
+                f"unknown calibration {kind!r}: use 'dense', 'five_point' or 'dense+hysteresis'"
+            )
             return
         points[:, 2:] = self._q[2:]  # calibrate at the current roll and translation
         tracker = self.tracker
@@ -1026,6 +1103,70 @@ class Controller:
             label=f"calibration ({kind}, {len(points)} points)",
         )
         self.start_task(task)
+
+    def _start_catheter_calibration(self) -> None:
+        """The full calibration of our compensation as a :class:`PlanTask` (the plan goes
+        through zeros and ends there)."""
+        from icenav.catheter_calibration import catheter_plan
+
+        cplan = catheter_plan(geometry=self.config.geometry)
+        tracker = self.tracker
+
+        def measure(n: int) -> Array | None:
+            pose = tracker.measure_tip2base(n_average=n)
+            return None if pose is None else np.asarray(pose, dtype=np.float64)
+
+        def on_done(rec: Recording) -> None:
+            missing = int(np.sum((rec.plan.n_average > 0) & ~rec.measured))
+            self._message = (
+                f"calibration (dense+hysteresis): {rec.plan.n} states"
+                + (f", {missing} not tracked" if missing else "")
+                + "; fitting the compensation (about 20 s)"
+            )
+            thread = threading.Thread(
+                target=self._build_tendon_map,
+                args=(cplan, rec),
+                name="icenav-calibration",
+                daemon=True,
+            )
+            thread.start()
+            if self._thread is None:  # stepped by hand: wait here, there is no loop to poll
+                thread.join()
+
+        self.start_task(
+            PlanTask(
+                cplan.plan,
+                measure,
+                on_done,
+                max_velocity=np.asarray(self.config.max_velocity),
+                label=f"calibration (dense+hysteresis, {cplan.plan.n} states)",
+                settle_s=self.config.plan_settle_s,
+                ramp_s=0.1,  # most moves are 1.5-3 deg: short ramps (5 rad/s^2 at 0.5 rad/s)
+            )
+        )
+
+    def _build_tendon_map(self, cplan: Any, rec: Recording) -> None:
+        """Fit the per-tendon compensation (background thread); install it at the next
+        cycle, relaxed where the robot is then."""
+        from icenav.catheter_calibration import fit_catheter
+
+        try:
+            cal = fit_catheter(cplan, rec, geometry=self.config.geometry)
+        except IcenavError as exc:
+            text = f"calibration failed: {exc}"
+            self._submit(lambda: setattr(self, "_message", text))
+            return
+
+        def install() -> None:
+            self.compensation = cal.knob_map(self._q_cmd, self.config.geometry)
+            self.compensation_enabled = True
+            self.calibration = cal.dense
+            self._message = "calibration (dense+hysteresis) done: compensation on"
+            self._record(
+                "calibration", {"kind": "dense+hysteresis", "n_samples": cal.dense.n_samples}
+            )
+
+        self._submit(install)
 
     def _build_map(self, kind: str, q: Array, t: Array) -> None:
         """Build F from the samples (background thread); install it at the next cycle."""

@@ -31,7 +31,7 @@ __all__ = [
 
 Array = NDArray[np.float64]
 
-CalibrationKind = Literal["dense", "five_point"]
+CalibrationKind = Literal["dense", "five_point", "dense+hysteresis"]
 
 
 class Mode(enum.Enum):

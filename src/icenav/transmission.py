@@ -731,14 +731,11 @@ class TendonCompensator:
                 break
         return x
 
-    def command(self, q_effective: ArrayLike, bend: float | None = None) -> Array:
-        """Motor command (4,) for the wanted effective joint state (4,) (z1, z2 rad, phi3 rad,
-        d4 mm); ``bend`` (rad) is passed to the roll's play model."""
-        z = check_finite(q_effective, "q_effective").ravel()
-        if z.size != 4:
-            raise ShapeError(f"q_effective must have 4 values, got {z.size}")
+    def knob_command(self, z1: float, z2: float) -> tuple[float, float]:
+        """Motor knobs (rad) that bring the model's effective knobs to (z1, z2) (rad) from its
+        current state, which is *not* advanced (see :meth:`advance`)."""
         eps = self.dead_zone_ramp
-        tz = (float(z[0]), float(z[1]))
+        tz = (float(z1), float(z2))
         inside = [abs(t) < eps for t in tz]
         if not any(inside):
             x = self._solve(tz)
@@ -754,10 +751,25 @@ class TendonCompensator:
             for j in (0, 1):
                 if not inside[j]:
                     x[j] = self._solve_knob(j, tz[j], x)
+        return float(x[0]), float(x[1])
+
+    def advance(self, x1: float, x2: float) -> None:
+        """Advance the model's tendon state as the knobs move to (x1, x2) (rad)."""
+        x = [float(x1), float(x2)]
         self._d = self.model.step(self._d, self._x, x)
-        self._x = [float(x[0]), float(x[1])]
+        self._x = x
+
+    def command(self, q_effective: ArrayLike, bend: float | None = None) -> Array:
+        """Motor command (4,) for the wanted effective joint state (4,) (z1, z2 rad, phi3 rad,
+        d4 mm); ``bend`` (rad) is passed to the roll's play model. The state is advanced as if
+        the command were executed."""
+        z = check_finite(q_effective, "q_effective").ravel()
+        if z.size != 4:
+            raise ShapeError(f"q_effective must have 4 values, got {z.size}")
+        x = self.knob_command(float(z[0]), float(z[1]))
+        self.advance(*x)
         out = z.copy()
-        out[0], out[1] = x[0], x[1]
+        out[0], out[1] = x
         if self.roll is not None:
             r = self.roll.command(np.array([z[0], z[1], z[2], z[3]]), bend)
             out[2], out[3] = r[2], r[3]

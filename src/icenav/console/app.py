@@ -64,12 +64,16 @@ from icenav.dicom import ExportDirectory, ViewClip
 from icenav.errors import ConfigurationError, ExportError, IcenavError
 from icenav.io.joystick import JoystickMapping
 from icenav.kinematics import DEFAULT_GEOMETRY, CatheterGeometry, forward
-from icenav.state import ControllerCommands, ControllerState, ImageFrame, Mode
+from icenav.state import CalibrationKind, ControllerCommands, ControllerState, ImageFrame, Mode
 
 __all__ = ["Console", "ConsoleStats"]
 
 NO_VIEWS = "(no saved views)"
-CALIBRATIONS = {"Dense raster": "dense", "5-point": "five_point"}
+CALIBRATIONS: dict[str, CalibrationKind] = {
+    "Dense raster": "dense",
+    "5-point": "five_point",
+    "Dense + hysteresis": "dense+hysteresis",
+}
 TRUE_RGB = (230, 140, 40)
 MODEL_RGB = (60, 120, 255)
 VIEW_RGB = (40, 200, 90)
@@ -504,7 +508,7 @@ class Console:
         @panel.calibrate.on_click
         def _(ev: Any) -> None:
             kind = CALIBRATIONS[panel.calib_kind.value]
-            c.start_calibration("dense" if kind == "dense" else "five_point", client=name)
+            c.start_calibration(kind, client=name)
 
         @panel.save.on_click
         def _(ev: Any) -> None:
