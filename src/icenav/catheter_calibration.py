@@ -4,7 +4,7 @@ one fit (beyond the paper; issue 4).
 :func:`catheter_plan` strings together, from rest at zeros: the paper's dense raster, the
 hysteresis sweeps (:func:`icenav.calibration.hysteresis_plan`), the roll circles that
 separate the tracker's field bias (:func:`icenav.tracker_bias.roll_circle_plan`) and the
-knob circles of the per-tendon model (:func:`icenav.transmission.circle_plan`): about 2,100
+knob circles of the per-tendon model (:func:`icenav.transmission.circle_plan`): 2,345
 states. :func:`fit_catheter` turns its :class:`~icenav.calibration.Recording` into
 :class:`CatheterCalibration` -- F, the per-joint hysteresis, the tracker bias and the
 per-tendon transmission -- with the same fits :func:`icenav.eval.spin.calibrate` uses (there

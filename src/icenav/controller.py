@@ -1055,7 +1055,7 @@ class Controller:
         5-point calibration (centre, +-90 deg AP, +-90 deg RL), then build the elasticity
         map F in a background thread and switch the compensation on when it is ready; or
         ``dense+hysteresis``: :func:`icenav.catheter_calibration.catheter_plan` (the raster,
-        hysteresis sweeps, roll and knob circles, about 2,100 states) and the per-tendon
+        hysteresis sweeps, roll and knob circles, 2,345 states) and the per-tendon
         compensation (:class:`icenav.tendon_map.TendonKnobMap`)."""
         if self.tracker is None:
             self._message = "calibration needs a tracker"
