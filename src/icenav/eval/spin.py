@@ -435,8 +435,6 @@ def run_vessel(
                 true, em, cmd = run_spin_closed_loop(plant, tracker, sp.q_model, cal)
                 if keep_commands is not None:
                     keep_commands[(bend, cond)] = cmd
-                if keep_tips is not None:
-                    keep_tips[(bend, cond)] = true[:, :3, 3]
             else:
                 cmd = _commands(cond, sp.q_model, cal)
                 if keep_commands is not None:
