@@ -143,19 +143,19 @@ def main() -> list[Result]:
     )
     k = [0]
 
-    def tendon_cycle() -> None:
+    def moving_target() -> np.ndarray:
+        """The next model state of a slow spin-like motion (one control cycle further)."""
         k[0] += 1
         t = k[0] * 0.01
-        q_model = np.array([0.6 * math.cos(t), 0.6 * math.sin(t), -t, 0.0])
-        cmd = tmap.model_to_motor(q_model, check=False)
+        return np.array([0.6 * math.cos(t), 0.6 * math.sin(t), -t, 0.0])
+
+    def tendon_cycle() -> None:
+        cmd = tmap.model_to_motor(moving_target(), check=False)
         tmap.observe(cmd)
         tmap.motor_to_model(cmd, check=False)
 
     def knob_cycle() -> None:
-        k[0] += 1
-        t = k[0] * 0.01
-        q_model = np.array([0.6 * math.cos(t), 0.6 * math.sin(t), -t, 0.0])
-        eff = fmap.model_to_motor(q_model, check=False)
+        eff = fmap.model_to_motor(moving_target(), check=False)
         comp.command(eff, 0.6)
         fmap.motor_to_model(eff, check=False)
 
