@@ -438,7 +438,7 @@ def calibration_set_from(
     named after the segment; unmeasured states that the plan read are skipped (logged)."""
     plan = recording.plan
     sl = slice(0, plan.n) if phase is None else plan.segment(phase)
-    method = plan.phase_at(sl.start) if phase is None and plan.n else (phase or "points")
+    method = phase if phase is not None else plan.segments[0][2] if plan.segments else "points"
     q = plan.q_motor[sl]
     kept_q: list[Array] = []
     kept_t: list[Array] = []

@@ -1076,11 +1076,6 @@ class Controller:
             )
             return
         points[:, 2:] = self._q[2:]  # calibrate at the current roll and translation
-        tracker = self.tracker
-
-        def measure() -> Array | None:
-            pose = tracker.measure_tip2base(n_average=4)
-            return None if pose is None else np.asarray(pose, dtype=np.float64)
 
         def on_samples(q: Array, t: Array, skipped: int) -> None:
             self._message = (
@@ -1088,16 +1083,11 @@ class Controller:
                 + (f", {skipped} skipped (tracker MISSING)" if skipped else "")
                 + "; building the compensation map"
             )
-            thread = threading.Thread(
-                target=self._build_map, args=(kind, q, t), name="icenav-calibration", daemon=True
-            )
-            thread.start()
-            if self._thread is None:  # stepped by hand: wait here, there is no loop to poll
-                thread.join()
+            self._fit_in_background(self._build_map, kind, q, t)
 
         task = CalibrationTask(
             points,
-            measure,
+            lambda: self._measure_tip(4),
             on_samples,
             max_velocity=np.asarray(self.config.max_velocity),
             label=f"calibration ({kind}, {len(points)} points)",
@@ -1110,11 +1100,6 @@ class Controller:
         from icenav.catheter_calibration import catheter_plan
 
         cplan = catheter_plan(geometry=self.config.geometry)
-        tracker = self.tracker
-
-        def measure(n: int) -> Array | None:
-            pose = tracker.measure_tip2base(n_average=n)
-            return None if pose is None else np.asarray(pose, dtype=np.float64)
 
         def on_done(rec: Recording) -> None:
             missing = int(np.sum((rec.plan.n_average > 0) & ~rec.measured))
@@ -1123,20 +1108,12 @@ class Controller:
                 + (f", {missing} not tracked" if missing else "")
                 + "; fitting the compensation (about 20 s)"
             )
-            thread = threading.Thread(
-                target=self._build_tendon_map,
-                args=(cplan, rec),
-                name="icenav-calibration",
-                daemon=True,
-            )
-            thread.start()
-            if self._thread is None:  # stepped by hand: wait here, there is no loop to poll
-                thread.join()
+            self._fit_in_background(self._build_tendon_map, cplan, rec)
 
         self.start_task(
             PlanTask(
                 cplan.plan,
-                measure,
+                self._measure_tip,
                 on_done,
                 max_velocity=np.asarray(self.config.max_velocity),
                 label=f"calibration (dense+hysteresis, {cplan.plan.n} states)",
@@ -1144,6 +1121,19 @@ class Controller:
                 ramp_s=0.1,  # most moves are 1.5-3 deg: short ramps (5 rad/s^2 at 0.5 rad/s)
             )
         )
+
+    def _measure_tip(self, n_average: int) -> Array | None:
+        """The tracked tip pose (4, 4) averaged over ``n_average`` samples, None if MISSING."""
+        pose = self.tracker.measure_tip2base(n_average=n_average)
+        return None if pose is None else np.asarray(pose, dtype=np.float64)
+
+    def _fit_in_background(self, fit: Callable[..., None], *args: Any) -> None:
+        """Run a calibration's fit in a thread (it installs its result through a request);
+        when the controller is stepped by hand there is no loop to poll, so wait for it."""
+        thread = threading.Thread(target=fit, args=args, name="icenav-calibration", daemon=True)
+        thread.start()
+        if self._thread is None:
+            thread.join()
 
     def _build_tendon_map(self, cplan: Any, rec: Recording) -> None:
         """Fit the per-tendon compensation (background thread); install it at the next

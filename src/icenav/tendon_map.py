@@ -29,6 +29,7 @@ through (its play is not identified).
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -97,19 +98,14 @@ class TendonKnobMap:
 
     def reset(self, q_motor: ArrayLike) -> None:
         """A relaxed transmission at motor joint state ``q_motor`` (4,): plays centred."""
-        q = self._check(q_motor, "q_motor")
-        if q.ndim != 1:
-            raise ShapeError(f"q_motor must have shape (4,), got {q.shape}")
+        q = self._check(q_motor, "q_motor", single=True)
         self._knobs.reset(q)
         self._x3 = self._p3 = self._i = float(q[2])
 
     def observe(self, q_motor: ArrayLike) -> None:
         """The robot was sent ``q_motor`` (4,): advance the tendons, the roll's play and the
         distal twist play (the twin's T9 and T9b structure: motor -> section -> image)."""
-        q = self._check(q_motor, "q_motor")
-        if q.ndim != 1:
-            raise ShapeError(f"q_motor must have shape (4,), got {q.shape}")
-        self._advance(q)
+        self._advance(self._check(q_motor, "q_motor", single=True))
 
     def _advance(self, q: Array) -> None:
         self._knobs.advance(float(q[0]), float(q[1]))
@@ -205,9 +201,11 @@ class TendonKnobMap:
     def motor_to_model(self, q_motor: ArrayLike, *, check: bool = True) -> Array:
         """The model joint state (4,) the catheter is in once ``q_motor`` (4,) is the last
         command: the present state advanced to it, not committed. d4 is the commanded one."""
-        q = self._check(q_motor, "q_motor") if check else np.asarray(q_motor, dtype=np.float64)
-        if q.ndim != 1:
-            raise ShapeError(f"q_motor must have shape (4,), got {q.shape}")
+        q = (
+            self._check(q_motor, "q_motor", single=True)
+            if check
+            else np.asarray(q_motor, dtype=np.float64)
+        )
         saved = self._save()
         try:
             self._advance(q)
@@ -217,18 +215,18 @@ class TendonKnobMap:
         out[3] = float(q[3])
         return out
 
-    def _save(self) -> tuple[list[float], list[float], float, float, float]:
-        k = self._knobs
-        return (list(k._d), list(k._x), self._x3, self._p3, self._i)
+    def _save(self) -> tuple[Any, float, float, float]:
+        return (self._knobs.state(), self._x3, self._p3, self._i)
 
-    def _restore(self, saved: tuple[list[float], list[float], float, float, float]) -> None:
-        d, x, self._x3, self._p3, self._i = saved
-        self._knobs._d = list(d)
-        self._knobs._x = list(x)
+    def _restore(self, saved: tuple[Any, float, float, float]) -> None:
+        knobs, self._x3, self._p3, self._i = saved
+        self._knobs.set_state(knobs)
 
     @staticmethod
-    def _check(q: ArrayLike, name: str) -> Array:
+    def _check(q: ArrayLike, name: str, single: bool = False) -> Array:
         arr = check_finite(q, name)
+        if single and arr.shape != (4,):
+            raise ShapeError(f"{name} must have shape (4,), got {arr.shape}")
         if arr.shape[-1:] != (4,) or arr.ndim > 2:
             raise ShapeError(f"{name} must have shape (4,) or (n, 4), got {arr.shape}")
         return arr

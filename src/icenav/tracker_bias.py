@@ -51,7 +51,6 @@ from icenav.calibration import (
     ProgressFn,
     Recording,
     TipTracker,
-    calibration_set_from,
     execute_plan,
 )
 from icenav.compensation import CalibrationSet
@@ -359,19 +358,17 @@ def fit_tracker_bias_from(
 ) -> TrackerBias:
     """:func:`fit_tracker_bias` on the recorded roll circles of :func:`roll_circle_plan`
     (the same ``bends`` and ``rolls``)."""
-    path, measured = roll_circle_path(bends, rolls)
-    q, _ = recording.part(ROLL_CIRCLES)
+    path, stops = roll_circle_path(bends, rolls)
+    q, poses = recording.part(ROLL_CIRCLES)
     if q.shape != path.shape or not np.array_equal(q, path):
         raise ConfigurationError("the recording's roll circles are not those of these bends/rolls")
-    pose_of = np.cumsum(~measured) - 1
-    cal = calibration_set_from(recording, ROLL_CIRCLES).calibration
-    # keep the measured stops (the pre-roll moves are in the path, not in the fit)
-    idx = [int(np.argmin(np.max(np.abs(path - qi), axis=1))) for qi in cal.q_motor]
-    keep = [i for i, j in enumerate(idx) if measured[j]]
-    if len(keep) < 6:
-        raise TrackerError(f"only {len(keep)} roll-circle stops were tracked; need >= 6")
-    sel = np.array(keep)
-    return fit_tracker_bias(cal.q_motor[sel], cal.tip2base[sel], pose_of[np.array(idx)[sel]])
+    # the tracked roll stops (the pre-roll moves are in the path, not in the fit)
+    tracked = np.all(np.isfinite(poses.reshape(len(q), -1)), axis=1)
+    keep = np.flatnonzero(stops & tracked)
+    if keep.size < 6:
+        raise TrackerError(f"only {keep.size} roll-circle stops were tracked; need >= 6")
+    pose_of = np.cumsum(~stops) - 1  # which bend (circle) each state belongs to
+    return fit_tracker_bias(q[keep], np.array(poses[keep]), pose_of[keep])
 
 
 def identify_tracker_bias(

@@ -753,6 +753,16 @@ class TendonCompensator:
                     x[j] = self._solve_knob(j, tz[j], x)
         return float(x[0]), float(x[1])
 
+    def state(self) -> tuple[tuple[float, ...], tuple[float, float]]:
+        """The knobs' state: distal pulls (4,) and motor knobs (2,), for :meth:`set_state`."""
+        return tuple(self._d), (self._x[0], self._x[1])
+
+    def set_state(self, state: tuple[tuple[float, ...], tuple[float, float]]) -> None:
+        """Restore a state taken with :meth:`state`."""
+        d, x = state
+        self._d = [float(v) for v in d]
+        self._x = [float(x[0]), float(x[1])]
+
     def advance(self, x1: float, x2: float) -> None:
         """Advance the model's tendon state as the knobs move to (x1, x2) (rad)."""
         x = [float(x1), float(x2)]
