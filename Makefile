@@ -36,7 +36,7 @@ bench: $(STAMP)
 # the full soak: a simulated 4-hour procedure at 100 Hz (about 20 minutes; make test runs a
 # 2-minute one)
 soak: $(STAMP)
-	$(PY) -m icenav.soak --hours 4 --json soak-4h.json
+	$(PY) -m icenav.apps.soak --hours 4 --json soak-4h.json
 
 demo: $(STAMP)
 	$(VENV)/bin/icenav demo

@@ -17,19 +17,19 @@ import numpy as np
 from scipy.interpolate import RectBivariateSpline
 
 from benchmarks.common import Result, time_per_call
-from icenav.compensation import CalibrationSet, ElasticityMap
-from icenav.feedback import TipPoseServo, body_pose_error
-from icenav.hysteresis import HysteresisCompensator, JointHysteresis
-from icenav.kinematics import forward
-from icenav.tendon_map import TendonKnobMap
-from icenav.trajectories import spin_trajectory
-from icenav.transmission import (
+from icenav.compensation.elasticity import CalibrationSet, ElasticityMap
+from icenav.compensation.hysteresis import HysteresisCompensator, JointHysteresis
+from icenav.compensation.tendon_map import TendonKnobMap
+from icenav.compensation.transmission import (
     PairTransmission,
     TendonCompensator,
     TendonTransmission,
     TransmissionCalibration,
     TransmissionFit,
 )
+from icenav.control.servo import TipPoseServo, body_pose_error
+from icenav.geometry.kinematics import forward
+from icenav.geometry.trajectories import spin_trajectory
 
 
 def _dense_set() -> CalibrationSet:

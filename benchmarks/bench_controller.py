@@ -12,8 +12,8 @@ import time
 import numpy as np
 
 from benchmarks.common import Result, time_per_call
-from icenav.controller import Controller, ControllerConfig
-from icenav.hw.sim import IdealPlant, SimulatedRobot
+from icenav.control.controller import Controller, ControllerConfig
+from icenav.devices.sim_robot import IdealPlant, SimulatedRobot
 
 
 def run_rate(rate_hz: float, seconds: float = 2.0) -> tuple[np.ndarray, np.ndarray]:

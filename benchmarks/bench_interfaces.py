@@ -18,9 +18,9 @@ import numpy as np
 import pyigtl
 
 from benchmarks.common import Result, time_per_call
-from icenav.hw.canopen_robot import CANopenRobot
-from icenav.hw.config import ControlMode
-from icenav.hw.emulated_drive import EmulatedDriveSet, emulated_robot_config
+from icenav.devices.canopen.config import ControlMode
+from icenav.devices.canopen.emulated_drive import EmulatedDriveSet, emulated_robot_config
+from icenav.devices.canopen.robot import CANopenRobot
 from icenav.io.igtl import IgtlBridge, IgtlConfig, wait_for_client
 
 IMAGE_SHAPE = (480, 640)

@@ -14,7 +14,7 @@ import time
 import numpy as np
 
 from benchmarks.common import Result, time_per_call
-from icenav.kinematics import CatheterGeometry, forward, inverse, jacobian
+from icenav.geometry.kinematics import CatheterGeometry, forward, inverse, jacobian
 
 G = CatheterGeometry()
 

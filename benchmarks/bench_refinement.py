@@ -17,15 +17,15 @@ import time
 import numpy as np
 
 from benchmarks.common import Result, time_per_call
-from icenav.hw.sim import SimulatedRobot
-from icenav.pose_stage import pose_stage
-from icenav.refinement import (
+from icenav.devices.sim_robot import SimulatedRobot
+from icenav.refinement.image_search import (
     RefinementConfig,
     RefinementTask,
     SimClock,
     SimulatedBeatImager,
     refine,
 )
+from icenav.refinement.pose_stage import pose_stage
 from icenav.sim.anatomy import EXAMPLE_VIEWS, default_phantom
 from icenav.sim.plant import CatheterPlant
 from icenav.sim.tracker import EMTracker

@@ -23,8 +23,8 @@ import numpy as np
 from scipy.signal import lfilter
 
 from benchmarks.common import Result, time_per_call
-from icenav.roadmap import Roadmap, RoadmapConfig
-from icenav.views import View
+from icenav.recovery.roadmap import Roadmap, RoadmapConfig
+from icenav.recovery.views import View
 
 SIZES = (10_000, 100_000, 1_000_000)
 

@@ -12,7 +12,7 @@ import time
 import numpy as np
 
 from benchmarks.common import Result, time_per_call
-from icenav.kinematics import forward
+from icenav.geometry.kinematics import forward
 from icenav.sim import CatheterPlant, EMTracker
 from icenav.sim.tuning import spin_trajectory
 

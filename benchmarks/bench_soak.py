@@ -11,11 +11,11 @@ import time
 import numpy as np
 
 from benchmarks.common import Result
-from icenav.soak import CYCLE_TARGET_S, PLAN_TARGET_S, SoakConfig, run_soak
+from icenav.apps.soak import CYCLE_TARGET_S, PLAN_TARGET_S, SoakConfig, run_soak
 
 
 def _cycle_without_store(seconds: float = 30.0) -> float:
-    from icenav.app import make_sim_controller
+    from icenav.apps.wiring import make_sim_controller
 
     t = [0.0]
     built = make_sim_controller(imaging=False, clock=lambda: t[0])

@@ -8,8 +8,8 @@ tracker, as the paper's Table I does. Run: .venv/bin/python examples/03_digital_
 import numpy as np
 
 from icenav import forward
+from icenav.geometry.trajectories import spin_trajectory
 from icenav.sim import CatheterPlant, EMTracker
-from icenav.trajectories import spin_trajectory
 
 plant = CatheterPlant(seed=110, vessel="straight")  # one catheter (seeds vary it)
 tracker = EMTracker(plant, seed=110)

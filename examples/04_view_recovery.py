@@ -8,7 +8,7 @@ the path. Run: .venv/bin/python examples/04_view_recovery.py
 import numpy as np
 
 from icenav import Roadmap
-from icenav.hw import SimulatedRobot
+from icenav.devices import SimulatedRobot
 from icenav.sim import CatheterPlant
 from icenav.sim.operator import ScriptedOperator, drive
 

@@ -17,11 +17,11 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 import atheris  # noqa: E402
 
 with atheris.instrument_imports():
-    import icenav.compensation  # noqa: F401, E402
-    import icenav.hw.config  # noqa: F401, E402
+    import icenav.compensation.elasticity  # noqa: F401, E402
+    import icenav.devices.canopen.config  # noqa: F401, E402
+    import icenav.devices.gamepad  # noqa: F401, E402
     import icenav.io.igtl  # noqa: F401, E402
-    import icenav.io.joystick  # noqa: F401, E402
-    import icenav.store  # noqa: F401, E402
+    import icenav.persistence.store  # noqa: F401, E402
     from fuzz.targets import TARGETS, seed_inputs  # noqa: E402
 
 

@@ -53,7 +53,7 @@ def _remove(path: Path) -> None:
 
 def target_store(data: bytes) -> None:
     """A session file from disk: open, load roadmap, views, calibrations and events."""
-    from icenav.store import SessionStore
+    from icenav.persistence.store import SessionStore
 
     path = _tmp(data, ".icenav")
     try:
@@ -155,7 +155,7 @@ def _store_seed_cached() -> bytes:
 
 def target_robot_config(data: bytes) -> None:
     """A robot configuration TOML file (hw.config.load_robot_config)."""
-    from icenav.hw.config import load_robot_config
+    from icenav.devices.canopen.config import load_robot_config
 
     path = _tmp(data, ".toml")
     try:
@@ -170,7 +170,7 @@ def target_robot_config(data: bytes) -> None:
 
 def target_joystick_mapping(data: bytes) -> None:
     """A gamepad mapping TOML file (io.joystick.load_mapping)."""
-    from icenav.io.joystick import load_mapping
+    from icenav.devices.gamepad import load_mapping
 
     path = _tmp(data, ".toml")
     try:
@@ -185,7 +185,7 @@ def target_joystick_mapping(data: bytes) -> None:
 
 def target_calibration(data: bytes) -> None:
     """A calibration file (compensation.CalibrationSet.load)."""
-    from icenav.compensation import CalibrationSet
+    from icenav.compensation.elasticity import CalibrationSet
 
     path = _tmp(data, ".json")
     try:
@@ -240,8 +240,8 @@ TARGETS: dict[str, Callable[[bytes], None]] = {
 
 
 def _store_seed() -> bytes:
-    from icenav.roadmap import Roadmap
-    from icenav.store import SessionStore
+    from icenav.persistence.store import SessionStore
+    from icenav.recovery.roadmap import Roadmap
 
     rng = np.random.default_rng(7)
     rm = Roadmap(epsilon=2.0)
@@ -268,11 +268,11 @@ def _store_seed() -> bytes:
 
 
 def _calibration_seed() -> bytes:
-    from icenav.kinematics import forward
+    from icenav.geometry.kinematics import forward
 
     q = np.array([[0.1, 0.0, 0.0, 0.0], [0.0, 0.2, 0.1, 1.0], [0.3, -0.2, 0.0, 2.0]])
     doc = {
-        "format": "icenav.calibration",
+        "format": "icenav.calibration.plans",
         "version": 1,
         "catheter_id": "seed",
         "vessel": "straight",

@@ -10,47 +10,47 @@ import icenav
 
 MODULES = [
     "icenav",
-    "icenav.app",
-    "icenav.calibration",
-    "icenav.catheter_calibration",
-    "icenav.compensation",
+    "icenav.apps.wiring",
+    "icenav.calibration.plans",
+    "icenav.calibration.catheter",
+    "icenav.compensation.elasticity",
     "icenav.console",
-    "icenav.controller",
-    "icenav.dicom",
+    "icenav.control.controller",
+    "icenav.persistence.dicom",
     "icenav.errors",
     "icenav.eval.metrics",
     "icenav.eval.spin",
     "icenav.eval.spin_report",
-    "icenav.feedback",
-    "icenav.gating",
-    "icenav.hw",
-    "icenav.hw.base",
-    "icenav.hw.canopen_robot",
-    "icenav.hw.sim",
-    "icenav.hysteresis",
+    "icenav.control.servo",
+    "icenav.refinement.gating",
+    "icenav.devices",
+    "icenav.devices.robot",
+    "icenav.devices.canopen.robot",
+    "icenav.devices.sim_robot",
+    "icenav.compensation.hysteresis",
     "icenav.io.igtl",
     "icenav.io.igtl_stream",
-    "icenav.io.joystick",
-    "icenav.kinematics",
-    "icenav.motion",
-    "icenav.pose_stage",
-    "icenav.refinement",
-    "icenav.roadmap",
+    "icenav.devices.gamepad",
+    "icenav.geometry.kinematics",
+    "icenav.recovery.motion",
+    "icenav.refinement.pose_stage",
+    "icenav.refinement.image_search",
+    "icenav.recovery.roadmap",
     "icenav.sim",
     "icenav.sim.anatomy",
     "icenav.sim.operator",
     "icenav.sim.ultrasound",
-    "icenav.spin_task",
-    "icenav.state",
-    "icenav.store",
-    "icenav.tendon_map",
-    "icenav.tracking",
-    "icenav.tracker_bias",
-    "icenav.trajectories",
-    "icenav.transmission",
-    "icenav.validation",
-    "icenav.view_refinement",
-    "icenav.views",
+    "icenav.control.spin",
+    "icenav.control.state",
+    "icenav.persistence.store",
+    "icenav.compensation.tendon_map",
+    "icenav.devices.tracker",
+    "icenav.compensation.tracker_bias",
+    "icenav.geometry.trajectories",
+    "icenav.compensation.transmission",
+    "icenav._validation",
+    "icenav.refinement.task",
+    "icenav.recovery.views",
 ]
 
 
@@ -71,7 +71,9 @@ def test_package_exports_every_public_error() -> None:
 
 
 def test_kinematics_public_names_are_exported_from_the_package() -> None:
-    from icenav import kinematics
+    from icenav.geometry import kinematics
 
     for name in kinematics.__all__:
-        assert name in icenav.__all__, f"icenav.kinematics.{name} not re-exported by icenav"
+        assert name in icenav.__all__, (
+            f"icenav.geometry.kinematics.{name} not re-exported by icenav"
+        )

@@ -10,7 +10,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import numpy as np
 
-from icenav.kinematics import backbone
+from icenav.geometry.kinematics import backbone
 
 OUT = Path(__file__).parent / "kinematics_bends.png"
 

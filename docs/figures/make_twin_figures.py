@@ -21,7 +21,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from icenav.kinematics import forward  # noqa: E402
+from icenav.geometry.kinematics import forward  # noqa: E402
 from icenav.sim import CatheterPlant, EMTracker, PlantParams  # noqa: E402
 from icenav.sim.bending import Tendons  # noqa: E402
 from icenav.sim.plant import elastic_tip2base_from_tensions  # noqa: E402

@@ -4,8 +4,8 @@ The core (kinematics, compensation, hysteresis, trajectories, roadmap) is pure c
 the digital twin lives in :mod:`icenav.sim`.
 """
 
-from icenav.compensation import CalibrationSet, ElasticityMap
-from icenav.controller import Controller, ControllerConfig
+from icenav.compensation.elasticity import CalibrationSet, ElasticityMap
+from icenav.control.controller import Controller, ControllerConfig
 from icenav.errors import (
     ConfigurationError,
     FileFormatError,
@@ -17,7 +17,7 @@ from icenav.errors import (
     TransformError,
     UnreachablePoseError,
 )
-from icenav.kinematics import (
+from icenav.geometry.kinematics import (
     Backbone,
     CatheterGeometry,
     InverseSolution,
@@ -30,9 +30,9 @@ from icenav.kinematics import (
     knobs_to_bend,
     tip_jog,
 )
-from icenav.roadmap import Roadmap, RoadmapConfig
-from icenav.store import SessionStore
-from icenav.views import View, ViewLibrary
+from icenav.persistence.store import SessionStore
+from icenav.recovery.roadmap import Roadmap, RoadmapConfig
+from icenav.recovery.views import View, ViewLibrary
 
 __version__ = "0.1.0"
 

@@ -2,7 +2,7 @@
 
 ``RecordingController`` is a test double of the ControllerCommands protocol: it records the
 requests it gets and publishes the states a test gives it. It does no control; the browser
-test drives the real ``icenav.controller.Controller``.
+test drives the real ``icenav.control.controller.Controller``.
 """
 
 from __future__ import annotations
@@ -20,11 +20,7 @@ import pydicom
 import pytest
 
 from icenav.console import Console
-from icenav.dicom import PRIVATE_CREATOR, read_view_clip
-from icenav.errors import ConfigurationError
-from icenav.hw.base import RobotStatus
-from icenav.kinematics import backbone, forward
-from icenav.state import (
+from icenav.control.state import (
     CalibrationKind,
     ControllerCommands,
     ControllerState,
@@ -32,6 +28,10 @@ from icenav.state import (
     Mode,
     ViewSummary,
 )
+from icenav.devices.robot import RobotStatus
+from icenav.errors import ConfigurationError
+from icenav.geometry.kinematics import backbone, forward
+from icenav.persistence.dicom import PRIVATE_CREATOR, read_view_clip
 
 
 def make_state(q: np.ndarray | None = None, **kw: Any) -> ControllerState:

@@ -1,5 +1,5 @@
 """The console in a real headless Chromium (Debian's, driven by Playwright's Python package),
-on the real controller (:class:`icenav.controller.Controller` on the digital twin).
+on the real controller (:class:`icenav.control.controller.Controller` on the digital twin).
 
 The page loads, the 3-D canvas and the live ICE image render, Save view adds a view to the
 list (with its thumbnail), a held on-screen jog button moves the twin away and Go to view
@@ -26,9 +26,9 @@ from typing import Any
 import numpy as np
 import pytest
 
-from icenav.app import anatomy_meshes
+from icenav.apps.wiring import anatomy_meshes
 from icenav.console import Console
-from icenav.state import ControllerState, Mode
+from icenav.control.state import ControllerState, Mode
 
 pytestmark = pytest.mark.browser
 
@@ -186,8 +186,8 @@ class StateWaiter:
 def _sim_controller() -> Any:
     """The real controller on the digital twin (what ``icenav demo`` runs), with the live
     ultrasound image."""
-    from icenav.app import make_sim_controller
-    from icenav.controller import ControllerConfig
+    from icenav.apps.wiring import make_sim_controller
+    from icenav.control.controller import ControllerConfig
 
     return make_sim_controller(seed=0, config=ControllerConfig(image_rate_hz=15.0)).controller
 
@@ -299,8 +299,8 @@ def test_control_token_in_the_browser(browser: Any, tmp_path: Path) -> None:
 
     token = "s3cret-token-0123456789"
     exports = tmp_path / "exports"
-    from icenav.app import make_sim_controller
-    from icenav.controller import ControllerConfig
+    from icenav.apps.wiring import make_sim_controller
+    from icenav.control.controller import ControllerConfig
 
     ctl = make_sim_controller(seed=0, config=ControllerConfig(image_rate_hz=2.0)).controller
     waiter = StateWaiter(ctl)

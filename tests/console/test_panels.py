@@ -26,11 +26,11 @@ from icenav.console.panels import (
     summary_markdown,
     views_markdown,
 )
+from icenav.control.state import ControllerState, Mode, ViewSummary
+from icenav.devices.gamepad import JoystickMapping
+from icenav.devices.robot import RobotStatus
 from icenav.errors import ConfigurationError, ShapeError
-from icenav.hw.base import RobotStatus
-from icenav.io.joystick import JoystickMapping
-from icenav.kinematics import forward
-from icenav.state import ControllerState, Mode, ViewSummary
+from icenav.geometry.kinematics import forward
 
 
 def _state(**kw: object) -> ControllerState:

@@ -21,10 +21,10 @@ from icenav.console.scene import (
     tube_mesh,
     view_marker_positions,
 )
+from icenav.control.state import ControllerState, Mode, ViewSummary
+from icenav.devices.robot import RobotStatus
 from icenav.errors import ConfigurationError, ShapeError
-from icenav.hw.base import RobotStatus
-from icenav.kinematics import backbone, forward
-from icenav.state import ControllerState, Mode, ViewSummary
+from icenav.geometry.kinematics import backbone, forward
 
 
 def _random_rotation(rng: np.random.Generator) -> np.ndarray:

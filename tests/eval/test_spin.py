@@ -62,15 +62,15 @@ def test_closed_loop_on_the_tracker_beats_the_open_loop(
 ) -> None:
     by = {r["condition"]: r for r in records}
     # the loop corrects its own feed-forward (the per-knob model); both aim where the tracker
-    # reads the intended tip (icenav.tracker_bias)
+    # reads the intended tip (icenav.compensation.tracker_bias)
     closed, open_ = by[spin.CLOSED_LOOP], by[spin.KNOB_HYSTERESIS]
     for key in ("position_rmse_mm", "rotation_rmse_deg", "true_position_rmse_mm"):
         assert closed[key] < 0.85 * open_[key]  # type: ignore[operator]
 
 
 def test_closed_loop_spin_returns_poses_and_bounded_commands() -> None:
-    from icenav.feedback import PoseServoConfig, TipPoseServo
-    from icenav.trajectories import spin_trajectory
+    from icenav.control.servo import PoseServoConfig, TipPoseServo
+    from icenav.geometry.trajectories import spin_trajectory
 
     cal = spin.calibrate(52)
     plant, tracker = spin._make_plant(52, "moderate")
@@ -183,7 +183,7 @@ def test_curved_vessel_calibrated_straight_and_the_opt_in_re_identification() ->
 
 
 def test_separating_the_tracker_bias_lowers_our_tracked_error() -> None:
-    """Roll circles (icenav.tracker_bias) keep the field bias out of F's roll-turned
+    """Roll circles (icenav.compensation.tracker_bias) keep the field bias out of F's roll-turned
     correction; the paper's calibrations see the same samples with or without them."""
     import numpy as np
 

@@ -11,7 +11,7 @@ import numpy as np
 import pyigtl
 import pytest
 
-from icenav.app import SimSession, make_sim_controller
+from icenav.apps.wiring import SimSession, make_sim_controller
 from icenav.io.igtl import (
     DEVICE_COMMAND,
     DEVICE_IMAGE,

@@ -11,10 +11,10 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from icenav.controller import Controller, ControllerConfig
+from icenav.control.controller import Controller, ControllerConfig
+from icenav.devices.sim_robot import IdealPlant, SimulatedRobot
 from icenav.errors import FileFormatError, IcenavError
-from icenav.hw.sim import IdealPlant, SimulatedRobot
-from icenav.store import SessionStore
+from icenav.persistence.store import SessionStore
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 
@@ -22,7 +22,7 @@ from fuzz.targets import target_igtl_command  # noqa: E402
 
 
 def _controller(tmp_path: Path) -> tuple[Controller, SessionStore]:
-    from icenav.app import StoreRecorder
+    from icenav.apps.wiring import StoreRecorder
 
     store = SessionStore(tmp_path / "s.icenav")
     ctrl = Controller(SimulatedRobot(IdealPlant()), ControllerConfig())
@@ -104,7 +104,7 @@ def test_igtl_command_parser_never_raises(data: bytes) -> None:
 def test_demo_cli_rejects_bad_flags_with_usage(
     argv: list[str], expected: str, capsys: pytest.CaptureFixture
 ) -> None:
-    from icenav.demo import main
+    from icenav.apps.demo import main
 
     with pytest.raises(SystemExit) as info:
         main(argv)
@@ -116,7 +116,7 @@ def test_demo_cli_rejects_bad_flags_with_usage(
 def test_demo_with_a_corrupt_session_file_is_a_clear_error(
     tmp_path: Path, capsys: pytest.CaptureFixture
 ) -> None:
-    from icenav.demo import main
+    from icenav.apps.demo import main
 
     bad = tmp_path / "s.icenav"
     bad.write_bytes(b"SQLite format 3\x00" + bytes(range(256)) * 8)

@@ -18,13 +18,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from icenav.app import make_sim_controller
-from icenav.controller import Controller, ControllerConfig
-from icenav.hw.base import RobotStatus
-from icenav.hw.sim import IdealPlant, SimulatedRobot
-from icenav.io.joystick import JoystickMapping, JoystickSample
-from icenav.state import Mode
-from icenav.store import SessionStore
+from icenav.apps.wiring import make_sim_controller
+from icenav.control.controller import Controller, ControllerConfig
+from icenav.control.state import Mode
+from icenav.devices.gamepad import JoystickMapping, JoystickSample
+from icenav.devices.robot import RobotStatus
+from icenav.devices.sim_robot import IdealPlant, SimulatedRobot
+from icenav.persistence.store import SessionStore
 
 M = JoystickMapping()
 
@@ -421,8 +421,8 @@ def test_session_file_that_cannot_be_opened_is_a_clear_error(tmp_path: Path) -> 
 
 @pytest.fixture
 def canopen_controller() -> Iterator[tuple[Controller, object, Clock]]:
-    from icenav.hw.canopen_robot import CANopenRobot
-    from icenav.hw.emulated_drive import EmulatedDriveSet, emulated_robot_config
+    from icenav.devices.canopen.emulated_drive import EmulatedDriveSet, emulated_robot_config
+    from icenav.devices.canopen.robot import CANopenRobot
 
     channel = f"icenav-rel-{uuid.uuid4().hex[:8]}"
     drives = EmulatedDriveSet(channel)
@@ -437,7 +437,7 @@ def canopen_controller() -> Iterator[tuple[Controller, object, Clock]]:
 
 
 def _positions(drives: object) -> np.ndarray:
-    from icenav.hw.emulated_drive import EMULATED_NODE_IDS
+    from icenav.devices.canopen.emulated_drive import EMULATED_NODE_IDS
 
     return np.array([drives[n].position for n in EMULATED_NODE_IDS])  # type: ignore[index]
 

@@ -62,7 +62,7 @@ def test_mutated_inputs_are_accepted_or_rejected_cleanly(name: str) -> None:
 
 
 def _load_mapping_text(tmp_path: Path, data: bytes) -> None:
-    from icenav.io.joystick import load_mapping
+    from icenav.devices.gamepad import load_mapping
 
     p = tmp_path / "m.toml"
     p.write_bytes(data)
@@ -70,8 +70,8 @@ def _load_mapping_text(tmp_path: Path, data: bytes) -> None:
 
 
 def test_robot_config_not_utf8_is_a_file_format_error(tmp_path: Path) -> None:
+    from icenav.devices.canopen.config import load_robot_config
     from icenav.errors import FileFormatError
-    from icenav.hw.config import load_robot_config
 
     p = tmp_path / "r.toml"
     p.write_bytes(b"# \xff\n[bus]\n")

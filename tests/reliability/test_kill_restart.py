@@ -14,8 +14,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from icenav.app import make_sim_controller
-from icenav.store import SessionStore
+from icenav.apps.wiring import make_sim_controller
+from icenav.persistence.store import SessionStore
 
 # A procedure that saves a view every 150 cycles and says so once the controller tells the
 # operator it is saved (the store's writer thread has committed it; until then the message
@@ -26,7 +26,7 @@ from icenav.store import SessionStore
 SCRIPT = textwrap.dedent(
     """
     import sys
-    from icenav.app import make_sim_controller
+    from icenav.apps.wiring import make_sim_controller
 
     t = [0.0]
     session = make_sim_controller(imaging=False, session=sys.argv[1], clock=lambda: t[0])

@@ -26,8 +26,8 @@ def _bridge(config: IgtlConfig) -> tuple[IgtlBridge, list[IgtlRequest]]:
 
 
 def test_defaults_bind_loopback_and_accept_no_commands() -> None:
+    from icenav.apps.demo import _parser
     from icenav.console.app import Console
-    from icenav.demo import _parser
 
     cfg = IgtlConfig()
     assert cfg.local_only and cfg.accepted_commands == frozenset() and cfg.token == ""
@@ -75,9 +75,9 @@ def test_view_names_from_igtl_are_passed_as_data() -> None:
 
 def test_console_browser_needs_the_token_to_control_but_not_to_stop() -> None:
     from icenav.console.app import Console, _TokenGate
-    from icenav.controller import Controller, ControllerConfig
-    from icenav.hw.sim import IdealPlant, SimulatedRobot
-    from icenav.state import Mode
+    from icenav.control.controller import Controller, ControllerConfig
+    from icenav.control.state import Mode
+    from icenav.devices.sim_robot import IdealPlant, SimulatedRobot
 
     ctrl = Controller(SimulatedRobot(IdealPlant()), ControllerConfig())
     console = Console(ctrl, host="0.0.0.0", port=0, control_token=TOKEN)
@@ -109,10 +109,10 @@ def test_console_browser_needs_the_token_to_control_but_not_to_stop() -> None:
 
 
 def test_console_on_loopback_needs_no_token() -> None:
+    from icenav.apps.demo import control_token_for
     from icenav.console.app import Console
-    from icenav.controller import Controller, ControllerConfig
-    from icenav.demo import control_token_for
-    from icenav.hw.sim import IdealPlant, SimulatedRobot
+    from icenav.control.controller import Controller, ControllerConfig
+    from icenav.devices.sim_robot import IdealPlant, SimulatedRobot
 
     assert control_token_for("127.0.0.1") is None
     t1, t2 = control_token_for("0.0.0.0"), control_token_for("0.0.0.0")
@@ -129,8 +129,8 @@ def test_console_disconnect_mid_jog_releases_control_and_the_robot_stops() -> No
     import numpy as np
 
     from icenav.console.app import Console
-    from icenav.controller import Controller, ControllerConfig
-    from icenav.hw.sim import IdealPlant, SimulatedRobot
+    from icenav.control.controller import Controller, ControllerConfig
+    from icenav.devices.sim_robot import IdealPlant, SimulatedRobot
 
     ctrl = Controller(SimulatedRobot(IdealPlant()), ControllerConfig())
     console = Console(ctrl, port=0)
@@ -157,9 +157,9 @@ def test_console_export_of_a_saved_view_stays_in_the_export_directory(tmp_path: 
     with the pose and image the controller saved with it."""
     import numpy as np
 
-    from icenav.app import make_sim_controller
+    from icenav.apps.wiring import make_sim_controller
     from icenav.console.app import Console
-    from icenav.dicom import read_view_clip
+    from icenav.persistence.dicom import read_view_clip
 
     session = make_sim_controller(seed=0)
     ctrl = session.controller

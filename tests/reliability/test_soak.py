@@ -6,8 +6,8 @@ from pathlib import Path
 
 import pytest
 
+from icenav.apps.soak import SoakConfig, main, run_soak
 from icenav.errors import ConfigurationError
-from icenav.soak import SoakConfig, main, run_soak
 
 
 @pytest.mark.slow

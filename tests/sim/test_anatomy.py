@@ -7,8 +7,9 @@ import math
 import numpy as np
 import pytest
 
+from icenav._validation import check_transform
 from icenav.errors import ConfigurationError, NonFiniteError, ShapeError
-from icenav.kinematics import CatheterGeometry
+from icenav.geometry.kinematics import CatheterGeometry
 from icenav.sim.anatomy import (
     BASE2ANATOMY,
     BLOOD_LABELS,
@@ -21,7 +22,6 @@ from icenav.sim.anatomy import (
     tip2anatomy,
 )
 from icenav.sim.ultrasound import UltrasoundRenderer
-from icenav.validation import check_transform
 
 STILL = CardiacMotion(
     ventricular_contraction=0.0,

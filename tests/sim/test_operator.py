@@ -5,10 +5,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from icenav.devices.sim_robot import IdealPlant, SimulatedRobot
 from icenav.errors import ConfigurationError
-from icenav.hw.sim import IdealPlant, SimulatedRobot
-from icenav.motion import ExecutionStatus, PathExecutor
-from icenav.roadmap import Roadmap, direction_tracker
+from icenav.recovery.motion import ExecutionStatus, PathExecutor
+from icenav.recovery.roadmap import Roadmap, direction_tracker
 from icenav.sim.operator import OperatorConfig, ScriptedOperator, drive, minimum_jerk
 
 

@@ -8,10 +8,10 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
+from icenav._validation import check_transform
 from icenav.errors import ConfigurationError, JointLimitError, ShapeError
-from icenav.kinematics import CatheterGeometry, forward
+from icenav.geometry.kinematics import CatheterGeometry, forward
 from icenav.sim import CatheterPlant, PlantParams, Vessel
-from icenav.validation import check_transform
 
 DEG = math.pi / 180.0
 

@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from icenav.kinematics import forward
+from icenav.geometry.kinematics import forward
 from icenav.sim import CatheterPlant, EMTracker
 from icenav.sim.tuning import elastic_oracle, run_spin, spin_errors, spin_trajectory
 

@@ -1,6 +1,6 @@
 """The operator console in the browser (viser): 3-D scene, live ICE image, controls, status.
 
-:class:`Console` serves it for any :class:`icenav.state.ControllerCommands`;
+:class:`Console` serves it for any :class:`icenav.control.state.ControllerCommands`;
 :mod:`icenav.console.scene` and :mod:`icenav.console.panels` hold its pure logic.
 """
 

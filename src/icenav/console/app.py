@@ -60,11 +60,17 @@ from icenav.console.scene import (
     subsample,
     view_marker_positions,
 )
-from icenav.dicom import ExportDirectory, ViewClip
+from icenav.control.state import (
+    CalibrationKind,
+    ControllerCommands,
+    ControllerState,
+    ImageFrame,
+    Mode,
+)
+from icenav.devices.gamepad import JoystickMapping
 from icenav.errors import ConfigurationError, ExportError, IcenavError
-from icenav.io.joystick import JoystickMapping
-from icenav.kinematics import DEFAULT_GEOMETRY, CatheterGeometry, forward
-from icenav.state import CalibrationKind, ControllerCommands, ControllerState, ImageFrame, Mode
+from icenav.geometry.kinematics import DEFAULT_GEOMETRY, CatheterGeometry, forward
+from icenav.persistence.dicom import ExportDirectory, ViewClip
 
 __all__ = ["Console", "ConsoleStats"]
 
@@ -588,7 +594,7 @@ class Console:
         """The image saved with view ``name`` as a one-frame clip with its state.
 
         The pose is the one the controller saved with the view when the controller exposes
-        its view library (``controller.views``, as :class:`icenav.controller.Controller`
+        its view library (``controller.views``, as :class:`icenav.control.controller.Controller`
         does); otherwise the model pose of the view's motor state.
 
         Raises

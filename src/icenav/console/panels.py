@@ -16,9 +16,9 @@ from typing import Literal
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from icenav.control.state import ControllerState, Mode, ViewSummary
+from icenav.devices.gamepad import JoystickMapping
 from icenav.errors import ConfigurationError, ShapeError
-from icenav.io.joystick import JoystickMapping
-from icenav.state import ControllerState, Mode, ViewSummary
 
 __all__ = [
     "ControlView",

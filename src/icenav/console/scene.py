@@ -18,9 +18,9 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from icenav.control.state import ControllerState, ViewSummary
 from icenav.errors import ConfigurationError, ShapeError
-from icenav.kinematics import DEFAULT_GEOMETRY, CatheterGeometry, forward
-from icenav.state import ControllerState, ViewSummary
+from icenav.geometry.kinematics import DEFAULT_GEOMETRY, CatheterGeometry, forward
 
 __all__ = [
     "AnatomyMesh",

@@ -23,8 +23,8 @@ import numpy as np
 import scipy.ndimage as ndi
 from numpy.typing import ArrayLike, NDArray
 
+from icenav._validation import check_finite, check_positive, check_transform
 from icenav.errors import InvalidValueError, ShapeError
-from icenav.validation import check_finite, check_positive, check_transform
 
 __all__ = [
     "ErrorStats",

@@ -9,23 +9,24 @@ Protocol (the phantom study of Section IV, with the in-vivo metrics of Table II)
    exploration).
 2. The robot cycles through the views ``rounds`` times (16, as the phantom study), each
    return planned on the roadmap with the same-direction approach and executed as the
-   controller does (:class:`icenav.controller.PathTask`: exactly through the recorded
-   states at bounded speed; ``icenav.motion.PathExecutor`` would give the same end state
+   controller does (:class:`icenav.control.controller.PathTask`: exactly through the recorded
+   states at bounded speed; ``icenav.recovery.motion.PathExecutor`` would give the same end state
    but crawls on roadmap paths, see the controller's note); after each return the EM
    tracker (8 samples averaged), the twin's true pose and one beat of images are recorded.
    As in the controller, every commanded state (returns and refinement moves) is added to
    the roadmap, so the recorded trace stays contiguous.
 3. Two modes, run one after the other on the same catheter and roadmap: ``open_loop``
    (the paper's system) and ``refined``: after each return the EM pose stage
-   (:class:`icenav.pose_stage.PoseStageTask`: servo the averaged EM-measured tip pose onto
+   (:class:`icenav.refinement.pose_stage.PoseStageTask`: servo the averaged EM-measured tip pose
+   onto
    the EM pose saved with the view, 64 samples averaged at saving) and then the image stage
-   (:func:`icenav.refinement.refine`, centred where the pose stage ended, scoring
+   (:func:`icenav.refinement.image_search.refine`, centred where the pose stage ended, scoring
    respiratory-gated beats); every set-point of both is recorded in the roadmap.
 4. After every return (and refinement) two beats are recorded: one ECG-gated beat at
    whatever respiratory phase it falls (``clip``), and one gated on ECG *and* respiration
-   to the saved beat (``gated_clip``, :class:`icenav.gating.GatedBeatImager`: the
+   to the saved beat (``gated_clip``, :class:`icenav.refinement.gating.GatedBeatImager`: the
    catheter held still for 5 beats, for each cardiac phase the frame whose respiratory
-   signal, :class:`icenav.gating.PhantomRespiration`, is nearest the saved frame's).
+   signal, :class:`icenav.refinement.gating.PhantomRespiration`, is nearest the saved frame's).
 
 Metrics per target and mode:
 
@@ -70,30 +71,30 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from icenav.controller import ControllerConfig, PathTask
+from icenav.control.controller import ControllerConfig, PathTask
+from icenav.devices.sim_robot import SimulatedRobot
 from icenav.eval.metrics import (
     beat_similarity,
     geometric_median_index,
     match_by_phase,
     rotation_angle,
 )
-from icenav.gating import GatedBeatImager, PhantomRespiration
-from icenav.hw.sim import SimulatedRobot
-from icenav.pose_stage import PoseStageConfig, pose_stage
-from icenav.refinement import (
+from icenav.recovery.roadmap import Roadmap
+from icenav.recovery.views import View
+from icenav.refinement.gating import GatedBeatImager, PhantomRespiration
+from icenav.refinement.image_search import (
     BeatClip,
     RefinementConfig,
     SimClock,
     SimulatedBeatImager,
     refine,
 )
-from icenav.roadmap import Roadmap
+from icenav.refinement.pose_stage import PoseStageConfig, pose_stage
 from icenav.sim.anatomy import EXAMPLE_VIEWS, default_phantom
 from icenav.sim.operator import ScriptedOperator
 from icenav.sim.plant import CatheterPlant
 from icenav.sim.tracker import EMTracker
 from icenav.sim.ultrasound import ProbeConfig, UltrasoundRenderer
-from icenav.views import View
 
 __all__ = [
     "MODES",

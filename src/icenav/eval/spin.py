@@ -17,18 +17,22 @@ Conditions:
   Savitzky-Golay filter, as the paper.
 - ``simplified``: F from the 5-point calibration (thin-plate RBF), smoothed likewise.
 - ``dense+hysteresis`` (ours, open loop): the dead-zone and hysteresis of each tendon
-  (:mod:`icenav.transmission`, identified from the raster and knob circles) composed with F
+  (:mod:`icenav.compensation.transmission`, identified from the raster and knob circles) composed
+  with F
   built on its effective knob angles; the roll's and the image's twist play per joint
-  (:mod:`icenav.hysteresis`); the tracker's base-frame field bias separated by roll circles
-  (:mod:`icenav.tracker_bias`). Calibrated in the straight vessel like every condition;
+  (:mod:`icenav.compensation.hysteresis`); the tracker's base-frame field bias separated by roll
+  circles
+  (:mod:`icenav.compensation.tracker_bias`). Calibrated in the straight vessel like every condition;
   with ``--in-situ`` its plays are re-identified in a curved test vessel before the spin
   (knob circles and roll sweeps, about 1,700 moves, no raster; F kept), as a robot with a tip
   sensor can before a procedure.
 - ``dense+knob-hysteresis`` (ours, the simpler model): one backlash / dead-zone per knob
-  (:mod:`icenav.hysteresis`, from single-knob sweeps), F on its effective knob angles, the
+  (:mod:`icenav.compensation.hysteresis`, from single-knob sweeps), F on its effective knob angles,
+  the
   same roll/twist play and tracker-bias separation.
 - ``dense+hysteresis+em`` (ours, closed loop): the ``dense+knob-hysteresis`` feed-forward
-  corrected at every sample by an integral servo on the EM-tracked tip (:mod:`icenav.feedback`).
+  corrected at every sample by an integral servo on the EM-tracked tip
+  (:mod:`icenav.control.servo`).
 
 Errors: position RMSE = RMS distance between the measured tip and the intended tip (the
 model tip at the start; the model keeps it fixed); rotation RMSE = RMS angle of the rotation
@@ -54,13 +58,22 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from icenav.calibration import (
+from icenav.calibration.plans import (
     calibrate_dense,
     calibrate_five_point,
     identify_hysteresis,
     raster_grid,
 )
-from icenav.compensation import CalibrationSet, ElasticityMap, grid_subset_indices
+from icenav.compensation.elasticity import CalibrationSet, ElasticityMap, grid_subset_indices
+from icenav.compensation.hysteresis import HysteresisCompensator
+from icenav.compensation.tracker_bias import TrackerBias, identify_tracker_bias
+from icenav.compensation.transmission import (
+    TransmissionCalibration,
+    calibrate_transmission,
+    reidentify_in_situ,
+    transmission_commands,
+)
+from icenav.control.servo import TipPoseServo
 from icenav.eval.metrics import rotation_angle
 from icenav.eval.spin_report import (
     BENDS_DEG,
@@ -70,17 +83,8 @@ from icenav.eval.spin_report import (
     plot_curvature,
     plot_tip,
 )
-from icenav.feedback import TipPoseServo
-from icenav.hysteresis import HysteresisCompensator
-from icenav.kinematics import DEFAULT_GEOMETRY, forward
-from icenav.tracker_bias import TrackerBias, identify_tracker_bias
-from icenav.trajectories import savgol_smooth, spin_trajectory
-from icenav.transmission import (
-    TransmissionCalibration,
-    calibrate_transmission,
-    reidentify_in_situ,
-    transmission_commands,
-)
+from icenav.geometry.kinematics import DEFAULT_GEOMETRY, forward
+from icenav.geometry.trajectories import savgol_smooth, spin_trajectory
 
 __all__ = [
     "ALL_CONDITIONS",
@@ -180,7 +184,8 @@ class Calibrations:
     """The per-tendon transmission calibration of ``dense+hysteresis`` (made by
     :func:`run_vessel` when that condition runs)."""
     tracker_bias: TrackerBias | None = None
-    """The tracker's base-frame field bias from the roll circles (:mod:`icenav.tracker_bias`),
+    """The tracker's base-frame field bias from the roll circles
+    (:mod:`icenav.compensation.tracker_bias`),
     used by our conditions (not by the paper's ``dense`` and ``simplified``); None: not
     separated."""
 
@@ -195,7 +200,7 @@ def _make_plant(seed: int, vessel: str) -> tuple[Any, Any]:
 
 def calibrate(seed: int, separate_bias: bool = True) -> Calibrations:
     """Calibrate catheter ``seed`` in the straight vessel (dense, 5-point, hysteresis and,
-    with ``separate_bias``, the roll circles of :mod:`icenav.tracker_bias`)."""
+    with ``separate_bias``, the roll circles of :mod:`icenav.compensation.tracker_bias`)."""
     t0 = time.perf_counter()
     plant, tracker = _make_plant(seed, "straight")
     cid = f"sim-seed-{seed}"
@@ -329,7 +334,7 @@ def run_spin_closed_loop(
     servo: TipPoseServo | None = None,
 ) -> tuple[Array, Array, Array]:
     """The spin of ``q_model`` (n, 4) with dense + knob-hysteresis compensation corrected online
-    from the EM tracker (:class:`icenav.feedback.TipPoseServo`).
+    from the EM tracker (:class:`icenav.control.servo.TipPoseServo`).
 
     From a relaxed start, the approach runs open loop; at the start pose the servo takes
     ``SETTLE_UPDATES`` tracker updates; then at each sample the motor command is the play
@@ -405,7 +410,7 @@ def run_vessel(
     None only with condition ``none``, which needs no calibration).
     With ``in_situ`` and a vessel other than the straight one, the plays of
     ``dense+hysteresis`` (tendons, roll, twist) are re-identified in the test vessel first
-    (:func:`icenav.transmission.reidentify_in_situ`, :func:`identify_in_situ`).
+    (:func:`icenav.compensation.transmission.reidentify_in_situ`, :func:`identify_in_situ`).
     ``keep_commands`` / ``keep_tips`` receive, per (bend, condition), the motor commands
     (n, 4) and the true tip positions (n, 3) (mm, base frame) of the spin."""
     if cal is None:

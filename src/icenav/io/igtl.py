@@ -45,8 +45,8 @@ import numpy as np
 import pyigtl
 from numpy.typing import ArrayLike, NDArray
 
+from icenav._validation import check_finite, check_transform
 from icenav.errors import IcenavError, InvalidValueError, ShapeError
-from icenav.validation import check_finite, check_transform
 
 __all__ = [
     "DEFAULT_PORT",

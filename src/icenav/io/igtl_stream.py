@@ -15,7 +15,7 @@ import time
 
 import numpy as np
 
-from icenav.controller import Controller
+from icenav.control.controller import Controller
 from icenav.io.igtl import (
     DEVICE_IMAGE,
     DEVICE_SENSOR_TO_TRACKER,

@@ -1,4 +1,5 @@
-"""The digital twin: catheter plant, EM tracker and registration (issue 3).
+"""The digital twin: catheter plant and EM tracker (registration is in
+:mod:`icenav.devices.registration`).
 
 Other parts of the twin (operator, anatomy, ultrasound) are added by their own modules.
 """
@@ -10,12 +11,6 @@ from icenav.sim.plant import (
     elastic_tip2base,
     elastic_tip2base_from_tensions,
 )
-from icenav.sim.registration import (
-    Registration,
-    kabsch_umeyama,
-    register_tracker,
-    registration_joint_states,
-)
 from icenav.sim.tracker import EMTracker, ToolStatus, TrackerConfig, TrackerFrame
 
 __all__ = [
@@ -23,7 +18,6 @@ __all__ = [
     "EMTracker",
     "PlantParams",
     "PlantState",
-    "Registration",
     "TOLERANCES",
     "ToolStatus",
     "TrackerConfig",
@@ -31,7 +25,4 @@ __all__ = [
     "Vessel",
     "elastic_tip2base",
     "elastic_tip2base_from_tensions",
-    "kabsch_umeyama",
-    "register_tracker",
-    "registration_joint_states",
 ]

@@ -47,9 +47,9 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from icenav._validation import check_finite, check_positive
 from icenav.errors import ConfigurationError, ShapeError
-from icenav.kinematics import DEFAULT_GEOMETRY, CatheterGeometry, forward
-from icenav.validation import check_finite, check_positive
+from icenav.geometry.kinematics import DEFAULT_GEOMETRY, CatheterGeometry, forward
 
 __all__ = [
     "BASE2ANATOMY",

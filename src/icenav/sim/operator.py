@@ -14,10 +14,10 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from icenav._validation import check_joint_state, check_positive
+from icenav.devices.robot import RobotBackend
 from icenav.errors import ConfigurationError
-from icenav.hw.base import RobotBackend
-from icenav.roadmap import Roadmap
-from icenav.validation import check_joint_state, check_positive
+from icenav.recovery.roadmap import Roadmap
 
 __all__ = ["OperatorConfig", "ScriptedOperator", "drive", "minimum_jerk"]
 

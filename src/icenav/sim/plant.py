@@ -19,7 +19,7 @@ image centre frame out. The chain (equations numbered as in ``docs/digital-twin.
    (T9b) a distal torsional play of the bent section turns the image frame about its own
    axis.
 5. Pose (T10): constant-curvature arc of the solved curvature, then the roll, the translation
-   and the ultrasound offset, as in :func:`icenav.kinematics.forward`.
+   and the ultrasound offset, as in :func:`icenav.geometry.kinematics.forward`.
 """
 
 from __future__ import annotations
@@ -30,11 +30,11 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from icenav._validation import check_joint_state
 from icenav.errors import ConfigurationError, ShapeError
-from icenav.kinematics import DEFAULT_GEOMETRY, CatheterGeometry, forward
+from icenav.geometry.kinematics import DEFAULT_GEOMETRY, CatheterGeometry, forward
 from icenav.sim.bending import PAIR, PULL_SIGN, Section
 from icenav.sim.params import PlantParams, Vessel
-from icenav.validation import check_joint_state
 
 __all__ = [
     "CatheterPlant",

@@ -18,7 +18,6 @@ the newest sample, and the same sample (same timestamp) until a newer one is due
 
 from __future__ import annotations
 
-import enum
 import math
 import time
 from collections.abc import Callable
@@ -27,9 +26,11 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 
+from icenav._validation import check_transform
+from icenav.devices.registration import Registration
+from icenav.devices.tracker import ToolStatus, TrackerFrame
 from icenav.errors import ConfigurationError, TrackerError
 from icenav.sim.plant import CatheterPlant
-from icenav.validation import check_transform
 
 __all__ = [
     "DEFAULT_SENSOR2TIP",
@@ -74,32 +75,6 @@ DEFAULT_TRACKER2BASE = _inv(_make_transform((math.pi / 2, 0.0, 0.0), (20.0, -30.
 DEFAULT_TRACKER2BASE.setflags(write=False)
 DEFAULT_SENSOR2TIP = _make_transform((0.0, 0.0, 0.0), (-1.0, 0.0, -4.0))
 """Default sensor mount: 4 mm proximal of the image centre, 1 mm off-axis (mm)."""
-
-
-class ToolStatus(enum.Enum):
-    """Status of one tracked sample."""
-
-    VALID = "valid"
-    """A fresh pose within the measurement volume."""
-    MISSING = "missing"
-    """No pose: the sensor was not seen (dropout) or no sample exists yet."""
-    OUT_OF_VOLUME = "out_of_volume"
-    """The sensor is outside the measurement volume; no pose is reported."""
-
-
-@dataclass(frozen=True)
-class TrackerFrame:
-    """One report of the tracker."""
-
-    timestamp: float
-    """Acquisition time of the sample on the tracker's clock (s)."""
-    sensor2tracker: Array | None
-    """(4, 4) pose of the sensor in the tracker frame (mm), None unless status is VALID."""
-    status: ToolStatus
-    """VALID, MISSING or OUT_OF_VOLUME."""
-    quality: float
-    """Confidence in [0, 1]: 1 undistorted, lower where the field distortion is large; 0 when
-    no pose is reported."""
 
 
 @dataclass(frozen=True)
@@ -248,6 +223,19 @@ class EMTracker:
     def running(self) -> bool:
         """True between start() and stop()."""
         return self._running
+
+    @property
+    def registration(self) -> Registration:
+        """The registration the tip poses of :meth:`measure_tip2base` use: the twin's true
+        ``tracker2base`` and ``sensor2tip`` (a lab estimates them with
+        :func:`icenav.devices.registration.register_tracker`)."""
+        return Registration(
+            tracker2base=self.config.tracker2base,
+            rms_residual_mm=0.0,
+            max_residual_mm=0.0,
+            n_points=0,
+            sensor2tip=self.config.sensor2tip,
+        )
 
     # --- measurement ---------------------------------------------------------------------
 

@@ -23,7 +23,7 @@ from numpy.typing import NDArray
 from scipy.optimize import least_squares
 
 from icenav.eval.metrics import rotation_angle
-from icenav.kinematics import DEFAULT_GEOMETRY, CatheterGeometry, forward
+from icenav.geometry.kinematics import DEFAULT_GEOMETRY, CatheterGeometry, forward
 from icenav.sim.params import PlantParams
 from icenav.sim.plant import CatheterPlant
 from icenav.sim.tracker import EMTracker

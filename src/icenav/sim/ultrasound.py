@@ -35,9 +35,9 @@ import numpy as np
 import scipy.ndimage as ndi
 from numpy.typing import ArrayLike, NDArray
 
+from icenav._validation import check_finite, check_positive, check_transform
 from icenav.errors import ConfigurationError
 from icenav.sim.anatomy import ROI_LABELS, HeartPhantom, Tissue, default_phantom
-from icenav.validation import check_finite, check_positive, check_transform
 
 __all__ = [
     "Frame",

@@ -1,0 +1,300 @@
+"""``icenav demo``: the operator console on the simulated robot.
+
+::
+
+    icenav demo [--host 127.0.0.1] [--port 8080] [--session FILE] [--seed N]
+                [--vessel straight|moderate|steep] [--igtl [--igtl-port 18944]]
+                [--export-dir DIR]
+    icenav demo --headless --duration S    # scripted operator, no browser; exit 0 if all well
+
+The console binds to 127.0.0.1 unless ``--host`` says otherwise. With ``--session`` the
+roadmap, the views and the event log are kept in an SQLite file and resumed from it.
+The console's Export DICOM button writes into ``--export-dir`` (default: ``exports/`` beside
+the session file, or in the current directory without ``--session``), with file names made
+by the program.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import signal
+import sys
+import threading
+import time
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+
+from icenav.errors import IcenavError
+
+__all__ = ["export_dir_for", "main", "run_headless"]
+
+
+def _parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(
+        prog="icenav demo",
+        description="Start the icenav console on the simulated ICE catheter robot.",
+    )
+    p.add_argument("--host", default="127.0.0.1", help="address to bind (default 127.0.0.1)")
+    p.add_argument("--port", type=int, default=8080, help="console port (default 8080)")
+    p.add_argument(
+        "--allow-remote",
+        action="store_true",
+        help="required with a --host other than loopback: expose the console on the network",
+    )
+    p.add_argument("--session", type=Path, default=None, help="SQLite session file to resume")
+    p.add_argument(
+        "--export-dir",
+        type=Path,
+        default=None,
+        help="directory of the console's DICOM exports (default: exports/ beside the "
+        "session file, or in the current directory)",
+    )
+    p.add_argument("--seed", type=int, default=100, help="catheter seed of the twin (>= 0)")
+    p.add_argument(
+        "--vessel",
+        choices=("straight", "moderate", "steep"),
+        default="straight",
+        help="vessel curvature condition of the twin",
+    )
+    p.add_argument(
+        "--robot",
+        choices=("sim", "emulated-canopen"),
+        default="sim",
+        help="robot backend: the simulated robot, or emulated CiA 402 drives on a virtual "
+        "CAN bus (the code path of real drives)",
+    )
+    p.add_argument("--headless", action="store_true", help="scripted operator, no browser")
+    p.add_argument(
+        "--duration",
+        type=float,
+        default=20.0,
+        help="headless: simulated seconds to run (> 0, default 20)",
+    )
+    p.add_argument("--igtl", action="store_true", help="stream to 3D Slicer over OpenIGTLink")
+    p.add_argument("--igtl-port", type=int, default=18944, help="OpenIGTLink port (default 18944)")
+    return p
+
+
+_LOOPBACK = ("127.0.0.1", "localhost", "::1")
+
+
+def _check_args(args: argparse.Namespace, parser: argparse.ArgumentParser) -> None:
+    if args.host not in _LOOPBACK and not args.allow_remote:  # reliability: part 4 (security)
+        parser.error(
+            f"--host {args.host} exposes the console beyond this machine: "
+            "add --allow-remote to confirm"
+        )
+    if args.export_dir is not None and args.export_dir.exists() and not args.export_dir.is_dir():
+        parser.error(f"--export-dir {args.export_dir} exists and is not a directory")
+    if not 0 <= args.port <= 65535:
+        parser.error(f"--port must be in [0, 65535], got {args.port}")
+    if not 0 <= args.igtl_port <= 65535:
+        parser.error(f"--igtl-port must be in [0, 65535], got {args.igtl_port}")
+    if args.seed < 0:
+        parser.error(f"--seed must be >= 0, got {args.seed}")
+    if not (math.isfinite(args.duration) and args.duration > 0):
+        parser.error(f"--duration must be > 0 s, got {args.duration}")
+
+
+def export_dir_for(args: argparse.Namespace) -> Path:
+    """The console's export directory: ``--export-dir``, else ``exports/`` beside the
+    session file, else ``exports/`` in the current directory (absolute)."""
+    if args.export_dir is not None:
+        return Path(args.export_dir).expanduser().absolute()
+    base = Path(args.session).expanduser().parent if args.session is not None else Path.cwd()
+    return base.absolute() / "exports"
+
+
+def control_token_for(host: str) -> str | None:
+    """A fresh random control token when the console is exposed beyond loopback, else None."""
+    if host in _LOOPBACK:
+        return None
+    import secrets
+
+    return secrets.token_urlsafe(16)
+
+
+def run_headless(args: argparse.Namespace) -> int:
+    """A scripted operator: drive, save two views, wander, return to each, spin; check it."""
+    from icenav.apps.wiring import make_sim_controller
+    from icenav.control.state import ControllerState, Mode
+    from icenav.devices.gamepad import JoystickMapping, Keyframe, ScriptedInput
+
+    sim_t = [0.0]
+
+    def clock() -> float:
+        return sim_t[0]
+
+    m = JoystickMapping()
+    en = m.enable_button
+    script = ScriptedInput(
+        [
+            Keyframe(0.0, (0.3, -0.6, 0.0, 0.0, 0.2), (en,)),
+            Keyframe(1.5, (), ()),
+            Keyframe(1.7, (), (m.save_view_button,)),
+            Keyframe(1.8, (), ()),
+            Keyframe(2.0, (-0.5, 0.2, 0.0, 0.4, -0.3), (en,)),
+            Keyframe(3.5, (), ()),
+            Keyframe(3.7, (), (m.save_view_button,)),
+            Keyframe(3.8, (), ()),
+            Keyframe(4.0, (0.6, 0.5, 0.0, -0.5, 0.0), (en,)),
+            Keyframe(5.5, (), ()),
+        ],
+        clock=clock,
+    )
+    from icenav.control.controller import ControllerConfig
+
+    session = make_sim_controller(
+        seed=args.seed,
+        vessel=args.vessel,
+        session=args.session,
+        robot=args.robot,
+        input_source=script,
+        clock=clock,
+        config=ControllerConfig(image_rate_hz=2.0),  # faster than real time: fewer images
+    )
+    ctrl = session.controller
+    dt = ctrl.config.dt
+    failures: list[str] = []
+    # the simulated robot runs faster than real time; emulated drives move in real time
+    realtime = args.robot != "sim"
+    wall0 = time.perf_counter()
+    tolerance = 1e-6 if not realtime else 2e-3  # rad/mm: exact, or encoder-limited
+
+    def step() -> ControllerState:
+        sim_t[0] += dt
+        if realtime:
+            ahead = sim_t[0] - (time.perf_counter() - wall0)
+            if ahead > 0:
+                time.sleep(ahead)
+        state = ctrl.step()
+        if state.mode in (Mode.FAULT, Mode.ESTOP):
+            failures.append(f"t={state.time:.2f} s: {state.mode.value}: {state.message}")
+        return state
+
+    def run(seconds: float) -> None:
+        for _ in range(int(round(seconds / dt))):
+            if step().mode in (Mode.FAULT, Mode.ESTOP):
+                return
+
+    def until_idle(max_s: float) -> ControllerState:
+        state = step()
+        for _ in range(int(max_s / dt)):
+            if state.mode is Mode.IDLE and state.progress is None:
+                break
+            state = step()
+        run(0.3)  # let the drives settle on the last set-point
+        return ctrl.snapshot()
+
+    try:
+        print(f"icenav demo (headless): catheter seed {args.seed}, {args.vessel} vessel")
+        run(6.0)
+        names = [v.name for v in ctrl.snapshot().views]
+        print(f"  operator drove {ctrl.roadmap.n_vertices} roadmap states, saved views {names}")
+        if len(names) < 2:
+            failures.append(f"expected 2 saved views, got {names}")
+        for name in names[:2]:
+            ctrl.goto_view(name)
+            state = until_idle(60.0)
+            err = float(np.max(np.abs(state.q_motor - ctrl.views.get(name).q)))
+            print(f"  returned to {name!r}: max joint error {err:.2e} ({state.message})")
+            if err > tolerance:
+                failures.append(f"return to {name!r} ended {err:.3g} from the view")
+        ctrl.start_spin()
+        state = until_idle(200.0)
+        print(f"  spin: {state.message}")
+        remaining = args.duration - sim_t[0]
+        if remaining > 0:
+            run(remaining)
+        image = ctrl.latest_image()
+        if image is None:
+            failures.append("no ICE image was rendered")
+        else:
+            print(f"  live image {image.pixels.shape}, mean grey {image.pixels.mean():.0f}")
+    finally:
+        session.close()
+    if failures:
+        for f in failures:
+            print(f"FAILED: {f}", file=sys.stderr)
+        return 1
+    print("headless demo: all went well")
+    return 0
+
+
+def run_console(args: argparse.Namespace) -> int:
+    """The console in the browser on the real-time controller; Ctrl-C to stop."""
+    from icenav.apps.wiring import anatomy_meshes, make_sim_controller
+    from icenav.console import Console
+    from icenav.devices.gamepad import Sdl2Gamepad
+    from icenav.persistence.dicom import ExportDirectory
+
+    bridge = streamer = forwarder = None
+    if args.igtl:
+        from icenav.io.igtl import IgtlBridge, IgtlConfig
+        from icenav.io.igtl_stream import CommandForwarder
+
+        # pyigtl installs signal handlers: the server must be made on the main thread
+        forwarder = CommandForwarder()
+        bridge = IgtlBridge(IgtlConfig(port=args.igtl_port), on_command=forwarder)
+    gamepad = Sdl2Gamepad()
+    session = make_sim_controller(
+        seed=args.seed,
+        vessel=args.vessel,
+        session=args.session,
+        input_source=gamepad,
+        robot=args.robot,
+    )
+    ctrl = session.controller
+    if bridge is not None:
+        from icenav.io.igtl_stream import attach_bridge
+
+        streamer = attach_bridge(ctrl, bridge, forwarder)
+        print(f"OpenIGTLink: 127.0.0.1:{bridge.port} (TipToBase, SensorToTracker, Image)")
+    token = control_token_for(args.host)  # reliability: part 4 (security)
+    exports = ExportDirectory(export_dir_for(args))
+    console = Console(
+        ctrl,
+        host=args.host,
+        port=args.port,
+        anatomy_mesh=anatomy_meshes(),
+        control_token=token,
+        export_dir=exports,
+    )
+    print(f"DICOM exports (Export DICOM in the views panel) go to {exports.root}")
+    if token is not None:
+        print(f"control token (enter it in the console to take control): {token}", flush=True)
+    ctrl.start()
+    console.start()
+    stop = threading.Event()
+    # SIGTERM (a service manager, `kill`) ends the console as cleanly as Ctrl-C; installed
+    # before the URL is printed, so whoever reads the URL may stop it at once
+    signal.signal(signal.SIGTERM, lambda *_: stop.set())
+    print(f"icenav console: {console.url}  (Ctrl-C to stop)", flush=True)
+    try:
+        while not stop.is_set():
+            time.sleep(0.2)
+    except KeyboardInterrupt:
+        print("\nstopping")
+    finally:
+        console.stop()
+        if streamer is not None:
+            streamer.stop()
+        session.close()
+        gamepad.close()
+        if bridge is not None:
+            bridge.close()
+    return 0
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = _parser()
+    args = parser.parse_args(argv)
+    _check_args(args, parser)
+    try:
+        return run_headless(args) if args.headless else run_console(args)
+    except IcenavError as exc:
+        print(f"icenav demo: {exc}", file=sys.stderr)
+        return 1

@@ -1,0 +1,310 @@
+"""Wiring: a controller on the digital twin (or emulated drives) with its store and imager.
+
+:func:`make_sim_controller` builds what ``icenav demo`` runs: a catheter plant (seeded),
+the simulated robot around it, the EM tracker, the beating-heart phantom with the ICE
+renderer, and a session store (SQLite) that the controller records into, resumed when the
+file exists.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from icenav.control.controller import Controller, ControllerConfig
+from icenav.devices.gamepad import InputSource
+from icenav.errors import ConfigurationError
+from icenav.persistence.store import SessionStore, StoreWriter
+from icenav.recovery.roadmap import Roadmap, RoadmapConfig
+from icenav.recovery.views import View
+
+__all__ = ["SimSession", "StoreRecorder", "anatomy_meshes", "make_sim_controller"]
+
+Array = NDArray[np.float64]
+
+
+class StoreRecorder:
+    """Records a controller's roadmap, views and events into a :class:`SessionStore`.
+
+    The roadmap is synced incrementally (new vertices, edges and trace since the last sync)
+    and committed in batches by the store; a saved view is committed at once, so a view is
+    never lost to a crash.
+
+    With ``threaded=True`` every write runs on a :class:`StoreWriter` thread: a control
+    cycle only takes the roadmap's counts (``Roadmap.counts()``, O(1)) and queues a job, so
+    no insert, commit or fsync runs on the control thread. A saved view whose payload has
+    an ``"on_durable"`` callback returns ``"pending"``, and the callback gets ``None`` once
+    the view is committed (or the error), on the writer thread: the controller tells the
+    operator "saved" only then. Without the callback the call waits for the commit. A
+    failed batch is raised by the next call on the control thread (the controller reports
+    it), and the store rewrites the lost rows at the next sync.
+
+    Parameters
+    ----------
+    store : SessionStore
+        The session file.
+    roadmap : Roadmap
+        The controller's roadmap.
+    sync_every : int
+        Sync the roadmap every this many "state" events (control cycles).
+    threaded : bool
+        Write on a thread of its own (see above); False: on the caller's thread.
+    """
+
+    def __init__(
+        self, store: SessionStore, roadmap: Roadmap, sync_every: int = 10, threaded: bool = False
+    ):
+        self.store = store
+        self.roadmap = roadmap
+        self.sync_every = max(1, int(sync_every))
+        self._n = 0
+        self.writer: StoreWriter | None = StoreWriter(store) if threaded else None
+        """The writer thread (None when not threaded)."""
+
+    def _run(self, fn: Callable[[SessionStore], object], wait: bool = False) -> None:
+        if self.writer is None:
+            fn(self.store)
+        else:
+            self.writer.submit(fn)
+            if wait:
+                self.writer.flush()
+
+    def __call__(self, event: str, payload: dict[str, Any]) -> object:
+        roadmap = self.roadmap
+        if self.writer is not None and event != "view_saved":
+            # a failed write reaches the controller here (a view reports its own outcome,
+            # and is tried even after an earlier batch failed)
+            self.writer.raise_pending()
+        if event == "state":
+            self._n += 1
+            if self._n % self.sync_every == 0:
+                upto = roadmap.counts()
+                self._run(lambda st: st.sync_roadmap(roadmap, upto))
+        elif event == "view_saved":
+            view: View = payload["view"]
+            upto = roadmap.counts()
+            on_durable = payload.get("on_durable")
+            if self.writer is not None and on_durable is not None:
+                self.writer.submit(lambda st: st.add_view(view, roadmap, upto), on_durable)
+                return "pending"
+            self._run(lambda st: st.add_view(view, roadmap, upto), wait=True)
+        elif event == "view_deleted":
+            name = str(payload["name"])
+            self._run(lambda st: st.delete_view(name))
+        else:
+            t = time.time()
+            data = {k: str(v) for k, v in payload.items()}
+            self._run(lambda st: st.log_event(t, event, data))
+        return None
+
+    def drain(self) -> None:
+        """Wait until the writer has run every job queued so far (no-op when not threaded);
+        errors stay pending for the next call or :meth:`flush`."""
+        if self.writer is not None:
+            self.writer.drain()
+
+    def flush(self) -> None:
+        """Sync and commit everything pending (waits for the writer); raises a pending
+        write error."""
+        roadmap = self.roadmap
+
+        def sync(st: SessionStore) -> None:
+            st.sync_roadmap(roadmap)
+            st.commit()
+
+        self._run(sync, wait=True)
+
+    def close(self) -> None:
+        """Flush and stop the writer thread (the store stays open)."""
+        try:
+            self.flush()
+        finally:
+            if self.writer is not None:
+                self.writer.close()
+
+
+@dataclass
+class SimSession:
+    """Everything :func:`make_sim_controller` built, to inspect or close."""
+
+    controller: Controller
+    plant: Any
+    tracker: Any
+    renderer: Any
+    store: SessionStore | None
+    recorder: StoreRecorder | None
+    drives: Any = None
+    """The emulated CANopen drives, when the robot is "emulated-canopen"."""
+
+    def close(self) -> None:
+        """Stop the loop and flush the store."""
+        self.controller.shutdown()
+        try:
+            if self.recorder is not None:
+                self.recorder.close()  # a failure here must reach the operator: no silent loss
+        finally:
+            if self.store is not None:
+                self.store.close()
+        self.controller.robot.close()
+        if self.drives is not None:
+            self.drives.close()
+
+
+def make_sim_controller(
+    *,
+    seed: int = 100,
+    vessel: str = "straight",
+    session: str | Path | None = None,
+    config: ControllerConfig | None = None,
+    input_source: InputSource | None = None,
+    imaging: bool = True,
+    robot: str = "sim",
+    clock: Callable[[], float] = time.monotonic,
+    roadmap_config: RoadmapConfig | None = None,
+) -> SimSession:
+    """A controller on the digital twin.
+
+    Parameters
+    ----------
+    seed : int
+        Catheter seed (seeds 0-9 tuned the twin; the default is one that did not).
+    vessel : str
+        "straight", "moderate" or "steep".
+    session : path, optional
+        SQLite session file; resumed (roadmap and views) if it exists, created otherwise.
+        None: nothing persisted.
+    imaging : bool
+        Render the live ICE image (about 15-40 ms a frame, in its own thread when the
+        controller runs in real time).
+    robot : {"sim", "emulated-canopen"}
+        "sim": the simulated robot moves the twin directly. "emulated-canopen": five
+        emulated CiA 402 drives on a virtual CAN bus behind :class:`CANopenRobot` (the code
+        path of real drives); the twin follows the drives' encoder positions.
+    roadmap_config : RoadmapConfig, optional
+        Settings of a new roadmap (epsilon, vertex budget, ...); a resumed session keeps
+        the settings stored in its file.
+    """
+    from icenav.devices.sim_robot import SimulatedRobot
+    from icenav.sim import CatheterPlant, EMTracker
+
+    plant = CatheterPlant(seed=seed, vessel=vessel)
+    drives: Any = None
+    backend: Any
+    if robot == "sim":
+        backend = SimulatedRobot(plant, clock=clock, on_excess="clip")
+        backend.record_commands = False
+    elif robot == "emulated-canopen":
+        from icenav.devices.canopen.emulated_drive import open_emulated_robot
+
+        backend, drives = open_emulated_robot()
+        backend.home()
+    else:
+        raise ConfigurationError(f"robot must be 'sim' or 'emulated-canopen', got {robot!r}")
+    tracker = EMTracker(plant, seed=seed, clock=clock)
+    tracker.start()
+    store = recorder = None
+    roadmap = views = None
+    if session is not None:
+        store = SessionStore(session, config=roadmap_config, clock=clock)
+        roadmap = store.load_roadmap()
+        roadmap.break_trace()  # the restart was not a travelled motion
+        views = store.load_views()
+    elif roadmap_config is not None:
+        roadmap = Roadmap(config=roadmap_config)
+    renderer = None
+    imager = None
+    if imaging:
+        from icenav.sim.anatomy import BASE2ANATOMY
+        from icenav.sim.ultrasound import UltrasoundRenderer
+
+        renderer = UltrasoundRenderer()
+        px = renderer.config.pixel_mm
+        n = renderer.config.image_size
+        # pixel (i = column, j = row): x = (row + 0.5) px, z = (col + 0.5 - n / 2) px, y = 0
+        ijk2tip = np.array(
+            [
+                [0.0, px, 0.0, 0.5 * px],
+                [0.0, 0.0, px, 0.0],
+                [px, 0.0, 0.0, (0.5 - n / 2) * px],
+                [0.0, 0.0, 0.0, 1.0],
+            ]
+        )
+
+        def imager(tip2base: Array, t: float) -> NDArray[np.uint8]:
+            return renderer.render(BASE2ANATOMY @ tip2base, t, check=False).image
+
+    def truth() -> tuple[Array, Array]:
+        if drives is not None:  # the twin follows the emulated drives' encoders
+            plant.move(backend.read_state().q)
+        return plant.state.tip2base, plant.backbone(30)
+
+    controller = Controller(
+        backend,
+        config,
+        roadmap=roadmap,
+        views=views,
+        input_source=input_source,
+        truth=truth,
+        tracker=tracker,
+        imager=imager,
+        image_ijk2tip=None if renderer is None else ijk2tip,
+        clock=clock,
+    )
+    if store is not None:
+        recorder = StoreRecorder(store, controller.roadmap, threaded=True)
+        controller.set_recorder(recorder)
+    return SimSession(controller, plant, tracker, renderer, store, recorder, drives)
+
+
+_CHAMBER_RGB = {"ra": (70, 130, 220), "rv": (60, 90, 200), "la": (220, 90, 90), "lv": (200, 60, 60)}
+
+
+def anatomy_meshes(phantom: Any = None) -> list[Any]:
+    """Translucent surfaces of the heart phantom's chambers and vessels for the console.
+
+    Each chamber is its ellipsoid (an icosphere scaled by the semi-axes), each vessel its
+    cylinder, mapped from the anatomy frame into the robot base frame (mm) through the
+    phantom's registration (``BASE2ANATOMY``). The beating motion is not drawn.
+    """
+    import trimesh
+
+    from icenav.console import AnatomyMesh
+    from icenav.sim.anatomy import BASE2ANATOMY, default_phantom
+
+    ph = phantom if phantom is not None else default_phantom()
+    anatomy2base = np.linalg.inv(BASE2ANATOMY)
+    out: list[Any] = []
+    for ch in ph.chambers:
+        sphere = trimesh.creation.icosphere(subdivisions=3)
+        local = np.asarray(sphere.vertices) * np.asarray(ch.semi_axes)
+        pts = local @ np.asarray(ch.rotation).T + np.asarray(ch.centre)
+        out.append(
+            AnatomyMesh(
+                name=f"anatomy-{ch.name}",
+                vertices=pts @ anatomy2base[:3, :3].T + anatomy2base[:3, 3],
+                faces=np.asarray(sphere.faces, dtype=np.uint32),
+                rgb=_CHAMBER_RGB.get(ch.name, (180, 180, 180)),
+                opacity=0.18,
+            )
+        )
+    for v in ph.vessels:
+        cyl = trimesh.creation.cylinder(
+            radius=float(v.radius_mm), segment=np.array([v.start, v.end], dtype=np.float64)
+        )
+        pts = np.asarray(cyl.vertices)
+        out.append(
+            AnatomyMesh(
+                name=f"anatomy-{v.name}",
+                vertices=pts @ anatomy2base[:3, :3].T + anatomy2base[:3, 3],
+                faces=np.asarray(cyl.faces, dtype=np.uint32),
+                rgb=(150, 150, 200),
+                opacity=0.15,
+            )
+        )
+    return out

@@ -1,0 +1,183 @@
+"""The whole calibration our ``dense+hysteresis`` compensation needs, as one motion plan and
+one fit (beyond the paper; issue 4).
+
+:func:`catheter_plan` strings together, from rest at zeros: the paper's dense raster, the
+hysteresis sweeps (:func:`icenav.calibration.plans.hysteresis_plan`), the roll circles that
+separate the tracker's field bias (:func:`icenav.compensation.tracker_bias.roll_circle_plan`) and
+the
+knob circles of the per-tendon model (:func:`icenav.compensation.transmission.circle_plan`): 2,345
+states. :func:`fit_catheter` turns its :class:`~icenav.calibration.plans.Recording` into
+:class:`CatheterCalibration` -- F, the per-joint hysteresis, the tracker bias and the
+per-tendon transmission -- with the same fits :func:`icenav.eval.spin.calibrate` uses (there
+in the paper's order, with the 5-point search in between). :meth:`CatheterCalibration.knob_map`
+is the controller's compensation (:class:`icenav.compensation.tendon_map.TendonKnobMap`).
+
+The same plan runs synchronously on a robot or the twin (:func:`calibrate_catheter`) and
+inside the controller's loop (:class:`icenav.control.controller.PlanTask`, the console's
+"Dense + hysteresis" calibration).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from icenav.calibration.plans import (
+    HysteresisIdentification,
+    HysteresisPlan,
+    MotionPlan,
+    Mover,
+    ProgressFn,
+    Recording,
+    TipTracker,
+    calibration_set_from,
+    execute_plan,
+    fit_hysteresis,
+    hysteresis_plan,
+    raster_grid,
+)
+from icenav.compensation.elasticity import CalibrationSet, ElasticityMap
+from icenav.compensation.tendon_map import TendonKnobMap
+from icenav.compensation.tracker_bias import TrackerBias, fit_tracker_bias_from, roll_circle_plan
+from icenav.compensation.transmission import (
+    KNOB_CIRCLES,
+    TransmissionCalibration,
+    build_transmission,
+    circle_plan,
+    motion_from,
+)
+from icenav.devices.robot import RobotBackend
+from icenav.errors import ConfigurationError
+from icenav.geometry.kinematics import DEFAULT_GEOMETRY, CatheterGeometry
+
+__all__ = [
+    "CatheterCalibration",
+    "CatheterPlan",
+    "DENSE_RASTER",
+    "calibrate_catheter",
+    "catheter_plan",
+    "fit_catheter",
+]
+
+Array = NDArray[np.float64]
+
+DENSE_RASTER = "dense raster"
+"""Segment name of the raster in the plan."""
+
+
+@dataclass(frozen=True, eq=False)
+class CatheterPlan:
+    """The combined motion and what its fit needs."""
+
+    plan: MotionPlan
+    """Every state, in order (segments: dense raster, the sweeps, roll circles, knob
+    circles, and unread moves between them)."""
+    raster: Array
+    """(361, 4) the raster's commanded states (the per-tendon model simulates along them)."""
+    hysteresis: HysteresisPlan
+    """The sweeps' own plan (a part of ``plan``)."""
+    hysteresis_start: int
+    """Index in ``plan`` where the sweeps' plan starts."""
+
+
+def catheter_plan(
+    *,
+    raster_n_average: int = 4,
+    raster_step: float = math.radians(10.0),
+    geometry: CatheterGeometry = DEFAULT_GEOMETRY,
+) -> CatheterPlan:
+    """The raster (``raster_n_average`` tracker samples averaged per knob pair), the sweeps,
+    the roll circles and the knob circles, from rest at zeros back to rest."""
+    raster = raster_grid(raster_step, geometry.knob_limit)
+    hplan = hysteresis_plan()
+    plan = MotionPlan.concat(
+        [
+            MotionPlan.make(raster, DENSE_RASTER, n_average=raster_n_average, retries=10),
+            hplan.plan,
+            roll_circle_plan(),
+            circle_plan(),
+        ]
+    )
+    return CatheterPlan(plan=plan, raster=raster, hysteresis=hplan, hysteresis_start=len(raster))
+
+
+@dataclass(frozen=True, eq=False)
+class CatheterCalibration:
+    """Everything fitted from one :func:`catheter_plan` recording."""
+
+    dense: CalibrationSet
+    """The raster's tracked samples (as recorded: the tracker's bias in them)."""
+    elasticity_map: ElasticityMap
+    """The paper's F from them."""
+    hysteresis: HysteresisIdentification
+    """The per-joint dead-zone / backlash of the knobs, the roll's play and the twist."""
+    tracker_bias: TrackerBias
+    """The tracker's base-frame field bias, from the roll circles."""
+    transmission: TransmissionCalibration
+    """The per-tendon model and F on its effective knobs (built bias-free)."""
+
+    def knob_map(
+        self,
+        q_motor: ArrayLike = (0.0, 0.0, 0.0, 0.0),
+        geometry: CatheterGeometry = DEFAULT_GEOMETRY,
+    ) -> TendonKnobMap:
+        """The controller's compensation, relaxed at motor state ``q_motor`` (4,)."""
+        return TendonKnobMap(self.transmission, q_motor, geometry=geometry)
+
+
+def fit_catheter(
+    cplan: CatheterPlan,
+    recording: Recording,
+    *,
+    catheter_id: str = "",
+    geometry: CatheterGeometry = DEFAULT_GEOMETRY,
+) -> CatheterCalibration:
+    """Fit everything from the recording of ``cplan`` (about 10-20 s, mostly the per-tendon
+    identification)."""
+    if recording.plan is not cplan.plan and recording.plan.segments != cplan.plan.segments:
+        raise ConfigurationError("the recording is not of this catheter plan")
+    dense = calibration_set_from(recording, DENSE_RASTER, catheter_id=catheter_id).calibration
+    # the sweeps' own recording (their plan is a part of the whole)
+    start = cplan.hysteresis_start
+    stop = start + cplan.hysteresis.plan.n
+    sweeps = Recording(
+        plan=cplan.hysteresis.plan,
+        tip2base=recording.tip2base[start:stop],
+        attempts=recording.attempts[start:stop],
+    )
+    hyst = fit_hysteresis(cplan.hysteresis, sweeps, geometry)
+    bias = fit_tracker_bias_from(recording)
+    transmission = build_transmission(
+        bias.correct_calibration(dense),
+        cplan.raster,
+        motion_from(recording, KNOB_CIRCLES, tracker_bias=bias, geometry=geometry),
+        hyst.compensator,
+    )
+    return CatheterCalibration(
+        dense=dense,
+        elasticity_map=ElasticityMap.build(dense, geometry),
+        hysteresis=hyst,
+        tracker_bias=bias,
+        transmission=transmission,
+    )
+
+
+def calibrate_catheter(
+    robot: RobotBackend | Mover,
+    tracker: TipTracker,
+    *,
+    settle: Callable[[], None] | None = None,
+    progress: ProgressFn | None = None,
+    catheter_id: str = "",
+    geometry: CatheterGeometry = DEFAULT_GEOMETRY,
+) -> CatheterCalibration:
+    """Drive :func:`catheter_plan` on a robot (or the twin's ``move``) and fit it."""
+    cplan = catheter_plan(geometry=geometry)
+    rec = execute_plan(
+        robot, tracker, cplan.plan, settle=settle, progress=progress, geometry=geometry
+    )
+    return fit_catheter(cplan, rec, catheter_id=catheter_id, geometry=geometry)

@@ -1,0 +1,505 @@
+"""Dead-zone and backlash (hysteresis) of each joint's transmission, and their inverse.
+
+Beyond the paper (its Discussion leaves dead-zone and hysteresis to future work). Each
+knob drives an antagonistic tendon pair through a long sheath: friction reverses with the
+motion (a play / backlash loop of half-width ``r``) and slack in the pair leaves a dead-zone
+of half-width ``d`` around the cross-over at ``c``. Per joint, from the commanded motor angle
+``x`` to the *effective* angle ``z`` that reaches the bending section::
+
+    r(x) = r0 + r1 |x|                                # play half-width (grows with tension)
+    p_k = min(max(p_{k-1}, x_k - r(x_k)), x_k + r(x_k))   # play operator (backlash), H1
+    z_k = sign(p_k - c) * max(|p_k - c| - d, 0)      # dead-zone around c, H2
+
+(the backlash-plus-dead-zone model of tendon-sheath drives, e.g. Do et al., Mechatronics
+2014; Kesner & Howe, ICRA 2011; the friction band, hence the play, widens with the tendon
+tension, which grows with the knob angle: ``r1``). Its inverse pre-shapes commands: ``x``
+solves ``x - s r(x) = p`` with ``s`` the current direction of motion of ``p`` (a state the
+compensator keeps; at a reversal the command jumps across the play), and
+``p = c + z + d * clip(z / eps, -1, 1)``: the dead-zone inverse, exact for ``|z| >= eps``
+and a ramp across the dead-zone inside (error < eps), so the motors are never asked to
+jump across the whole dead-zone at once.
+
+The model is identified from a short up/down sweep of one joint (:func:`identify`): a grid
+search over (r, d, c) with, for each, a linear least-squares fit of a static odd cubic
+from ``z`` to the observed output (the tip's bend measured by the tracker, which also
+carries the elastic nonlinearity), then a local refinement.
+
+Composition with the elasticity map (model knob -> F -> hysteresis inverse -> motor)::
+
+    z = F(phi_model)                 # effective angles that put the real tip there
+    x = compensator.command(z)       # motor command
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+from scipy.optimize import least_squares
+
+from icenav._validation import check_finite
+from icenav.errors import ConfigurationError
+
+__all__ = [
+    "HysteresisCompensator",
+    "HysteresisFit",
+    "JointHysteresis",
+    "identify",
+    "sweep_path",
+]
+
+Array = NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class JointHysteresis:
+    """Backlash + dead-zone model of one joint's transmission (angles in rad)."""
+
+    backlash: float = 0.0
+    """r0: half-width of the play at x = 0 (rad); the loop is 2 r(x) wide."""
+    backlash_slope: float = 0.0
+    """r1: growth of the play half-width with |x| (rad/rad), in [0, 0.5]."""
+    dead_zone: float = 0.0
+    """d: half-width of the dead-zone around ``centre`` (rad)."""
+    centre: float = 0.0
+    """c: motor angle at the middle of the dead-zone (rad)."""
+    smoothing: float = math.radians(0.5)
+    """eps: width over which the inverse crosses the dead-zone (rad), > 0."""
+
+    def __post_init__(self) -> None:
+        for name in ("backlash", "dead_zone"):
+            v = float(getattr(self, name))
+            if not math.isfinite(v) or v < 0.0 or v > math.radians(45.0):
+                raise ConfigurationError(
+                    f"{name} must be in [0, {math.radians(45.0):.4f}] rad ([0, 45] deg), "
+                    f"got {v} rad"
+                )
+        r1 = float(self.backlash_slope)
+        if not math.isfinite(r1) or r1 < 0.0 or r1 > 0.5:
+            raise ConfigurationError(f"backlash_slope must be in [0, 0.5] rad/rad, got {r1}")
+        c = float(self.centre)
+        if not math.isfinite(c) or abs(c) > math.radians(45.0):
+            raise ConfigurationError(
+                f"centre must be within +-{math.radians(45.0):.4f} rad (+-45 deg), got {c} rad"
+            )
+        e = float(self.smoothing)
+        if not math.isfinite(e) or e <= 0.0:
+            raise ConfigurationError(f"smoothing must be finite and > 0 rad, got {e} rad")
+
+    def dead_zone_out(self, p: ArrayLike) -> Array:
+        """H2: effective angle z for a play output p (rad)."""
+        u = np.asarray(p, dtype=np.float64) - self.centre
+        return np.sign(u) * np.maximum(np.abs(u) - self.dead_zone, 0.0)
+
+    def dead_zone_inverse(self, z: ArrayLike) -> Array:
+        """Continuous right-inverse of H2: p with H2(p) = z exactly for |z| >= eps and
+        |H2(p) - z| < eps inside (a linear ramp across the dead-zone)."""
+        zz = np.asarray(z, dtype=np.float64)
+        return self.centre + zz + self.dead_zone * np.clip(zz / self.smoothing, -1.0, 1.0)
+
+    def simulate(
+        self, x_path: ArrayLike, p0: float | None = None, extra_width: ArrayLike | None = None
+    ) -> Array:
+        """Effective angles z (n,) for commanded angles x (n,), play state starting at p0
+        (default: x_path[0], a relaxed start); ``extra_width`` (n,) widens the play per
+        sample (rad; e.g. the roll's play growing with the bend)."""
+        x = check_finite(x_path, "x_path", "rad").ravel()
+        p0f = float(x[0]) if p0 is None else float(p0)
+        extra = None if extra_width is None else np.asarray(extra_width, np.float64).ravel()
+        p = _play(x, self.backlash, p0f, self.backlash_slope, extra)
+        return self.dead_zone_out(p)
+
+    def play_inverse(self, p: float, direction: float, extra_width: float = 0.0) -> float:
+        """Command x whose play output is p when moving in ``direction`` (+1, -1; 0: x = p).
+
+        Solves ``x - direction * (r0 + extra + r1 |x|) = p`` (monotone in x for r1 < 1).
+        """
+        if direction == 0.0:
+            return p
+        r0, r1 = self.backlash + extra_width, self.backlash_slope
+        if direction > 0:
+            x = (p + r0) / (1.0 - r1)
+            return x if x >= 0.0 else (p + r0) / (1.0 + r1)
+        x = (p - r0) / (1.0 + r1)
+        return x if x >= 0.0 else (p - r0) / (1.0 - r1)
+
+
+def _play(x: Array, r: float, p0: float, r1: float = 0.0, extra: Array | None = None) -> Array:
+    """Play operator over a path (sequential); half-width r + r1 |x| (+ extra[k])."""
+    out = np.empty_like(x)
+    p = p0
+    ex = [0.0] * x.size if extra is None else extra.tolist()
+    for k, xk in enumerate(x.tolist()):
+        w = r + r1 * abs(xk) + ex[k]
+        lo = xk - w
+        hi = xk + w
+        if p < lo:
+            p = lo
+        elif p > hi:
+            p = hi
+        out[k] = p
+    return out
+
+
+class HysteresisCompensator:
+    """Pre-shapes motor commands with the inverse backlash + dead-zone model, per joint.
+
+    Keeps state: the last play output ``p`` and the direction of motion of each joint.
+    Joints without a model (``None``) pass through. Joint order (phi1, phi2, phi3, d4).
+    ``roll_play_per_bend`` (rad of play half-width per rad of bend) widens the roll's play
+    with the bend of the bending section (a bent section rubs more); pass the bend (rad,
+    e.g. the model bend of the intended pose, which compensation makes the true one) to
+    :meth:`command`, else ``hypot(phi1, phi2)`` of the effective knobs stands in for it.
+    """
+
+    def __init__(
+        self,
+        joints: Sequence[JointHysteresis | None],
+        roll_play_per_bend: float = 0.0,
+        knob_play_per_bend: float = 0.0,
+        twist_play_per_bend: float = 0.0,
+        reversal_threshold: float = 0.0,
+    ) -> None:
+        if len(joints) != 4:
+            raise ConfigurationError(f"joints must have 4 entries (phi1..d4), got {len(joints)}")
+        for name, v in (
+            ("roll_play_per_bend", roll_play_per_bend),
+            ("knob_play_per_bend", knob_play_per_bend),
+            ("twist_play_per_bend", twist_play_per_bend),
+        ):
+            fv = float(v)
+            if not math.isfinite(fv) or fv < 0.0 or fv > 0.5:
+                raise ConfigurationError(f"{name} must be in [0, 0.5] rad/rad, got {v!r}")
+        rt = float(reversal_threshold)
+        if not math.isfinite(rt) or rt < 0.0 or rt > math.radians(10.0):
+            raise ConfigurationError(
+                f"reversal_threshold must be in [0, {math.radians(10.0):.4f}] rad ([0, 10] deg), "
+                f"got {reversal_threshold!r}"
+            )
+        self.reversal_threshold = rt
+        """delta (rad): the wanted play output must come back by more than this from its
+        furthest point before the compensator treats it as a reversal and jumps the command
+        across the play. 0 is the exact inverse, which jumps the full play width (2 r) on every
+        wiggle of a nearly still target; since the model's width is never exactly the
+        plant's, each such jump moves the tip. With delta > 0, a small reversal is left to the
+        play (error at most delta) instead."""
+        k = float(roll_play_per_bend)
+        self.joints: tuple[JointHysteresis | None, ...] = tuple(joints)
+        """Model of each joint, or None."""
+        self.roll_play_per_bend = k
+        """Growth of the roll's play half-width with the bend (rad/rad)."""
+        self.knob_play_per_bend = float(knob_play_per_bend)
+        """Growth of a knob's play half-width with the *other* knob's angle (rad/rad): the
+        other pair's bend adds sheath friction (capstan wrap)."""
+        self.twist_play_per_bend = float(twist_play_per_bend)
+        """Distal twist play per rad of bend (rad/rad): the image frame lags the roll about
+        its own axis without moving the tip; see :meth:`preshape_model`."""
+        self._p = [0.0, 0.0, 0.0, 0.0]
+        self._dir = [0.0, 0.0, 0.0, 0.0]
+        self._ext = [0.0, 0.0, 0.0, 0.0]
+
+    def reset(
+        self, q_effective: ArrayLike | None = None, direction: ArrayLike | None = None
+    ) -> None:
+        """Set the state: effective joint state (4,) (default 0) and direction of motion
+        (+1, -1 or 0 for unknown, per joint; default 0: the first move decides)."""
+        z = np.zeros(4) if q_effective is None else check_finite(q_effective, "q_effective")
+        d = np.zeros(4) if direction is None else check_finite(direction, "direction")
+        if z.shape != (4,) or d.shape != (4,):
+            raise ConfigurationError("q_effective and direction must have shape (4,)")
+        for j, m in enumerate(self.joints):
+            self._p[j] = float(z[j]) if m is None else float(m.dead_zone_inverse(z[j]))
+            self._dir[j] = float(np.sign(d[j]))
+            self._ext[j] = self._p[j]
+
+    def with_reversal_threshold(self, delta: float) -> HysteresisCompensator:
+        """A fresh compensator (state reset) with the same models and ``reversal_threshold``
+        = ``delta`` (rad)."""
+        return HysteresisCompensator(
+            list(self.joints),
+            roll_play_per_bend=self.roll_play_per_bend,
+            knob_play_per_bend=self.knob_play_per_bend,
+            twist_play_per_bend=self.twist_play_per_bend,
+            reversal_threshold=delta,
+        )
+
+    @property
+    def direction(self) -> Array:
+        """(4,) current direction of motion of each joint (+1, -1, 0 unknown)."""
+        return np.array(self._dir)
+
+    def command(self, q_effective: ArrayLike, bend: float | None = None) -> Array:
+        """Motor command (4,) that gives the wanted effective joint state (4,); ``bend``
+        (rad) is the bend of the section, for the roll's play."""
+        z = check_finite(q_effective, "q_effective")
+        if z.shape != (4,):
+            raise ConfigurationError(f"q_effective must have shape (4,), got {z.shape}")
+        out = np.empty(4)
+        for j, m in enumerate(self.joints):
+            zj = float(z[j])
+            if m is None:
+                out[j] = zj
+                continue
+            p = float(m.dead_zone_inverse(zj))
+            self._update_direction(j, p)
+            self._p[j] = p
+            if j == 2:
+                b = math.hypot(z[0], z[1]) if bend is None else float(bend)
+                extra = self.roll_play_per_bend * b
+            elif j < 2:
+                extra = self.knob_play_per_bend * abs(float(z[1 - j]))
+            else:
+                extra = 0.0
+            out[j] = m.play_inverse(p, self._dir[j], extra)
+        return out
+
+    def _update_direction(self, j: int, p: float) -> None:
+        """Direction of motion of joint j's play output, with the reversal threshold: the
+        furthest point reached in the current direction is kept, and the direction flips
+        only when ``p`` comes back from it by more than ``reversal_threshold``."""
+        d = self._dir[j]
+        delta = self.reversal_threshold
+        if d == 0.0:
+            dp = p - self._p[j]
+            if dp > 1e-12:
+                self._dir[j] = 1.0
+            elif dp < -1e-12:
+                self._dir[j] = -1.0
+            self._ext[j] = p
+        elif d * (p - self._ext[j]) > 0.0:
+            self._ext[j] = p  # further along the current direction
+        elif d * (self._ext[j] - p) > max(delta, 1e-12):
+            self._dir[j] = -d
+            self._ext[j] = p
+
+    def preshape_model(self, q_model_path: ArrayLike) -> Array:
+        """Pre-shape a *model* joint path (n, 4) against the distal twist play.
+
+        The twist play lets the image frame lag the roll about its own axis by up to
+        ``h_t = twist_play_per_bend * bend`` while the roll moves. Turning the image frame
+        about its own axis by ``delta`` without moving the tip is, in the constant-curvature
+        model, ``phi3 += delta`` with the bending plane turned by ``-delta``::
+
+            R_z(phi3 + delta) R_z(theta - delta) R_y(alpha) R_z(-(theta - delta))
+                = R_z(phi3) R_z(theta) R_y(alpha) R_z(-theta) R_z(delta)
+
+        so the path is shifted by ``delta = s * h_t`` ahead in the direction ``s`` of the roll
+        motion (a play inverse whose state is that direction). Apply before F.
+        """
+        path = check_finite(q_model_path, "q_model_path")
+        if path.ndim != 2 or path.shape[1] != 4:
+            raise ConfigurationError(f"q_model_path must have shape (n, 4), got {path.shape}")
+        out = path.copy()
+        if self.twist_play_per_bend == 0.0:
+            return out
+        direction = 0.0
+        for i in range(path.shape[0]):
+            if i > 0:
+                d3 = path[i, 2] - path[i - 1, 2]
+                if d3 > 1e-12:
+                    direction = 1.0
+                elif d3 < -1e-12:
+                    direction = -1.0
+            a, b = float(path[i, 0]), float(path[i, 1])
+            delta = direction * self.twist_play_per_bend * math.hypot(a, b)
+            c, s_ = math.cos(delta), math.sin(delta)
+            out[i, 0] = c * a + s_ * b  # bending plane turned by -delta
+            out[i, 1] = -s_ * a + c * b
+            out[i, 2] = path[i, 2] + delta
+        return out
+
+    def command_path(self, q_effective_path: ArrayLike, bends: ArrayLike | None = None) -> Array:
+        """Motor commands (n, 4) for a path of wanted effective joint states (n, 4);
+        ``bends`` (n,) rad as in :meth:`command`."""
+        path = check_finite(q_effective_path, "q_effective_path")
+        if path.ndim != 2 or path.shape[1] != 4:
+            raise ConfigurationError(f"q_effective_path must have shape (n, 4), got {path.shape}")
+        if bends is None:
+            return np.array([self.command(row) for row in path])
+        b = check_finite(bends, "bends", "rad").ravel()
+        if b.size != path.shape[0]:
+            raise ConfigurationError(f"bends must have {path.shape[0]} values, got {b.size}")
+        return np.array([self.command(row, float(bi)) for row, bi in zip(path, b, strict=True)])
+
+    def effective_path(self, q_motor_path: ArrayLike, q_start: ArrayLike | None = None) -> Array:
+        """The model's effective joint states (n, 4) for motor commands (n, 4), from a
+        relaxed state at ``q_start`` (motor, default the first command)."""
+        path = check_finite(q_motor_path, "q_motor_path")
+        if path.ndim != 2 or path.shape[1] != 4:
+            raise ConfigurationError(f"q_motor_path must have shape (n, 4), got {path.shape}")
+        start = path[0] if q_start is None else check_finite(q_start, "q_start")
+        out = path.copy()
+        for j, m in enumerate(self.joints):
+            if m is not None and j < 2:
+                extra = self.knob_play_per_bend * np.abs(path[:, 1 - j])
+                out[:, j] = m.simulate(path[:, j], p0=float(start[j]), extra_width=extra)
+            elif m is not None and j == 3:
+                out[:, j] = m.simulate(path[:, j], p0=float(start[j]))
+        m = self.joints[2]
+        if m is not None:
+            extra = self.roll_play_per_bend * np.hypot(out[:, 0], out[:, 1])
+            out[:, 2] = m.simulate(path[:, 2], p0=float(start[2]), extra_width=extra)
+        return out
+
+
+# --- identification ----------------------------------------------------------------------
+
+
+def sweep_path(amplitude: float, step: float = math.radians(1.0), cycles: int = 1) -> Array:
+    """A short up/down sweep 0 -> +A -> -A -> +A ... -> 0 (rad), for :func:`identify`."""
+    if not (0.0 < amplitude <= math.pi) or not (0.0 < step < amplitude):
+        raise ConfigurationError(
+            f"need 0 < step < amplitude <= pi rad, got amplitude={amplitude}, step={step}"
+        )
+    n = max(2, int(math.ceil(amplitude / step)))
+    up = np.linspace(0.0, amplitude, n + 1)
+    down = np.linspace(amplitude, -amplitude, 2 * n + 1)[1:]
+    parts = [up]
+    for _ in range(cycles):
+        parts += [down, -down]
+    parts.append(np.linspace(amplitude, 0.0, n + 1)[1:])
+    return np.concatenate(parts)
+
+
+@dataclass(frozen=True)
+class HysteresisFit:
+    """Result of :func:`identify`."""
+
+    model: JointHysteresis
+    """The identified transmission model."""
+    gain: tuple[float, float, float]
+    """(offset, linear, cubic) of the static map z -> observed output."""
+    rms: float
+    """RMS residual of the fit, in the unit of the observed output."""
+
+
+def _static_fit(z: Array, y: Array, cubic: bool) -> tuple[Array, float]:
+    cols = [np.ones_like(z), z, z**3] if cubic else [np.ones_like(z), z]
+    a = np.stack(cols, axis=-1)
+    coef, *_ = np.linalg.lstsq(a, y, rcond=None)
+    r = a @ coef - y
+    if not cubic:
+        coef = np.append(coef, 0.0)
+    return np.asarray(coef, dtype=np.float64), float(np.sqrt(np.mean(r * r)))
+
+
+def _batched_static_fit(z: Array, y: Array, cubic: bool) -> tuple[Array, Array]:
+    """Least-squares fits of y ~ a + b z (+ c z^3) for many z rows (m, n): coefs, rms.
+
+    Normal equations from power sums (one pass per power over z), solved in a batch.
+    """
+    n = z.shape[-1]
+    z2 = z * z
+    z3 = z2 * z
+    s1, s2, s3 = z.sum(-1), z2.sum(-1), z3.sum(-1)
+    sy, szy, syy = float(y.sum()), z @ y, float(y @ y)
+    if cubic:
+        s4, s6 = (z2 * z2).sum(-1), (z3 * z3).sum(-1)
+        sz3y = z3 @ y
+        ata = np.stack(
+            [
+                np.stack([np.full_like(s1, n), s1, s3], -1),
+                np.stack([s1, s2, s4], -1),
+                np.stack([s3, s4, s6], -1),
+            ],
+            -2,
+        )
+        aty = np.stack([np.full_like(s1, sy), szy, sz3y], -1)
+    else:
+        ata = np.stack([np.stack([np.full_like(s1, n), s1], -1), np.stack([s1, s2], -1)], -2)
+        aty = np.stack([np.full_like(s1, sy), szy], -1)
+    k = ata.shape[-1]
+    coef = np.linalg.solve(ata + 1e-12 * np.eye(k), aty[..., None])[..., 0]
+    # residual sum of squares = y.y - 2 c.A^T y + c.A^T A c
+    rss = syy - 2.0 * np.sum(coef * aty, -1) + np.einsum("mi,mij,mj->m", coef, ata, coef)
+    return coef, np.sqrt(np.maximum(rss, 0.0) / n)
+
+
+def identify(
+    x: ArrayLike,
+    y: ArrayLike,
+    *,
+    max_width: float = math.radians(10.0),
+    resolution: float = math.radians(0.5),
+    max_slope: float = 0.2,
+    cubic: bool = True,
+    with_dead_zone: bool = True,
+) -> HysteresisFit:
+    """Identify a joint's backlash + dead-zone from a sweep.
+
+    Parameters
+    ----------
+    x : array-like, shape (n,)
+        Commanded motor angles of the sweep (rad), starting from a relaxed state
+        (e.g. :func:`sweep_path`).
+    y : array-like, shape (n,)
+        Observed output at each sample (e.g. the tip's bend in the knob's plane, rad).
+        NaN marks a missing sample (skipped).
+    max_width : float
+        Largest backlash and dead-zone half-width searched (rad).
+    max_slope : float
+        Largest growth of the play with |x| searched (rad/rad); 0 for a constant play.
+    cubic : bool
+        Fit an odd cubic static map (for the elastic nonlinearity of the bend) or a line.
+    with_dead_zone : bool
+        Search a dead-zone (False: backlash only, e.g. for the roll joint).
+    """
+    xs = check_finite(x, "x", "rad").ravel()
+    ys = np.asarray(y, dtype=np.float64).ravel()
+    if xs.shape != ys.shape or xs.size < 10:
+        raise ConfigurationError(
+            f"x and y must have the same shape with >= 10 samples, got {xs.shape}, {ys.shape}"
+        )
+    ok = np.isfinite(ys)
+    if ok.sum() < 10:
+        raise ConfigurationError(f"only {int(ok.sum())} valid samples; need >= 10")
+    yv = ys[ok]
+    widths = np.arange(0.0, max_width + 0.5 * resolution, resolution)
+    slopes = np.linspace(0.0, max_slope, 9) if max_slope > 0 else np.array([0.0])
+    dzs = widths if with_dead_zone else np.array([0.0])
+    centres = np.arange(-4, 5) * resolution if with_dead_zone else np.array([0.0])
+    best = (math.inf, 0.0, 0.0, 0.0, 0.0)
+    x0 = float(xs[0])
+    for r in widths:
+        for r1 in slopes:
+            p = _play(xs, float(r), x0, float(r1))[ok]
+            u = p[None, :] - centres[:, None]  # (nc, n)
+            z = np.sign(u)[None] * np.maximum(np.abs(u)[None] - dzs[:, None, None], 0.0)
+            _, rms = _batched_static_fit(z.reshape(-1, p.size), yv, cubic)
+            k = int(np.argmin(rms))
+            if rms[k] < best[0]:
+                di, ci = divmod(k, centres.size)
+                best = (float(rms[k]), float(r), float(r1), float(dzs[di]), float(centres[ci]))
+
+    def resid(theta: Array) -> Array:
+        r, r1, d, c = (float(v) for v in theta)
+        p = _play(xs, max(r, 0.0), x0, max(r1, 0.0))[ok] - c
+        z = np.sign(p) * np.maximum(np.abs(p) - max(d, 0.0), 0.0)
+        coef, _ = _static_fit(z, yv, cubic)
+        return np.asarray((coef[0] + coef[1] * z + coef[2] * z**3) - yv)
+
+    theta0 = np.array(best[1:])
+    lo = [0.0, 0.0, 0.0, -math.radians(10)]
+    hi = [
+        max_width,
+        max(max_slope, 1e-9),
+        max_width if with_dead_zone else 1e-9,
+        math.radians(10) if with_dead_zone else 1e-9,
+    ]
+    theta0 = np.clip(theta0, lo, [h - 1e-12 for h in hi])
+    sol = least_squares(resid, theta0, bounds=(lo, hi), diff_step=1e-3)
+    theta = sol.x if float(np.sqrt(np.mean(sol.fun**2))) < best[0] else theta0
+    r, r1, d, c = (float(v) for v in theta)
+    if not with_dead_zone:
+        d, c = 0.0, 0.0
+    model = JointHysteresis(
+        backlash=max(r, 0.0), backlash_slope=max(r1, 0.0), dead_zone=max(d, 0.0), centre=c
+    )
+    p = _play(xs, model.backlash, x0, model.backlash_slope)[ok]
+    coef, fit_rms = _static_fit(model.dead_zone_out(p), yv, cubic)
+    return HysteresisFit(
+        model=model, gain=(float(coef[0]), float(coef[1]), float(coef[2])), rms=fit_rms
+    )

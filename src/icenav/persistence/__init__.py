@@ -1,0 +1,1 @@
+"""icenav.persistence."""

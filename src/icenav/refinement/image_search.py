@@ -1,0 +1,921 @@
+"""Closed-loop, image-based view refinement (beyond the paper; issue 6, part 4).
+
+After a roadmap return (open loop), the catheter is where the motors say, not quite where
+the view was saved: backlash, friction and the vessel change the true pose a little. The
+refinement closes the loop on the ultrasound image: a small local search of the *motor*
+state that maximises the similarity of one heart beat of live images to the view's saved
+beat, frames matched by cardiac phase.
+
+Search
+------
+A compass (pattern) search with halving steps over (phi1, phi2, phi3, d4):
+
+1. Measure the similarity ``s*`` at the start state ``q*`` (one beat; a second one if the
+   first looks off). If it is within ``stop_within`` of the *ceiling* (the saved beats
+   scored against each other), stop: the view is recovered as far as the images can tell,
+   and every trial move would shift the transmission's play for nothing.
+2. Poll the trial states ``q* +- step_j e_j`` (the last successful direction first). A
+   trial is accepted when it beats ``s*`` by at least ``min_improvement`` (the similarity
+   is noisy: respiration and the heart beat change between beats).
+3. When no trial is accepted the steps halve and ``q*`` is measured again (its score is the
+   running mean of its measurements, so a lucky beat does not hold the search).
+4. Stop when every step is below ``min_step``, after ``max_evaluations`` beats, after
+   ``max_duration_s`` of controller time, or when ``abort()`` returns True; end at ``q*``.
+
+Safety
+------
+* Every commanded state lies in the box ``q_view +- radius`` (default +-3 deg, +-3 deg,
+  +-3 deg, +-2 mm): trials are clipped to it and every set-point is checked again before
+  it is sent (:class:`NeighbourhoodError` otherwise: a bug, never a silent clip).
+* Moves are straight joint lines at bounded speed (``max_velocity``), one set-point per
+  control cycle; the search moves at most ``initial_step`` from the incumbent at a time.
+* Each trial is approached from the view's arrival direction (overshoot by ``overshoot``
+  and come back, inside the box), so the transmission's backlash is taken up the same way
+  as when the view was saved (the plant is history dependent).
+* Bounded time and evaluations; abortable between any two control cycles.
+
+Image similarity: blurred, down-sampled NCC (:func:`icenav.eval.metrics.blurred_ncc`'s
+recipe, reference frames blurred once), averaged over the reference beat with frames
+matched by cardiac phase; it varies smoothly with pose where raw speckle NCC does not. With
+several saved beats the score is the best match over them, which makes it nearly
+independent of the respiratory phase (and, by the same token, blind to translation along
+the catheter axis within the respiratory excursion). A trial that looks better is measured
+a second time before it is accepted (``confirm``).
+
+Limits (measured on the twin, see ``docs/results.md, Table II``): about 0.004-0.009 NCC per
+degree of knob or roll offset against a beat-to-beat noise of about 0.002; sub-millimetre
+translation is below the noise; a roll/twist play wider than the neighbourhood makes trial
+moves irreversible, hence the gate in step 1.
+
+Two ways to run it: :class:`RefinementTask` (an ``AutomaticTask`` for the controller, one
+set-point per cycle) and :func:`refine` (blocking; drives a ``RobotBackend`` with the same
+task). Images come from a :class:`BeatImager`; :class:`SimulatedBeatImager` renders them on
+the digital twin.
+
+The EM pose stage that runs before the image search is :mod:`icenav.refinement.pose_stage`, the
+respiratory gating of beats :mod:`icenav.refinement.gating`, and both stages as one controller task
+:class:`icenav.refinement.task.ViewRefinementTask`.
+"""
+
+from __future__ import annotations
+
+import enum
+import math
+from collections.abc import Callable, Generator, Sequence
+from dataclasses import dataclass, field
+from typing import Any, Protocol
+
+import numpy as np
+import scipy.ndimage as ndi
+from numpy.typing import ArrayLike, NDArray
+
+from icenav._validation import check_finite, check_joint_state, check_positive
+from icenav.control.state import Mode
+from icenav.devices.robot import RobotBackend
+from icenav.errors import ConfigurationError, PlanningError, ShapeError
+from icenav.eval.metrics import match_by_phase
+
+__all__ = [
+    "BeatClip",
+    "BeatImager",
+    "NeighbourhoodError",
+    "RefinementConfig",
+    "RefinementResult",
+    "RefinementStatus",
+    "RefinementTask",
+    "SimClock",
+    "SimulatedBeatImager",
+    "TrialRecord",
+    "beat_score",
+    "drive_task",
+    "refine",
+]
+
+Array = NDArray[np.float64]
+
+_DEG = math.pi / 180.0
+
+
+class NeighbourhoodError(PlanningError):
+    """A refinement set-point would leave the neighbourhood of the saved view."""
+
+
+@dataclass(frozen=True)
+class BeatClip:
+    """One heart beat of ultrasound images from a still catheter."""
+
+    images: NDArray[np.float64]
+    """(n, H, W) grey images (any scale; NCC is scale free)."""
+    phases: NDArray[np.float64]
+    """(n,) cardiac phase of each frame (fraction of the beat, 0 = R wave)."""
+    mask: NDArray[np.bool_] | None = None
+    """(H, W) pixels inside the imaging sector, or None for all pixels."""
+    t0: float = 0.0
+    """Acquisition time of the first frame (s)."""
+    frames: tuple[object, ...] = ()
+    """The source frames with their ground truth (e.g. ``icenav.sim.ultrasound.Frame``),
+    when the imager keeps them (evaluation only)."""
+    times: NDArray[np.float64] | None = None
+    """(n,) acquisition time of each frame (s), if known (needed for respiratory gating)."""
+
+    def __post_init__(self) -> None:
+        img = np.asarray(self.images, dtype=np.float64)
+        ph = check_finite(self.phases, "phases").ravel()
+        if img.ndim != 3 or img.shape[0] < 1:
+            raise ShapeError(f"images must have shape (n >= 1, H, W), got {img.shape}")
+        if ph.shape != (img.shape[0],):
+            raise ShapeError(f"{img.shape[0]} images need {img.shape[0]} phases, got {ph.size}")
+        if self.mask is not None:
+            m = np.asarray(self.mask, dtype=bool)
+            if m.shape != img.shape[1:]:
+                raise ShapeError(f"mask shape {m.shape} differs from the images' {img.shape[1:]}")
+            object.__setattr__(self, "mask", m)
+        object.__setattr__(self, "images", img)
+        object.__setattr__(self, "phases", ph)
+        if self.times is not None:
+            tt = check_finite(self.times, "times").ravel()
+            if tt.shape != ph.shape:
+                raise ShapeError(f"{ph.size} frames need {ph.size} times, got {tt.size}")
+            object.__setattr__(self, "times", tt)
+
+    def subsampled(self, k: int) -> BeatClip:
+        """Every ``k``-th frame (k >= 1) of the beat, with its phases, times and frames."""
+        if isinstance(k, bool) or int(k) != k or k < 1:
+            raise ConfigurationError(f"k must be an int >= 1, got {k!r}")
+        return BeatClip(
+            self.images[::k],
+            self.phases[::k],
+            self.mask,
+            self.t0,
+            self.frames[::k],
+            None if self.times is None else self.times[::k],
+        )
+
+
+class BeatImager(Protocol):
+    """Source of live ultrasound beats for the refinement."""
+
+    @property
+    def beat_duration_s(self) -> float:
+        """Length of one heart beat (s): how long the catheter is held still per measure."""
+        ...
+
+    def acquire_beat(self) -> BeatClip:
+        """The heart beat recorded up to now from the current (still) catheter pose."""
+        ...
+
+
+class SimClock:
+    """A settable simulation clock (s): ``now()`` for the backends, ``advance(dt)`` to step."""
+
+    def __init__(self, t0: float = 0.0) -> None:
+        self.t = float(t0)
+
+    def now(self) -> float:
+        """Current time (s)."""
+        return self.t
+
+    def advance(self, dt: float) -> None:
+        """Move time forward by ``dt`` >= 0 s (usable as an injected ``sleep``)."""
+        if not dt >= 0.0:
+            raise ConfigurationError(f"time can only advance: dt must be >= 0 s, got {dt} s")
+        self.t += float(dt)
+
+
+class SimulatedBeatImager:
+    """Renders one beat on the digital twin at the plant's true tip pose.
+
+    Parameters
+    ----------
+    plant : object with ``state.tip2base`` (4, 4)
+        The catheter plant (:class:`icenav.sim.plant.CatheterPlant`).
+    renderer : icenav.sim.ultrasound.UltrasoundRenderer
+        The ICE image renderer (its phantom sets the heart rate).
+    clock : callable returning s
+        Simulation time.
+    frames_per_beat : int
+        Frames rendered per beat.
+    ecg_gated : bool
+        Frames at the phases ``k / frames_per_beat`` within the last beat-long window
+        (retrospective ECG gating); otherwise at ``now - beat + k beat / n``.
+    base2anatomy : (4, 4), optional
+        Registration of the robot base in the anatomy frame (default the phantom's).
+    """
+
+    def __init__(
+        self,
+        plant: object,
+        renderer: object,
+        clock: Callable[[], float],
+        frames_per_beat: int = 10,
+        base2anatomy: ArrayLike | None = None,
+        ecg_gated: bool = True,
+    ) -> None:
+        from icenav.sim.anatomy import BASE2ANATOMY
+
+        if isinstance(frames_per_beat, bool) or int(frames_per_beat) < 2:
+            raise ConfigurationError(f"frames_per_beat must be an int >= 2, got {frames_per_beat}")
+        self.plant = plant
+        self.renderer = renderer
+        self.clock = clock
+        self.frames_per_beat = int(frames_per_beat)
+        self.base2anatomy = np.asarray(
+            BASE2ANATOMY if base2anatomy is None else base2anatomy, dtype=np.float64
+        )
+        self._phantom = renderer.phantom  # type: ignore[attr-defined]
+        self._beat = float(self._phantom.motion.period_s)
+        self.ecg_gated = bool(ecg_gated)
+
+    @property
+    def beat_duration_s(self) -> float:
+        """One heart beat (s)."""
+        return self._beat
+
+    def frame_times(self, now: float) -> NDArray[np.float64]:
+        """Acquisition times (s) of the frames :meth:`acquire_beat` returns at ``now``.
+
+        All lie in the last beat-long window ``[now - beat, now)``, so the whole beat was
+        recorded while the catheter was held still for at least a beat. ECG gated: frame k
+        is the instant of that window at cardiac phase ``k / n`` (retrospective gating, as
+        scanners sort frames by the ECG); otherwise evenly spaced from ``now - beat``.
+        """
+        n = self.frames_per_beat
+        start = now - self._beat
+        k = np.arange(n) / n
+        if not self.ecg_gated:
+            return start + k * self._beat
+        offset = np.mod(k - self._phantom.cardiac_phase(start), 1.0)
+        out: NDArray[np.float64] = start + offset * self._beat
+        return out
+
+    def acquire_beat(self) -> BeatClip:
+        """One beat at the plant's true pose, frames at :meth:`frame_times` (phase order)."""
+        return self.clip_at_times(self.frame_times(float(self.clock())))
+
+    def clip_at_times(self, times: NDArray[np.float64]) -> BeatClip:
+        """Frames at the plant's true pose at ``times`` (s), in the order given."""
+        pose = self.base2anatomy @ np.asarray(self.plant.state.tip2base)  # type: ignore[attr-defined]
+        frames = tuple(
+            self.renderer.render(pose, float(t), check=False)  # type: ignore[attr-defined]
+            for t in times
+        )
+        return self._clip(frames, float(times.min()))
+
+    def clip_at(self, tip2anatomy: ArrayLike, t0: float) -> BeatClip:
+        """One beat from ``tip2anatomy`` (4, 4): frames at ``t0 + k beat / n`` (s)."""
+        n = self.frames_per_beat
+        frames = self.renderer.render_clip(  # type: ignore[attr-defined]
+            tip2anatomy, t0, n, self._beat / n
+        )
+        return self._clip(tuple(frames), t0)
+
+    @staticmethod
+    def _clip(frames: tuple[Any, ...], t0: float) -> BeatClip:
+        images = np.stack([f.image for f in frames]).astype(np.float64)
+        phases = np.array([f.cardiac_phase for f in frames])
+        times = np.array([f.t for f in frames], dtype=np.float64)
+        mask = frames[0].labels >= 0
+        return BeatClip(images, phases, mask, t0, frames, times)
+
+
+def _blur(images: NDArray[np.float64], sigma_px: float, factor: int) -> NDArray[np.float64]:
+    out: NDArray[np.float64] = ndi.gaussian_filter(images, (0.0, sigma_px, sigma_px))[
+        :, ::factor, ::factor
+    ]
+    return out
+
+
+def _ncc_rows(a: NDArray[np.float64], b: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Row-wise zero-mean NCC of (n, p) arrays (0 where a row is constant)."""
+    a = a - a.mean(axis=1, keepdims=True)
+    b = b - b.mean(axis=1, keepdims=True)
+    den = np.sqrt(np.sum(a * a, axis=1) * np.sum(b * b, axis=1))
+    num = np.sum(a * b, axis=1)
+    out: NDArray[np.float64] = np.divide(num, den, out=np.zeros_like(num), where=den > 0)
+    return out
+
+
+def beat_score(
+    clip: BeatClip, reference: BeatClip, *, sigma_px: float = 2.0, factor: int = 2
+) -> float:
+    """Blurred beat similarity in [-1, 1]: each reference frame against the clip frame
+    nearest in cardiac phase, blurred NCC over the reference's sector mask, mean over the
+    reference beat (the same value as ``beat_similarity(..., blurred=True)`` with this
+    blur)."""
+    check_positive(sigma_px, "sigma_px", "px")
+    if clip.images.shape[1:] != reference.images.shape[1:]:
+        raise ShapeError(
+            f"clip images {clip.images.shape[1:]} differ from the reference's "
+            f"{reference.images.shape[1:]}"
+        )
+    idx = match_by_phase(clip.phases, reference.phases)
+    a = _blur(clip.images[idx], sigma_px, factor)
+    b = _blur(reference.images, sigma_px, factor)
+    m = reference.mask
+    if m is not None:
+        ms = m[::factor, ::factor]
+        return float(np.mean(_ncc_rows(a[:, ms], b[:, ms])))
+    return float(np.mean(_ncc_rows(a.reshape(len(a), -1), b.reshape(len(b), -1))))
+
+
+def _four(values: Sequence[float], name: str, unit: str) -> tuple[float, float, float, float]:
+    v = tuple(float(x) for x in values)
+    if len(v) != 4:
+        raise ConfigurationError(f"{name} needs 4 values {unit}, got {v}")
+    for x in v:
+        check_positive(x, name, unit)
+    return v[0], v[1], v[2], v[3]
+
+
+@dataclass(frozen=True)
+class RefinementConfig:
+    """Settings of the closed-loop refinement (per joint: phi1, phi2, phi3 rad, d4 mm)."""
+
+    radius: tuple[float, float, float, float] = (3 * _DEG, 3 * _DEG, 3 * _DEG, 2.0)
+    """Half-width of the box around the saved view's motor state that no set-point leaves
+    (rad, rad, rad, mm)."""
+    initial_step: tuple[float, float, float, float] = (1.5 * _DEG, 1.5 * _DEG, 1.5 * _DEG, 0.5)
+    """First compass step of each joint (rad, rad, rad, mm); each must be <= its radius."""
+    min_step: tuple[float, float, float, float] = (0.2 * _DEG, 0.2 * _DEG, 0.2 * _DEG, 0.1)
+    """The search ends when every step is below this (rad, rad, rad, mm)."""
+    max_evaluations: int = 24
+    """Budget of one-beat measurements (the start's included)."""
+    max_duration_s: float = 60.0
+    """Budget of controller time (s): moves, holds and beats."""
+    min_improvement: float = 0.003
+    """A trial must beat the incumbent's blurred similarity by this much (NCC units); about
+    1.5 times the beat-to-beat noise of the score with a few reference beats on the twin."""
+    stop_within: float = 0.01
+    """Do not search when the start beat scores within this of the reference beats' own
+    consecutive-beat score (the ceiling, measured on the saved beats; needs >= 2 of them):
+    the view is already recovered as well as the images can tell, and every trial move
+    would shift the transmission's play (hysteresis) for nothing. NCC units; 0 disables."""
+    confirm: bool = True
+    """Measure a trial that looks better a second time and accept it only if the mean of
+    both beats still beats the incumbent by ``min_improvement`` (fewer false accepts)."""
+    overshoot: tuple[float, float, float, float] = (1.0 * _DEG, 1.0 * _DEG, 1.0 * _DEG, 0.5)
+    """Approach distance: each trial is reached moving in the view's arrival direction from
+    this far back (rad, rad, rad, mm), within the box."""
+    max_velocity: tuple[float, float, float, float] = (
+        10.0 * _DEG,
+        10.0 * _DEG,
+        10.0 * _DEG,
+        3.0,
+    )
+    """Joint speed of refinement moves (rad/s, rad/s, rad/s, mm/s)."""
+    settle_s: float = 0.05
+    """Hold after a move before the beat starts (s)."""
+    blur_sigma_px: float = 2.0
+    """Gaussian blur of the similarity (pixels of the images)."""
+    blur_factor: int = 2
+    """Down-sampling of the similarity."""
+
+    def __post_init__(self) -> None:
+        unit = "(rad, rad, rad, mm)"
+        for name in ("radius", "initial_step", "min_step", "overshoot"):
+            object.__setattr__(self, name, _four(getattr(self, name), name, unit))
+        object.__setattr__(
+            self, "max_velocity", _four(self.max_velocity, "max_velocity", "(rad/s, ..., mm/s)")
+        )
+        for j in range(4):
+            if self.initial_step[j] > self.radius[j]:
+                raise ConfigurationError(
+                    f"initial_step[{j}] = {self.initial_step[j]:.4g} exceeds radius[{j}] = "
+                    f"{self.radius[j]:.4g} {unit}"
+                )
+        n = self.max_evaluations
+        if isinstance(n, bool) or not isinstance(n, int) or n < 1:
+            raise ConfigurationError(f"max_evaluations must be an int >= 1, got {n!r}")
+        check_positive(self.max_duration_s, "max_duration_s", "s")
+        if not (math.isfinite(self.min_improvement) and self.min_improvement >= 0):
+            raise ConfigurationError(
+                f"min_improvement must be finite and >= 0 (NCC), got {self.min_improvement}"
+            )
+        if not (math.isfinite(self.stop_within) and self.stop_within >= 0):
+            raise ConfigurationError(
+                f"stop_within must be finite and >= 0 (NCC), got {self.stop_within}"
+            )
+        if not (math.isfinite(self.settle_s) and self.settle_s >= 0):
+            raise ConfigurationError(f"settle_s must be finite and >= 0 s, got {self.settle_s}")
+        check_positive(self.blur_sigma_px, "blur_sigma_px", "px")
+        f = self.blur_factor
+        if isinstance(f, bool) or not isinstance(f, int) or f < 1:
+            raise ConfigurationError(f"blur_factor must be an int >= 1, got {f!r}")
+
+
+class RefinementStatus(enum.Enum):
+    """State of a refinement: running, or why it ended."""
+
+    AT_VIEW = "at_view"
+    """The start already scored within ``stop_within`` of the ceiling: no search."""
+    CONVERGED = "converged"
+    """Every step fell below ``min_step``."""
+    BUDGET = "budget"
+    """``max_evaluations`` beats were measured."""
+    TIMEOUT = "timeout"
+    """``max_duration_s`` of controller time passed."""
+    ABORTED = "aborted"
+    """``abort()`` returned True; the robot holds where it was."""
+    RUNNING = "running"
+    """Not finished yet."""
+
+
+@dataclass(frozen=True)
+class TrialRecord:
+    """One one-beat measurement of the search."""
+
+    q: Array
+    """(4,) motor state measured (rad, rad, rad, mm)."""
+    score: float
+    """Blurred beat similarity there (NCC, [-1, 1])."""
+    accepted: bool
+    """Whether it became (or stayed, for a re-measurement) the incumbent."""
+    t_s: float
+    """Controller time since the start of the refinement (s)."""
+
+
+@dataclass(frozen=True)
+class RefinementResult:
+    """Outcome of a refinement."""
+
+    q_start: Array
+    """(4,) motor state at the start (rad, rad, rad, mm)."""
+    q_final: Array
+    """(4,) motor state at the end (the incumbent, unless aborted)."""
+    start_score: float
+    """Blurred similarity of the first measurement at the start (NaN if none)."""
+    best_score: float
+    """Mean blurred similarity of the final incumbent over its measurements (NaN if none)."""
+    trials: tuple[TrialRecord, ...]
+    """Every measurement in order (the similarity trace)."""
+    status: RefinementStatus
+    """Why it ended."""
+    duration_s: float
+    """Controller time used (s)."""
+    n_commands: int
+    """Set-points sent."""
+    max_offset: Array = field(default_factory=lambda: np.zeros(4))
+    """(4,) largest |set-point - q_view| per joint over the run (rad, rad, rad, mm)."""
+
+
+# --- the search as a generator of requests -------------------------------------------------
+
+
+@dataclass(frozen=True)
+class _Move:
+    q: Array
+
+
+@dataclass(frozen=True)
+class _Measure:
+    pass
+
+
+_Request = _Move | _Measure
+"""What the search asks for next: a move to a state, or one beat measured there."""
+
+
+class _Stepper:
+    """Runs a generator of move / measure requests one set-point per control cycle, inside a
+    box around ``q_view`` (shared mechanics of the refinement stages)."""
+
+    def __init__(
+        self,
+        q_view: Array,
+        q_start: Array,
+        radius: Array,
+        max_velocity: Array,
+        abort: Callable[[], bool] | None,
+        last_dir: Array | None = None,
+        label: str = "set-point",
+    ) -> None:
+        self.q_view = q_view
+        self.radius = radius
+        self.lo = q_view - radius
+        self.hi = q_view + radius
+        self.max_velocity = max_velocity
+        self.abort = abort
+        self.cmd = q_start.copy()
+        self.last_dir = np.zeros(4) if last_dir is None else last_dir.copy()
+        self.label = label
+        self.queue: list[Array] = []
+        self.elapsed = 0.0
+        self.n_cmd = 0
+        self.max_off = np.zeros(4)
+
+    def send(self, q: Array) -> Array:
+        off = np.abs(q - self.q_view)
+        if np.any(off > self.radius * (1 + 1e-9) + 1e-12):
+            j = int(np.argmax(off / self.radius))
+            raise NeighbourhoodError(
+                f"{self.label} {q.tolist()} is {off[j]:.4g} from the view on joint {j}, "
+                f"outside the radius {self.radius[j]:.4g} (rad, rad, rad, mm)"
+            )
+        moved = np.sign(q - self.cmd)
+        self.last_dir = np.where(moved != 0, moved, self.last_dir)
+        self.max_off = np.maximum(self.max_off, off)
+        self.cmd = q.copy()
+        self.n_cmd += 1
+        return q.copy()
+
+    def queue_moves(self, targets: Sequence[Array], dt: float) -> None:
+        v = self.max_velocity * dt
+        for target in targets:
+            base = self.queue[-1] if self.queue else self.cmd
+            delta = target - base
+            n = max(1, math.ceil(float(np.max(np.abs(delta) / v)) - 1e-9))
+            f = np.arange(1, n + 1)[:, None] / n
+            pts = base + f * delta
+            pts[-1] = target
+            self.queue.extend(list(pts))
+
+
+class RefinementTask:
+    """Closed-loop refinement as a controller task (one set-point per control cycle).
+
+    Parameters
+    ----------
+    q_view : array-like, shape (4,)
+        Motor state of the saved view: the centre of the neighbourhood (rad, rad, rad, mm).
+    reference : BeatClip or sequence of BeatClip
+        The view's saved beat(s). With several consecutive beats the score is the best
+        match over them, which makes it nearly independent of the respiratory phase.
+    imager : BeatImager
+        Live images.
+    q_start : array-like, shape (4,), optional
+        Where the robot is now (default ``q_view``); must lie in the neighbourhood.
+    arrival_direction : 4 ints in (-1, 0, 1)
+        The view's arrival direction per joint (0: no approach for that joint).
+    config : RefinementConfig
+    abort : callable, optional
+        Polled every cycle; True ends the refinement at once (status ABORTED).
+    """
+
+    mode = Mode.GOTO_VIEW
+    label = "refine view"
+
+    def __init__(
+        self,
+        q_view: ArrayLike,
+        reference: BeatClip | Sequence[BeatClip],
+        imager: BeatImager,
+        *,
+        q_start: ArrayLike | None = None,
+        arrival_direction: Sequence[int] = (0, 0, 0, 0),
+        config: RefinementConfig | None = None,
+        abort: Callable[[], bool] | None = None,
+    ) -> None:
+        self.config = cfg = config if config is not None else RefinementConfig()
+        self.q_view = np.array(check_joint_state(q_view, name="q_view"), np.float64)
+        if self.q_view.shape != (4,):
+            raise ShapeError(f"q_view must have shape (4,), got {self.q_view.shape}")
+        q0 = self.q_view if q_start is None else check_joint_state(q_start, name="q_start")
+        self.q_start = np.array(q0, np.float64).reshape(4)
+        self.radius = np.array(cfg.radius)
+        self.lo = self.q_view - self.radius
+        self.hi = self.q_view + self.radius
+        off = np.abs(self.q_start - self.q_view)
+        if np.any(off > self.radius * (1 + 1e-9)):
+            j = int(np.argmax(off / self.radius))
+            raise NeighbourhoodError(
+                f"the start state is {off[j]:.4g} from the view on joint {j}, outside the "
+                f"refinement radius {self.radius[j]:.4g} (rad, rad, rad, mm)"
+            )
+        direction = tuple(int(d) for d in arrival_direction)
+        if len(direction) != 4 or any(d not in (-1, 0, 1) for d in direction):
+            raise ConfigurationError(
+                f"arrival_direction must be 4 values in (-1, 0, 1), got {arrival_direction!r}"
+            )
+        self.direction = np.array(direction, np.float64)
+        refs = (reference,) if isinstance(reference, BeatClip) else tuple(reference)
+        if not refs or not all(isinstance(r, BeatClip) for r in refs):
+            raise ConfigurationError("reference must be a BeatClip or a non-empty sequence of them")
+        if any(r.images.shape[1:] != refs[0].images.shape[1:] for r in refs):
+            raise ShapeError("all reference beats must have images of one shape")
+        self.references = refs
+        self.imager = imager
+        self._abort = abort
+        self._ref_blur = [_blur(r.images, cfg.blur_sigma_px, cfg.blur_factor) for r in refs]
+        m = refs[0].mask
+        self._mask = None if m is None else m[:: cfg.blur_factor, :: cfg.blur_factor]
+        self.ceiling = self._ceiling()
+        """Mean score of each reference beat against the others (NaN with one beat)."""
+        self._hold_s = cfg.settle_s + imager.beat_duration_s
+        # execution state
+        self._gen = self._search()
+        # set-points of the current move, the box check and the sent-command bookkeeping;
+        # the return ended with the view's approach, hence its direction
+        self._run = _Stepper(
+            self.q_view,
+            self.q_start,
+            self.radius,
+            np.array(cfg.max_velocity),
+            None,
+            last_dir=self.direction,
+            label="refinement set-point",
+        )
+        self._hold_left = 0.0
+        self._measuring = False
+        self._gen_done = False
+        self._elapsed = 0.0
+        self._status = RefinementStatus.RUNNING
+        self._trials: list[TrialRecord] = []
+        self._best_q = self.q_start.copy()
+        self._best_score = math.nan
+        self._start_score = math.nan
+        self._n_eval = 0
+
+    # --- scoring -------------------------------------------------------------------------
+    def score(self, clip: BeatClip) -> float:
+        """Blurred beat similarity of ``clip`` to the reference beats: the best over the
+        reference beats of :func:`beat_score` (same blur)."""
+        if clip.images.shape[1:] != self.references[0].images.shape[1:]:
+            raise ShapeError(
+                f"live images {clip.images.shape[1:]} differ from the reference's "
+                f"{self.references[0].images.shape[1:]}"
+            )
+        return max(self._score_one(clip, j) for j in range(len(self.references)))
+
+    def _ceiling(self) -> float:
+        if len(self.references) < 2:
+            return math.nan
+        values = []
+        for i, ref in enumerate(self.references):
+            others = [j for j in range(len(self.references)) if j != i]
+            values.append(max(self._score_one(ref, j) for j in others))
+        return float(np.mean(values))
+
+    def _score_one(self, clip: BeatClip, j: int) -> float:
+        cfg = self.config
+        ref, ref_blur = self.references[j], self._ref_blur[j]
+        a = _blur(clip.images[match_by_phase(clip.phases, ref.phases)], cfg.blur_sigma_px,
+                  cfg.blur_factor)  # fmt: skip
+        if self._mask is not None:
+            return float(np.mean(_ncc_rows(a[:, self._mask], ref_blur[:, self._mask])))
+        n = len(a)
+        return float(np.mean(_ncc_rows(a.reshape(n, -1), ref_blur.reshape(n, -1))))
+
+    # --- the search (a generator of move / measure requests) --------------------------------
+    def _approach(self, q_from: Array, trial: Array) -> list[Array]:
+        """Set-point targets to reach ``trial`` moving in the arrival direction at the end."""
+        d = self.direction
+        delta = trial - q_from
+        need = (d != 0) & ((delta * d < 0) | ((delta == 0) & (self._run.last_dir != d)))
+        targets = []
+        if np.any(need):
+            pre = np.clip(trial - d * np.array(self.config.overshoot), self.lo, self.hi)
+            targets.append(pre)
+        targets.append(trial)
+        return targets
+
+    def _search(self) -> Generator[_Request, float | None, None]:
+        cfg = self.config
+        step = np.array(cfg.initial_step)
+        min_step = np.array(cfg.min_step)
+        best_q = self.q_start.copy()
+        s = yield _Measure()
+        assert s is not None
+        best, n_best = s, 1
+        self._start_score = s
+        self._record(best_q, s, True)
+        self._best_q, self._best_score = best_q.copy(), best
+        gate = cfg.stop_within > 0 and math.isfinite(self.ceiling)
+        if gate and s < self.ceiling - cfg.stop_within and self._n_eval < cfg.max_evaluations:
+            # one beat may be unlucky (respiration): a second beat before moving anything
+            s2 = yield _Measure()
+            assert s2 is not None
+            best, n_best = 0.5 * (s + s2), 2
+            self._best_score = best
+            self._record(best_q, s2, True)
+        if gate and best >= self.ceiling - cfg.stop_within:
+            self._status = RefinementStatus.AT_VIEW
+            return
+        last_ok: tuple[int, float] | None = None
+        while True:
+            if np.all(step < min_step):
+                self._status = RefinementStatus.CONVERGED
+                break
+            polls = [(j, sg) for j in range(4) for sg in (1.0, -1.0) if step[j] >= min_step[j]]
+            if last_ok is not None and last_ok in polls:
+                polls.remove(last_ok)
+                polls.insert(0, last_ok)
+            improved = False
+            for j, sg in polls:
+                trial = best_q.copy()
+                trial[j] += sg * step[j]
+                trial = np.clip(trial, self.lo, self.hi)
+                if np.array_equal(trial, best_q):
+                    continue
+                if self._n_eval >= cfg.max_evaluations:
+                    break
+                for target in self._approach(self._cmd_target(), trial):
+                    yield _Move(target)
+                s = yield _Measure()
+                assert s is not None
+                ok = s > best + cfg.min_improvement
+                if ok and cfg.confirm and self._n_eval < cfg.max_evaluations:
+                    self._record(trial, s, False)
+                    s2 = yield _Measure()  # a second beat, same place
+                    assert s2 is not None
+                    s = 0.5 * (s + s2)
+                    ok = s > best + cfg.min_improvement
+                    self._record(trial, s2, ok)
+                elif ok and cfg.confirm:
+                    ok = False  # no budget left to confirm it
+                    self._record(trial, s, ok)
+                else:
+                    self._record(trial, s, ok)
+                if ok:
+                    best_q, best = trial, s
+                    n_best = 2 if cfg.confirm else 1
+                    self._best_q, self._best_score = best_q.copy(), best
+                    last_ok = (j, sg)
+                    improved = True
+                    break
+            if self._n_eval >= cfg.max_evaluations:
+                self._status = RefinementStatus.BUDGET
+                break
+            if not improved:
+                step = step * 0.5
+                last_ok = None
+                if np.all(step < min_step):
+                    self._status = RefinementStatus.CONVERGED
+                    break
+                if self._n_eval >= cfg.max_evaluations:
+                    self._status = RefinementStatus.BUDGET
+                    break
+                # re-measure the incumbent: its score becomes the mean of its beats
+                for target in self._approach(self._cmd_target(), best_q):
+                    yield _Move(target)
+                s = yield _Measure()
+                assert s is not None
+                best = (best * n_best + s) / (n_best + 1)
+                n_best += 1
+                self._best_score = best
+                self._record(best_q, s, True)
+        # end at the incumbent, approached the same way
+        for target in self._approach(self._cmd_target(), best_q):
+            yield _Move(target)
+
+    def _cmd_target(self) -> Array:
+        return self._run.cmd.copy()
+
+    def _record(self, q: Array, s: float, accepted: bool) -> None:
+        self._trials.append(TrialRecord(q.copy(), float(s), accepted, self._elapsed))
+
+    # --- the controller interface --------------------------------------------------------
+    @property
+    def status(self) -> RefinementStatus:
+        """Running, or why it ended."""
+        return self._status
+
+    @property
+    def progress(self) -> float:
+        """Fraction of the evaluation budget used, in [0, 1] (1 when finished)."""
+        if self._gen_done and not self._run.queue:
+            return 1.0
+        return min(1.0, self._n_eval / self.config.max_evaluations)
+
+    def next_command(self, q_measured: Array, dt: float) -> Array | None:
+        """The next motor set-point (4,), or None when the refinement has ended."""
+        check_positive(dt, "dt", "s")
+        if self._status == RefinementStatus.ABORTED:
+            return None
+        if self._abort is not None and self._abort():
+            self._status = RefinementStatus.ABORTED
+            self._gen.close()
+            self._gen_done = True
+            self._run.queue = []
+            return None
+        if self._gen_done and not self._run.queue:
+            return None
+        self._elapsed += dt
+        if self._status == RefinementStatus.RUNNING and self._elapsed > self.config.max_duration_s:
+            # out of time: stop searching, head for the incumbent with the approach
+            self._status = RefinementStatus.TIMEOUT
+            self._gen.close()
+            self._gen_done = True
+            self._measuring = False
+            self._run.queue = []
+            self._run.queue_moves(self._approach(self._run.cmd, self._best_q), dt)
+        while True:
+            if self._run.queue:
+                return self._run.send(self._run.queue.pop(0))
+            if self._gen_done:
+                return None
+            value: float | None = None
+            if self._measuring:
+                if self._hold_left > 0:
+                    self._hold_left -= dt
+                    return self._run.cmd.copy()
+                value = self.score(self.imager.acquire_beat())
+                self._n_eval += 1
+                self._measuring = False
+            try:
+                req = self._gen.send(value)
+            except StopIteration:
+                self._gen_done = True
+                if self._status == RefinementStatus.RUNNING:
+                    self._status = RefinementStatus.CONVERGED
+                return None
+            if isinstance(req, _Measure):
+                self._measuring = True
+                self._hold_left = self._hold_s
+            else:
+                self._run.queue_moves([req.q], dt)
+
+    def result(self) -> RefinementResult:
+        """The outcome so far (final once :meth:`next_command` returned None)."""
+        start = self._start_score
+        return RefinementResult(
+            q_start=self.q_start.copy(),
+            q_final=self._best_q.copy()
+            if self._status != RefinementStatus.ABORTED
+            else self._run.cmd.copy(),
+            start_score=start,
+            best_score=self._best_score,
+            trials=tuple(self._trials),
+            status=self._status,
+            duration_s=self._elapsed,
+            n_commands=self._run.n_cmd,
+            max_offset=self._run.max_off.copy(),
+        )
+
+
+def refine(
+    robot: RobotBackend,
+    q_view: ArrayLike,
+    reference: BeatClip | Sequence[BeatClip],
+    imager: BeatImager,
+    *,
+    arrival_direction: Sequence[int] = (0, 0, 0, 0),
+    config: RefinementConfig | None = None,
+    abort: Callable[[], bool] | None = None,
+    dt: float = 0.01,
+    sleep: Callable[[float], None] | None = None,
+    on_command: Callable[[Array], object] | None = None,
+    max_cycles: int = 1_000_000,
+) -> RefinementResult:
+    """Refine the view on ``robot`` (blocking): run a :class:`RefinementTask` to its end.
+
+    Parameters
+    ----------
+    robot : RobotBackend
+        ENABLED, standing within the neighbourhood of ``q_view`` (its encoders give the
+        start state).
+    q_view, reference, imager, arrival_direction, config, abort
+        As for :class:`RefinementTask`.
+    dt : float
+        Control period (s).
+    sleep : callable, optional
+        Called with ``dt`` after every cycle: ``time.sleep`` on hardware, a simulation
+        clock's ``advance`` on the twin (so the imager sees time pass).
+    on_command : callable, optional
+        Called with every set-point sent (e.g. to record it in the roadmap).
+
+    Returns
+    -------
+    RefinementResult
+    """
+    check_positive(dt, "dt", "s")
+    q0 = np.asarray(robot.read_state().q, np.float64)
+    task = RefinementTask(
+        q_view,
+        reference,
+        imager,
+        q_start=q0,
+        arrival_direction=arrival_direction,
+        config=config,
+        abort=abort,
+    )
+    drive_task(robot, task, dt, sleep=sleep, on_command=on_command, max_cycles=max_cycles)
+    return task.result()
+
+
+class _SteppedTask(Protocol):
+    def next_command(self, q_measured: Array, dt: float) -> Array | None: ...
+
+
+def drive_task(
+    robot: RobotBackend,
+    task: _SteppedTask,
+    dt: float,
+    *,
+    sleep: Callable[[float], None] | None = None,
+    on_command: Callable[[Array], object] | None = None,
+    max_cycles: int = 1_000_000,
+) -> None:
+    """Run a task's ``next_command`` on ``robot`` until it returns None (blocking): read the
+    joint state, send the set-point, report it to ``on_command``, ``sleep(dt)`` if given;
+    at most ``max_cycles`` cycles. Shared by :func:`refine` and
+    :func:`icenav.refinement.pose_stage.pose_stage`."""
+    for _ in range(int(max_cycles)):
+        q = np.asarray(robot.read_state().q, np.float64)
+        cmd = task.next_command(q, dt)
+        if cmd is None:
+            return
+        robot.command_position(cmd)
+        if on_command is not None:
+            on_command(cmd)
+        if sleep is not None:
+            sleep(dt)

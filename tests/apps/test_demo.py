@@ -1,0 +1,104 @@
+"""``icenav demo``: the headless smoke run, the console process, and its CLI checks."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from icenav.apps.demo import main
+from icenav.persistence.store import SessionStore
+
+ICENAV = [sys.executable, "-m", "icenav.apps.cli"]
+
+
+def test_headless_demo_runs_and_persists_its_session(tmp_path: Path) -> None:
+    session = tmp_path / "procedure.icenav"
+    assert main(["--headless", "--duration", "8", "--session", str(session)]) == 0
+    with SessionStore(session, read_only=True) as store:
+        views = store.load_views()
+        assert len(views) == 2
+        assert store.load_roadmap().n_vertices > 100
+
+
+@pytest.mark.parametrize(
+    ("argv", "match"),
+    [
+        (["--port", "-1"], "--port must be in"),
+        (["--port", "70000"], "--port must be in"),
+        (["--seed", "-3"], "--seed must be >= 0"),
+        (["--headless", "--duration", "nan"], "--duration must be > 0"),
+        (["--vessel", "twisty"], "invalid choice"),
+    ],
+)
+def test_bad_flags_are_refused(
+    argv: list[str], match: str, capsys: pytest.CaptureFixture[str]
+) -> None:
+    with pytest.raises(SystemExit) as info:
+        main(argv)
+    assert info.value.code == 2
+    assert match in capsys.readouterr().err
+
+
+def test_console_process_starts_prints_its_url_and_stops_on_sigterm(tmp_path: Path) -> None:
+    env = dict(os.environ, SDL_VIDEODRIVER="dummy", SDL_AUDIODRIVER="dummy")
+    proc = subprocess.Popen(
+        [*ICENAV, "demo", "--port", "0", "--session", str(tmp_path / "s.icenav")],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+        env=env,
+    )
+    try:
+        assert proc.stdout is not None
+        deadline = time.monotonic() + 120
+        url = ""
+        lines = []
+        while time.monotonic() < deadline and not url:
+            line = proc.stdout.readline()
+            if not line:
+                break
+            lines.append(line)
+            if line.startswith("icenav console: http://127.0.0.1:"):
+                url = line.split()[2]
+        assert url, "".join(lines)
+        proc.send_signal(signal.SIGTERM)
+        assert proc.wait(timeout=60) == 0
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+        if proc.stdout is not None:
+            proc.stdout.close()
+    assert (tmp_path / "s.icenav").exists()
+
+
+@pytest.mark.slow
+def test_headless_demo_on_emulated_canopen_drives() -> None:
+    # the same scripted procedure through CANopenRobot and five emulated CiA 402 drives on
+    # a virtual CAN bus (real time: about 20 s)
+    assert main(["--headless", "--robot", "emulated-canopen", "--duration", "8"]) == 0
+
+
+def test_export_directory_defaults_beside_the_session(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from icenav.apps.demo import _check_args, _parser, export_dir_for
+
+    parser = _parser()
+    args = parser.parse_args(["--session", str(tmp_path / "a" / "s.icenav")])
+    assert export_dir_for(args) == tmp_path / "a" / "exports"
+    monkeypatch.chdir(tmp_path)
+    assert export_dir_for(parser.parse_args([])) == tmp_path / "exports"
+    args = parser.parse_args(["--export-dir", "out", "--session", "x/s.icenav"])
+    assert export_dir_for(args) == tmp_path / "out"  # the option wins, made absolute
+    (tmp_path / "file").write_text("x")
+    with pytest.raises(SystemExit) as info:
+        _check_args(parser.parse_args(["--export-dir", "file"]), parser)
+    assert info.value.code == 2
+    assert "--export-dir file exists and is not a directory" in capsys.readouterr().err
