@@ -32,7 +32,6 @@ MODULES = [
     "icenav.io.igtl_stream",
     "icenav.devices.gamepad",
     "icenav.geometry.kinematics",
-    "icenav.recovery.motion",
     "icenav.refinement.pose_stage",
     "icenav.refinement.image_search",
     "icenav.recovery.roadmap",

@@ -9,7 +9,7 @@ import pytest
 
 from icenav.errors import ConfigurationError, JointLimitError, UnreachablePoseError
 from icenav.geometry.kinematics import forward
-from icenav.geometry.trajectories import savgol_smooth, spin_trajectory, time_parameterize
+from icenav.geometry.trajectories import savgol_smooth, spin_trajectory
 
 DEG = math.pi / 180
 
@@ -76,51 +76,3 @@ def test_savgol_keeps_quadratics_and_removes_noise() -> None:
     assert np.std(sm - quad) < 0.5 * np.std(noisy - quad)
     with pytest.raises(ConfigurationError, match="window must be odd"):
         savgol_smooth(quad, 20)
-
-
-def _discrete(t: np.ndarray, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    dt = np.diff(t)
-    v = np.diff(q, axis=0) / dt[:, None]
-    zeros = np.zeros((1, q.shape[1]))
-    vv = np.vstack([zeros, v, zeros])
-    dd = np.concatenate([[dt[0]], dt, [dt[-1]]])
-    a = np.diff(vv, axis=0) / (0.5 * (dd[:-1] + dd[1:]))[:, None]
-    return np.abs(v).max(axis=0), np.abs(a).max(axis=0)
-
-
-def test_time_parameterisation_meets_the_limits() -> None:
-    rng = np.random.default_rng(2)
-    v_max = np.array([1.0, 1.0, 2.0, 10.0])
-    a_max = np.array([2.0, 3.0, 4.0, 20.0])
-    for _ in range(10):
-        n = int(rng.integers(20, 300))
-        q = np.cumsum(rng.normal(0, 0.02, (n, 4)), axis=0)
-        q = savgol_smooth(q, 11)
-        tp = time_parameterize(q, v_max, a_max)
-        assert tp.t[0] == 0.0
-        assert np.all(np.diff(tp.t) > 0)
-        v, a = _discrete(tp.t, tp.q)
-        assert np.all(v <= v_max * (1 + 1e-6))
-        assert np.all(a <= a_max * (1 + 1e-6))
-        # no faster than the velocity bound allows, and not absurdly slow
-        lower = np.max(np.sum(np.abs(np.diff(tp.q, axis=0)), axis=0) / v_max)
-        assert tp.duration >= lower * (1 - 1e-9)
-
-
-def test_time_parameterisation_of_a_spin_is_near_optimal() -> None:
-    sp = spin_trajectory([60 * DEG, 0.0, 0.0, 0.0], 720)
-    tp = time_parameterize(sp.q_model, 1.0, 100.0)
-    # with a generous acceleration limit the roll (2 pi at 1 rad/s) sets the time
-    assert 2 * math.pi <= tp.duration < 1.1 * 2 * math.pi
-    samples = tp.sample(100.0)
-    assert np.allclose(samples[0], sp.q_model[0])
-    assert np.allclose(samples[-1], sp.q_model[-1])
-
-
-def test_time_parameterisation_rejects_bad_limits() -> None:
-    with pytest.raises(ConfigurationError, match="must be > 0"):
-        time_parameterize(np.zeros((3, 2)), [1.0, 0.0], 1.0)
-    with pytest.raises(ConfigurationError, match=r"shape \(n >= 2, k\)"):
-        time_parameterize(np.zeros(3), 1.0, 1.0)
-    still = time_parameterize(np.zeros((5, 2)), 1.0, 1.0)
-    assert still.duration == 0.0

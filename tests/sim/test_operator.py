@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from icenav.control.controller import ControllerConfig, PathTask
 from icenav.devices.sim_robot import IdealPlant, SimulatedRobot
 from icenav.errors import ConfigurationError
-from icenav.recovery.motion import ExecutionStatus, PathExecutor
 from icenav.recovery.roadmap import Roadmap, direction_tracker
 from icenav.sim.operator import OperatorConfig, ScriptedOperator, drive, minimum_jerk
 
@@ -40,6 +40,17 @@ def test_operator_respects_speed_box_and_seed() -> None:
         OperatorConfig(box_low=(1, 1, 1, 1), box_high=(0, 0, 0, 0))
 
 
+def follow(robot: SimulatedRobot, path: np.ndarray, dt: float = 0.01) -> None:
+    """Follow a roadmap path as the controller does (its PathTask) until it ends."""
+    task = PathTask(path, np.asarray(ControllerConfig().max_velocity))
+    for _ in range(1_000_000):
+        q = task.next_command(robot.read_state().q, dt)
+        if q is None:
+            return
+        robot.command_position(q)
+    raise AssertionError("the path task did not end")
+
+
 def test_record_save_wander_return_end_to_end() -> None:
     robot = SimulatedRobot(IdealPlant())
     robot.enable()
@@ -60,8 +71,7 @@ def test_record_save_wander_return_end_to_end() -> None:
     n_states = 0
     for view in reversed(views):
         path = rm.plan(robot.read_state().q, view, approach=True)
-        ex = PathExecutor(robot, path, dt=0.01, epsilon=rm.epsilon)
-        assert ex.run() is ExecutionStatus.DONE
+        follow(robot, path)
         np.testing.assert_array_equal(robot.read_state().q, view.q)
         np.testing.assert_allclose(robot.tip2base, view.tip2base, atol=1e-9)
         assert direction_tracker(path, rm.direction_threshold_motor) == view.arrival_direction
@@ -87,7 +97,7 @@ def test_same_direction_approach_takes_up_backlash_on_the_physics_plant() -> Non
             view = rm.make_view("v", created_s=0.0, tip2base=robot.tip2base.copy())
             drive(op.explore(6), robot, rm)
             path = rm.plan(robot.read_state().q, view, approach=approach)
-            assert PathExecutor(robot, path).run() is ExecutionStatus.DONE
+            follow(robot, path)
             np.testing.assert_array_equal(robot.read_state().q, view.q)  # same motor state
             assert view.tip2base is not None
             errors[approach].append(

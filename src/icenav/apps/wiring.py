@@ -17,6 +17,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from icenav._typing import Array
 from icenav.control.controller import Controller, ControllerConfig
 from icenav.devices.gamepad import InputSource
 from icenav.errors import ConfigurationError
@@ -25,8 +26,6 @@ from icenav.recovery.roadmap import Roadmap, RoadmapConfig
 from icenav.recovery.views import View
 
 __all__ = ["SimSession", "StoreRecorder", "anatomy_meshes", "make_sim_controller"]
-
-Array = NDArray[np.float64]
 
 
 class StoreRecorder:

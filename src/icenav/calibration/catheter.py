@@ -1,5 +1,5 @@
 """The whole calibration our ``dense+hysteresis`` compensation needs, as one motion plan and
-one fit (beyond the paper; issue 4).
+one fit (beyond the paper).
 
 :func:`catheter_plan` strings together, from rest at zeros: the paper's dense raster, the
 hysteresis sweeps (:func:`icenav.calibration.plans.hysteresis_plan`), the roll circles that
@@ -23,9 +23,9 @@ import math
 from collections.abc import Callable
 from dataclasses import dataclass
 
-import numpy as np
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import ArrayLike
 
+from icenav._typing import Array
 from icenav.calibration.plans import (
     HysteresisIdentification,
     HysteresisPlan,
@@ -62,8 +62,6 @@ __all__ = [
     "catheter_plan",
     "fit_catheter",
 ]
-
-Array = NDArray[np.float64]
 
 DENSE_RASTER = "dense raster"
 """Segment name of the raster in the plan."""

@@ -47,6 +47,7 @@ from typing import Any, Protocol, runtime_checkable
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from icenav._typing import Array
 from icenav._validation import check_finite, check_joint_state
 from icenav.compensation.elasticity import CalibrationSet
 from icenav.compensation.hysteresis import (
@@ -83,7 +84,6 @@ __all__ = [
     "raster_grid",
 ]
 
-Array = NDArray[np.float64]
 log = logging.getLogger("icenav.calibration.plans")
 
 Mover = Callable[[Array], object]

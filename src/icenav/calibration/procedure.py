@@ -30,8 +30,9 @@ from dataclasses import dataclass
 from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import ArrayLike
 
+from icenav._typing import Array
 from icenav._validation import check_finite
 from icenav.errors import ConfigurationError, ShapeError
 
@@ -43,8 +44,6 @@ __all__ = [
     "VisitGenerator",
     "run_procedure",
 ]
-
-Array = NDArray[np.float64]
 
 
 @dataclass(frozen=True, eq=False)

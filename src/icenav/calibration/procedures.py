@@ -26,8 +26,8 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-from numpy.typing import NDArray
 
+from icenav._typing import Array
 from icenav.calibration.plans import (
     MotionPlan,
     Recording,
@@ -48,8 +48,6 @@ __all__ = [
     "make_procedure",
     "plan_visits",
 ]
-
-Array = NDArray[np.float64]
 
 CALIBRATION_KINDS = ("dense", "five_point", "dense+hysteresis")
 """The kinds :func:`make_procedure` knows."""

@@ -54,6 +54,7 @@ from scipy.interpolate import (
 )
 from scipy.spatial import cKDTree
 
+from icenav._typing import Array
 from icenav._validation import check_finite, check_joint_state, check_transform
 from icenav.errors import ConfigurationError, FileFormatError, UnsupportedVersionError
 from icenav.geometry.kinematics import DEFAULT_GEOMETRY, CatheterGeometry, forward
@@ -69,7 +70,6 @@ __all__ = [
     "grid_subset_indices",
 ]
 
-Array = NDArray[np.float64]
 Interpolant = Literal["auto", "spline", "rbf", "clough-tocher"]
 
 CALIBRATION_FORMAT = "icenav.calibration.plans"

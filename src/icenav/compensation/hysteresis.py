@@ -37,9 +37,10 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import ArrayLike
 from scipy.optimize import least_squares
 
+from icenav._typing import Array
 from icenav._validation import check_finite
 from icenav.errors import ConfigurationError
 
@@ -50,8 +51,6 @@ __all__ = [
     "identify",
     "sweep_path",
 ]
-
-Array = NDArray[np.float64]
 
 
 @dataclass(frozen=True)

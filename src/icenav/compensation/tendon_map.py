@@ -1,4 +1,4 @@
-"""Our dense + hysteresis compensation as the controller's compensation (issue 4, beyond the
+"""Our dense + hysteresis compensation as the controller's compensation (beyond the
 paper): model joint states <-> motor joint states through the per-tendon transmission.
 
 The paper's F (:class:`icenav.compensation.elasticity.ElasticityMap`) is a fixed map of the knobs.
@@ -34,8 +34,9 @@ import math
 from typing import Any
 
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import ArrayLike
 
+from icenav._typing import Array
 from icenav._validation import check_finite
 from icenav.compensation.hysteresis import JointHysteresis
 from icenav.compensation.transmission import TendonCompensator, TransmissionCalibration
@@ -43,8 +44,6 @@ from icenav.errors import ConfigurationError, ShapeError
 from icenav.geometry.kinematics import DEFAULT_GEOMETRY, CatheterGeometry
 
 __all__ = ["TendonKnobMap"]
-
-Array = NDArray[np.float64]
 
 
 class TendonKnobMap:

@@ -1,5 +1,5 @@
 """The EM tracker's field bias in the *base* frame, separated from the catheter's elasticity by
-rolling the catheter (beyond the paper; issue 4).
+rolling the catheter (beyond the paper).
 
 Why: the map F (:mod:`icenav.compensation.elasticity`) is built from EM-tracked tips in the *knob*
 frame
@@ -47,6 +47,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from icenav._typing import Array
 from icenav._validation import check_finite
 from icenav.calibration.plans import (
     MotionPlan,
@@ -71,8 +72,6 @@ __all__ = [
     "roll_circle_path",
     "roll_circle_plan",
 ]
-
-Array = NDArray[np.float64]
 
 DEFAULT_ROLL_BENDS = tuple(math.radians(a) for a in (0.0, 25.0, 50.0, 75.0))
 """AP knob angles (rad) of the roll circles: the straight tip and three bends spanning the

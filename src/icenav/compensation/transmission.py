@@ -1,5 +1,5 @@
 """A transmission model per *tendon* (tendon-sheath capstan play), its identification from
-two-knob motions, and its stateful inverse (beyond the paper; issue 4).
+two-knob motions, and its stateful inverse (beyond the paper).
 
 :mod:`icenav.compensation.hysteresis` gives each knob one play whose half-width grows with that
 knob's own
@@ -76,9 +76,10 @@ from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import ArrayLike
 from scipy.optimize import brentq, least_squares
 
+from icenav._typing import Array
 from icenav._validation import check_finite
 from icenav.calibration.plans import MotionPlan, Recording, execute_plan
 from icenav.compensation.elasticity import CalibrationSet, ElasticityMap
@@ -110,8 +111,6 @@ __all__ = [
     "reidentify_in_situ",
     "transmission_commands",
 ]
-
-Array = NDArray[np.float64]
 
 _MAX_PLAY = math.radians(20.0)
 _PARAM_NAMES = (

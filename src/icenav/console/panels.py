@@ -16,6 +16,7 @@ from typing import Literal
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from icenav._typing import Array
 from icenav.control.state import ControllerState, Mode, ViewSummary
 from icenav.devices.gamepad import JoystickMapping
 from icenav.errors import ConfigurationError, ShapeError
@@ -39,8 +40,6 @@ __all__ = [
     "summary_markdown",
     "views_markdown",
 ]
-
-Array = NDArray[np.float64]
 
 MODE_CHOICES: dict[str, Mode] = {"Idle": Mode.IDLE, "Knob": Mode.KNOB, "Tip": Mode.TIP}
 """Mode dropdown label -> mode (the automatic modes start through their own buttons)."""

@@ -18,6 +18,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from icenav._typing import Array
 from icenav.control.state import ControllerState, ViewSummary
 from icenav.errors import ConfigurationError, ShapeError
 from icenav.geometry.kinematics import DEFAULT_GEOMETRY, CatheterGeometry, forward
@@ -37,8 +38,6 @@ __all__ = [
     "tube_mesh",
     "view_marker_positions",
 ]
-
-Array = NDArray[np.float64]
 
 MM_TO_SCENE = 1e-3
 """Scene units per mm (one scene unit = 1 m)."""

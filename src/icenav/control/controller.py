@@ -38,6 +38,7 @@ from typing import Any, Literal, Protocol
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from icenav._typing import Array
 from icenav._validation import check_finite, check_positive
 from icenav.calibration.plans import MotionPlan, Recording, five_point_targets, raster_grid
 from icenav.compensation.elasticity import CalibrationSet, ElasticityMap
@@ -79,8 +80,6 @@ __all__ = [
     "PlanTask",
     "TRANSITIONS",
 ]
-
-Array = NDArray[np.float64]
 
 _AUTOMATIC = (Mode.GOTO_VIEW, Mode.SPINNING, Mode.CALIBRATING)
 _GC_NO_AUTOMATIC_FULL = 1_000_000_000
@@ -169,11 +168,11 @@ class ControllerConfig:
     """From this roadmap size on, go-to-view plans in a background thread (the robot holds
     meanwhile) and a new view's shortest-path tree is prepared in the background (it was
     20,000: a plan inside the cycle then took up to 50 ms of CPU, 100-300 ms on a busy
-    machine; issue 9, soak)."""
+    machine; see docs/safety.md, soak)."""
     plan_in_process: bool = True
     """Run the background Dijkstra of go-to-view / a new view's tree in a worker process
     (``Roadmap.tree_job(isolate=True)``): scipy's Dijkstra holds the GIL for its whole run,
-    so in a thread it would stall the control loop (issue 9, soak)."""
+    so in a thread it would stall the control loop (see the soak in docs/safety.md)."""
     gc_full_every_s: float = 300.0
     """With the real-time loop's GC policy (:meth:`Controller.settle_gc`): run a full
     garbage collection at most this often (s), between cycles, in a cycle's idle time."""
@@ -221,10 +220,6 @@ class PathTask:
     path time is run with a trapezoidal rate (ramping up over ``ramp_s`` and down to a stop
     at the end), so accelerations stay bounded. The commanded state never leaves the
     travelled polyline, which is what view recovery promises.
-    (``icenav.recovery.motion.PathExecutor``
-    adds jerk limits with ruckig but, following a carrot a quarter epsilon ahead that it
-    must reach at rest, crawls at about 0.1 rad/s on roadmap paths; it is not used here
-    until that is fixed.)
     """
 
     path: Array
@@ -952,8 +947,8 @@ class Controller:
         self._selected_view = name
         self._prepare_plans_to(view)
 
-        # --- store writer hand-off (issue 9, soak): a threaded recorder commits the view on
-        # its own thread and calls back; the operator reads "saved" only once it is on disk
+        # --- store writer hand-off (the soak): a threaded recorder commits the view on its
+        # own thread and calls back; the operator reads "saved" only once it is on disk
         def on_durable(error: BaseException | None) -> None:  # on the writer thread
             if error is None:
                 text = f"view {name!r} saved"
@@ -1008,7 +1003,7 @@ class Controller:
         except IcenavError as exc:
             self._message = str(exc)
             return
-        # vertex budget (issue 9, soak): out of recorded territory, record the stretch
+        # vertex budget (the soak, docs/safety.md): out of recorded territory, record the stretch
         # travelled since the roadmap was left, so the return can start from here
         self.roadmap.anchor()
         if self.roadmap.n_vertices >= self.config.background_plan_vertices:
@@ -1292,7 +1287,7 @@ class Controller:
         """Install the persistence callback (see the class docstring)."""
         self._recorder = recorder
 
-    # --- garbage-collection policy (issue 9, soak) -------------------------------------------
+    # --- garbage-collection policy (the soak, docs/safety.md) ---------------------------------
     # A full (generation 2) collection traverses every container object of the process; on
     # a long procedure it stalled one control cycle for up to seconds. Policy: after
     # start-up, collect once and freeze what exists (never traversed again), switch the

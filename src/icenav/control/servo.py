@@ -33,15 +33,14 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import ArrayLike
 
+from icenav._typing import Array
 from icenav._validation import check_finite, check_transform
 from icenav.errors import ConfigurationError
 from icenav.geometry.kinematics import DEFAULT_GEOMETRY, CatheterGeometry, jacobian
 
 __all__ = ["PoseServoConfig", "TipPoseServo", "body_pose_error"]
-
-Array = NDArray[np.float64]
 
 
 def _tuple4(name: str, unit: str, values: tuple[float, float, float, float]) -> None:

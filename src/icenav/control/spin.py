@@ -1,4 +1,4 @@
-"""Image spinning as a controller task, open loop or closed on the EM tracker (issue 4).
+"""Image spinning as a controller task, open loop or closed on the EM tracker.
 
 :class:`SpinTask` drives the paper's spin (the image plane turns 360 deg about the catheter
 axis while the tip stays put) one set-point per control cycle:
@@ -29,8 +29,9 @@ from collections.abc import Callable
 from typing import Any
 
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import ArrayLike
 
+from icenav._typing import Array
 from icenav._validation import check_finite
 from icenav.calibration.plans import _average_poses
 from icenav.compensation.hysteresis import HysteresisCompensator
@@ -40,8 +41,6 @@ from icenav.errors import InvalidValueError
 from icenav.geometry.kinematics import DEFAULT_GEOMETRY, CatheterGeometry, _rigid_inverse, forward
 
 __all__ = ["SpinTask", "tracked_tip2base"]
-
-Array = NDArray[np.float64]
 
 
 def tracked_tip2base(tracker: Any) -> tuple[float, Array | None]:

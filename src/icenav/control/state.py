@@ -18,6 +18,7 @@ from typing import Literal, Protocol
 import numpy as np
 from numpy.typing import NDArray
 
+from icenav._typing import Array
 from icenav.devices.robot import RobotStatus
 
 __all__ = [
@@ -28,8 +29,6 @@ __all__ = [
     "Mode",
     "ViewSummary",
 ]
-
-Array = NDArray[np.float64]
 
 CalibrationKind = Literal["dense", "five_point", "dense+hysteresis"]
 

@@ -22,15 +22,14 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import ArrayLike
 
+from icenav._typing import Array
 from icenav._validation import check_finite, check_joint_state, check_transform
 from icenav.errors import InvalidValueError, ShapeError
 from icenav.geometry.kinematics import DEFAULT_GEOMETRY, CatheterGeometry, forward
 
 __all__ = ["Registration", "kabsch_umeyama", "register_tracker", "registration_joint_states"]
-
-Array = NDArray[np.float64]
 
 
 @dataclass(frozen=True)

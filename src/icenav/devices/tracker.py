@@ -24,9 +24,8 @@ from typing import Any, Protocol, runtime_checkable
 import numpy as np
 from numpy.typing import NDArray
 
+from icenav._typing import Array
 from icenav.errors import ConfigurationError, TrackerError
-
-Array = NDArray[np.float64]
 
 __all__ = [
     "NDIAuroraConfig",

@@ -23,6 +23,7 @@ import numpy as np
 import scipy.ndimage as ndi
 from numpy.typing import ArrayLike, NDArray
 
+from icenav._typing import Array
 from icenav._validation import check_finite, check_positive, check_transform
 from icenav.errors import InvalidValueError, ShapeError
 
@@ -40,8 +41,6 @@ __all__ = [
     "roi_centroid_distance",
     "rotation_angle",
 ]
-
-Array = NDArray[np.float64]
 
 
 def _pair(a: ArrayLike, b: ArrayLike, name: str) -> tuple[Array, Array]:

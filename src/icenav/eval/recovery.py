@@ -10,8 +10,7 @@ Protocol (the phantom study of Section IV, with the in-vivo metrics of Table II)
 2. The robot cycles through the views ``rounds`` times (16, as the phantom study), each
    return planned on the roadmap with the same-direction approach and executed as the
    controller does (:class:`icenav.control.controller.PathTask`: exactly through the recorded
-   states at bounded speed; ``icenav.recovery.motion.PathExecutor`` would give the same end state
-   but crawls on roadmap paths, see the controller's note); after each return the EM
+   states at bounded speed); after each return the EM
    tracker (8 samples averaged), the twin's true pose and one beat of images are recorded.
    As in the controller, every commanded state (returns and refinement moves) is added to
    the roadmap, so the recorded trace stays contiguous.
@@ -69,8 +68,8 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from numpy.typing import NDArray
 
+from icenav._typing import Array
 from icenav.control.controller import ControllerConfig, PathTask
 from icenav.devices.sim_robot import SimulatedRobot
 from icenav.eval.metrics import (
@@ -79,6 +78,7 @@ from icenav.eval.metrics import (
     match_by_phase,
     rotation_angle,
 )
+from icenav.eval.paper import paper_results
 from icenav.recovery.roadmap import Roadmap
 from icenav.recovery.views import View
 from icenav.refinement.gating import GatedBeatImager, PhantomRespiration
@@ -108,23 +108,10 @@ __all__ = [
     "run_recovery",
 ]
 
-Array = NDArray[np.float64]
-
 TARGETS = ("aortic_valve", "mitral_valve", "tricuspid_valve")
 """The paper's three imaging targets (names of :data:`EXAMPLE_VIEWS` and ROI labels)."""
 MODES = ("open_loop", "refined")
 """Open-loop return (the paper) and return + closed-loop image refinement."""
-PAPER_RESULTS = Path("/work/shared/paper/results.json")
-_PAPER_FALLBACK: dict[str, Any] = {
-    "view_recovery_phantom_em": {"position_mm_mean": 0.67, "position_mm_sd": 0.79,
-                                 "rotation_deg_mean": 0.37, "rotation_deg_sd": 0.19},
-    "table_II_view_recovery_in_vivo": {
-        "localisation_mm": [[1.4, 1.1], [1.6, 0.9], [1.4, 0.8]],
-        "similarity_pct": [[81.4, 5.6], [80.9, 5.6], [81.0, 9.3]],
-        "roi_mm": [[2.8, 1.4], [1.8, 0.8], [4.0, 3.0]],
-        "consecutive_beat_ceiling": {"similarity_pct": 89.8, "roi_mm": 2.0},
-    },
-}  # fmt: skip
 DT = 0.01
 """Control period of the simulated controller (s)."""
 
@@ -601,13 +588,10 @@ def _record(
 # --- reporting ------------------------------------------------------------------------------
 
 
-def paper_results() -> dict[str, Any]:
-    """The paper's phantom EM result and Table II (from results.json, or a built-in copy)."""
-    try:
-        doc = json.loads(PAPER_RESULTS.read_text(encoding="utf-8"))
-        return {k: doc[k] for k in ("view_recovery_phantom_em", "table_II_view_recovery_in_vivo")}
-    except (OSError, KeyError, ValueError):
-        return dict(_PAPER_FALLBACK)
+def paper_figures() -> dict[str, Any]:
+    """The paper's phantom EM result and Table II."""
+    doc = paper_results()
+    return {k: doc[k] for k in ("view_recovery_phantom_em", "table_II_view_recovery_in_vivo")}
 
 
 def _f(x: float | None, fmt: str = "5.2f") -> str:
@@ -623,7 +607,7 @@ def format_table(records: Sequence[RecoveryRecord]) -> str:
     the gated similarity; the gated ceiling (a gated beat of the still catheter) is shown
     beside it.
     """
-    paper = paper_results()
+    paper = paper_figures()
     t2 = paper["table_II_view_recovery_in_vivo"]
     ph = paper["view_recovery_phantom_em"]
     ceil = t2["consecutive_beat_ceiling"]

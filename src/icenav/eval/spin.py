@@ -56,8 +56,8 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from numpy.typing import NDArray
 
+from icenav._typing import Array
 from icenav.calibration.plans import (
     calibrate_dense,
     calibrate_five_point,
@@ -103,8 +103,6 @@ __all__ = [
     "run_vessel",
     "with_transmission",
 ]
-
-Array = NDArray[np.float64]
 
 OURS = "dense+hysteresis"
 """Our open-loop condition: dense F with the per-tendon dead-zone / hysteresis model."""

@@ -10,7 +10,6 @@ less than +1 mm / +5 deg; simplified: less than +2 mm / +5 deg).
 
 from __future__ import annotations
 
-import json
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -18,6 +17,8 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import NDArray
+
+from icenav.eval.paper import paper_results
 
 if TYPE_CHECKING:
     from icenav.eval.spin import SpinRecord
@@ -41,13 +42,6 @@ Array = NDArray[np.float64]
 
 BENDS_DEG = (20, 40, 60)
 """The paper's initial AP bends (deg)."""
-PAPER_RESULTS = Path("/work/shared/paper/results.json")
-"""The paper's numbers (Table I), if present."""
-_PAPER_FALLBACK = {
-    "none": [[5.5, 10.0], [11.0, 20.5], [14.8, 31.0]],
-    "dense": [[2.5, 3.0], [4.2, 8.6], [5.0, 10.3]],
-    "simplified": [[5.2, 5.8], [5.8, 13.6], [5.1, 13.4]],
-}
 PAPER_VESSEL_BOUNDS = {"dense": (1.0, 5.0), "simplified": (2.0, 5.0)}
 """What the paper's curved vessels added at most (Section IV, Fig. 7): condition ->
 (position mm, rotation deg)."""
@@ -84,12 +78,8 @@ class CellSummary:
 
 def paper_table() -> dict[str, list[list[float]]]:
     """The paper's Table I: condition -> [[pos mm, rot deg] per bend 20 / 40 / 60]."""
-    try:
-        doc = json.loads(PAPER_RESULTS.read_text(encoding="utf-8"))
-        t = doc["table_I_spinning_benchtop_straight"]
-        return {k: t[k] for k in ("none", "dense", "simplified")}
-    except (OSError, KeyError, ValueError):
-        return dict(_PAPER_FALLBACK)
+    t = paper_results()["table_I_spinning_benchtop_straight"]
+    return {k: t[k] for k in ("none", "dense", "simplified")}
 
 
 def _ordered(values: Iterable[str], order: Sequence[str]) -> list[str]:

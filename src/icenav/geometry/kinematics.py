@@ -37,8 +37,9 @@ from dataclasses import dataclass, field
 from typing import Literal
 
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import ArrayLike
 
+from icenav._typing import Array
 from icenav._validation import check_finite, check_joint_state, check_positive, check_transform
 from icenav.errors import ConfigurationError, UnreachablePoseError
 
@@ -55,8 +56,6 @@ __all__ = [
     "knobs_to_bend",
     "tip_jog",
 ]
-
-Array = NDArray[np.float64]
 
 _SERIES_BELOW = 1e-2  # bending angle (rad) below which the Taylor series are used
 

@@ -1,4 +1,4 @@
-"""Image spinning, Savitzky-Golay smoothing and time parameterisation of joint paths.
+"""Image spinning and Savitzky-Golay smoothing of joint paths.
 
 Image spinning (paper Sec. III-C, last paragraph): turn the ultrasound image plane 360 deg
 about the catheter axis at the tip while the tip stays put. The intended pose is the start
@@ -10,8 +10,8 @@ and the model joint path follows by inverse kinematics (Eqs. (3)-(8)). From
 (phi1, phi2) = (a, 0) this is the paper's example phi1 = a cos t, phi2 = a sin t,
 phi3 = -t (``direction = -1``).
 
-Commanded paths are smoothed with a quadratic Savitzky-Golay filter, as the paper does,
-and time-parameterised to per-joint velocity and acceleration limits.
+Commanded paths are smoothed with a quadratic Savitzky-Golay filter, as the paper does
+(the controller's path task times them at its speed limits).
 """
 
 from __future__ import annotations
@@ -20,9 +20,10 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import ArrayLike
 from scipy.signal import savgol_filter
 
+from icenav._typing import Array
 from icenav._validation import check_finite, check_joint_state
 from icenav.errors import ConfigurationError, UnreachablePoseError
 from icenav.geometry.kinematics import (
@@ -34,13 +35,9 @@ from icenav.geometry.kinematics import (
 
 __all__ = [
     "SpinTrajectory",
-    "TimedPath",
     "savgol_smooth",
     "spin_trajectory",
-    "time_parameterize",
 ]
-
-Array = NDArray[np.float64]
 
 
 @dataclass(frozen=True)
@@ -148,126 +145,3 @@ def savgol_smooth(
         if w <= polyorder:
             return q.copy()
     return np.asarray(savgol_filter(q, w, polyorder, axis=0, mode=mode))
-
-
-@dataclass(frozen=True)
-class TimedPath:
-    """A joint path with a time for each sample."""
-
-    t: Array
-    """(n,) times (s), starting at 0, strictly increasing."""
-    q: Array
-    """(n, k) joint states (rad or mm per joint)."""
-
-    @property
-    def duration(self) -> float:
-        """Total time (s)."""
-        return float(self.t[-1])
-
-    def sample(self, rate_hz: float) -> Array:
-        """Joint states (m, k) at a fixed rate by linear interpolation (the path's own
-        samples are close, so this stays within the limits up to rounding)."""
-        hz = float(rate_hz)
-        if not math.isfinite(hz) or hz <= 0:
-            raise ConfigurationError(f"rate_hz must be finite and > 0 Hz, got {rate_hz!r}")
-        ts = np.arange(0.0, self.duration, 1.0 / hz)
-        ts = np.append(ts, self.duration) if ts[-1] < self.duration else ts
-        return np.stack([np.interp(ts, self.t, self.q[:, j]) for j in range(self.q.shape[1])], -1)
-
-
-def _accel_bounds(dq: Array, ddq: Array, x: Array, a: Array) -> tuple[Array, Array]:
-    """Bounds on s'' at each node for s'^2 = x: -a <= q' s'' + q'' x <= a, per joint."""
-    big = 1e300
-    rhs_hi = a[None, :] - ddq * x[:, None]
-    rhs_lo = -a[None, :] - ddq * x[:, None]
-    pos = dq > 1e-15
-    neg = dq < -1e-15
-    safe = np.where(pos | neg, dq, 1.0)
-    hi = np.where(pos, rhs_hi / safe, np.where(neg, rhs_lo / safe, big))
-    lo = np.where(pos, rhs_lo / safe, np.where(neg, rhs_hi / safe, -big))
-    # joints that do not move along the path: feasible only if |q'' x| <= a
-    still = ~(pos | neg)
-    bad = still & (np.abs(ddq * x[:, None]) > a[None, :])
-    hi = np.where(bad, -big, hi)
-    return np.max(lo, axis=1), np.min(hi, axis=1)
-
-
-def _discrete_limits(t: Array, q: Array) -> tuple[Array, Array]:
-    """Max |velocity| and |acceleration| per joint of a timed path, in the discrete sense
-    (segment velocities; node accelerations, at rest before and after)."""
-    dt = np.diff(t)
-    v = np.diff(q, axis=0) / dt[:, None]
-    vv = np.vstack([np.zeros(q.shape[1]), v, np.zeros(q.shape[1])])
-    dd = np.concatenate([[dt[0]], dt, [dt[-1]]])
-    acc = np.diff(vv, axis=0) / (0.5 * (dd[:-1] + dd[1:]))[:, None]
-    return np.max(np.abs(v), axis=0), np.max(np.abs(acc), axis=0)
-
-
-def time_parameterize(q_path: ArrayLike, v_max: ArrayLike, a_max: ArrayLike) -> TimedPath:
-    """Time-optimal-style timing of a sampled path within per-joint velocity / acceleration.
-
-    The path parameter s is the sample index. With q'(s), q''(s) from finite differences,
-    ``x = s'^2`` obeys ``|q' s'' + q'' x| <= a_max`` and ``|q'| sqrt(x) <= v_max``; a maximum
-    velocity curve, a forward (accelerate) and a backward (decelerate) integration of x
-    give the profile (the classic phase-plane method of Bobrow / Shin & McKay), starting
-    and ending at rest. A final uniform time scaling makes the *discrete* segment
-    velocities and node accelerations (zero velocity before the first and after the last
-    sample) meet the limits exactly.
-
-    Parameters
-    ----------
-    q_path : array-like, shape (n, k)
-        Joint path, n >= 2; repeated samples are dropped.
-    v_max, a_max : array-like, shape (k,) or scalar
-        Velocity (unit/s) and acceleration (unit/s^2) limits per joint, > 0.
-    """
-    q = check_finite(q_path, "q_path")
-    if q.ndim != 2 or q.shape[0] < 2:
-        raise ConfigurationError(f"q_path must have shape (n >= 2, k), got {q.shape}")
-    k = q.shape[1]
-    v = np.broadcast_to(check_finite(v_max, "v_max"), (k,)).astype(np.float64)
-    a = np.broadcast_to(check_finite(a_max, "a_max"), (k,)).astype(np.float64)
-    if np.any(v <= 0) or np.any(a <= 0):
-        raise ConfigurationError(f"v_max and a_max must be > 0, got {v.tolist()}, {a.tolist()}")
-    moving = np.concatenate([[True], np.any(np.diff(q, axis=0) != 0.0, axis=1)])
-    q = q[moving]
-    n = q.shape[0]
-    if n < 2:
-        return TimedPath(t=np.zeros(1), q=q[:1].copy())
-    dq = np.gradient(q, axis=0)
-    ddq = np.zeros_like(q)
-    if n >= 3:
-        ddq[1:-1] = q[2:] - 2.0 * q[1:-1] + q[:-2]
-    # maximum velocity curve: velocity limits, then acceleration feasibility (bisection)
-    speed = np.abs(dq) / v  # time per unit s at unit rate, per joint
-    x_hi = 1.0 / np.maximum(np.max(speed, axis=1), 1e-6) ** 2
-    lo_b, hi_b = _accel_bounds(dq, ddq, x_hi, a)
-    ok = lo_b <= hi_b
-    x_lo = np.zeros(n)
-    x_top = x_hi.copy()
-    for _ in range(80):
-        if np.all(ok):
-            break
-        mid = 0.5 * (x_lo + x_top)
-        lo_m, hi_m = _accel_bounds(dq, ddq, mid, a)
-        good = lo_m <= hi_m
-        x_lo = np.where(~ok & good, mid, x_lo)
-        x_top = np.where(~ok & ~good, mid, x_top)
-    mvc = np.where(ok, x_hi, x_lo)
-    x = mvc.copy()
-    x[0] = 0.0
-    x[-1] = 0.0
-    for i in range(n - 1):  # forward: accelerate as much as allowed
-        _, hi_i = _accel_bounds(dq[i : i + 1], ddq[i : i + 1], x[i : i + 1], a)
-        x[i + 1] = min(x[i + 1], max(x[i] + 2.0 * float(hi_i[0]), 0.0))
-    for i in range(n - 1, 0, -1):  # backward: decelerate
-        lo_i, _ = _accel_bounds(dq[i : i + 1], ddq[i : i + 1], x[i : i + 1], a)
-        x[i - 1] = min(x[i - 1], max(x[i] - 2.0 * float(lo_i[0]), 0.0))
-    sd = np.sqrt(np.maximum(x, 0.0))
-    denom = sd[:-1] + sd[1:]
-    floor = 1e-9 * max(float(np.max(denom)), 1e-9)
-    dt = 2.0 / np.maximum(denom, floor)
-    t = np.concatenate([[0.0], np.cumsum(dt)])
-    vmax, amax = _discrete_limits(t, q)
-    scale = max(1.0, float(np.max(vmax / v)), float(np.sqrt(np.max(amax / a))))
-    return TimedPath(t=t * scale * (1.0 + 1e-9), q=q)

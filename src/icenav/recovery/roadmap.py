@@ -51,6 +51,7 @@ import scipy.sparse as sp
 from numpy.typing import ArrayLike, NDArray
 from scipy.sparse.csgraph import dijkstra
 
+from icenav._typing import Array
 from icenav._validation import check_joint_state, check_positive
 from icenav.errors import ConfigurationError, GoalUnreachableError, PlanningError, ShapeError
 from icenav.recovery.views import View
@@ -69,7 +70,6 @@ _EXCURSION_MAX = 2048
 """Longest excursion trail kept while the vertex budget is closed (states more than
 epsilon apart, so at least 2048 metric units of travel)."""
 
-Array = NDArray[np.float64]
 IntArray = NDArray[np.int64]
 
 

@@ -1,6 +1,6 @@
 """Respiratory gating of ICE beats: frames at the saved beat's cardiac *and* respiratory
 state, so that a returned view is compared with the saved one as consecutive beats are
-(beyond the paper; issue 6, part 4).
+(beyond the paper).
 """
 
 from __future__ import annotations
@@ -16,8 +16,6 @@ from icenav.eval.metrics import match_by_phase
 from icenav.refinement.image_search import BeatClip, SimulatedBeatImager
 
 __all__ = ["GatedBeatImager", "PhantomRespiration", "RespiratoryMonitor"]
-
-Array = NDArray[np.float64]
 
 
 class RespiratoryMonitor(Protocol):

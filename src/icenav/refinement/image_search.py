@@ -1,4 +1,4 @@
-"""Closed-loop, image-based view refinement (beyond the paper; issue 6, part 4).
+"""Closed-loop, image-based view refinement (beyond the paper).
 
 After a roadmap return (open loop), the catheter is where the motors say, not quite where
 the view was saved: backlash, friction and the vessel change the true pose a little. The
@@ -69,6 +69,7 @@ import numpy as np
 import scipy.ndimage as ndi
 from numpy.typing import ArrayLike, NDArray
 
+from icenav._typing import Array
 from icenav._validation import check_finite, check_joint_state, check_positive
 from icenav.control.state import Mode
 from icenav.devices.robot import RobotBackend
@@ -90,8 +91,6 @@ __all__ = [
     "drive_task",
     "refine",
 ]
-
-Array = NDArray[np.float64]
 
 _DEG = math.pi / 180.0
 

@@ -1,5 +1,5 @@
 """EM pose stage of the view refinement: servo the motors until the averaged EM-measured tip
-pose matches the pose saved with the view (beyond the paper; issue 6, part 4).
+pose matches the pose saved with the view (beyond the paper).
 
 Before the image search, :class:`PoseStageTask` (blocking: :func:`pose_stage`) servoes the
 motors until the EM-measured tip pose, averaged over 64 samples, matches the EM pose saved
@@ -27,6 +27,7 @@ from typing import Protocol
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from icenav._typing import Array
 from icenav._validation import check_finite, check_joint_state, check_positive
 from icenav.control.servo import body_pose_error
 from icenav.control.state import Mode
@@ -51,8 +52,6 @@ __all__ = [
     "pose_error",
     "pose_stage",
 ]
-
-Array = NDArray[np.float64]
 
 
 class PoseSensor(Protocol):

@@ -7,9 +7,9 @@ from __future__ import annotations
 
 from collections.abc import Callable, Sequence
 
-import numpy as np
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import ArrayLike
 
+from icenav._typing import Array
 from icenav.control.state import Mode
 from icenav.refinement.image_search import (
     BeatClip,
@@ -27,8 +27,6 @@ from icenav.refinement.pose_stage import (
 )
 
 __all__ = ["ViewRefinementTask"]
-
-Array = NDArray[np.float64]
 
 
 class ViewRefinementTask:

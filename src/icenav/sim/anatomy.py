@@ -47,6 +47,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from icenav._typing import Array
 from icenav._validation import check_finite, check_positive
 from icenav.errors import ConfigurationError, ShapeError
 from icenav.geometry.kinematics import DEFAULT_GEOMETRY, CatheterGeometry, forward
@@ -67,8 +68,6 @@ __all__ = [
     "default_phantom",
     "tip2anatomy",
 ]
-
-Array = NDArray[np.float64]
 
 
 class Tissue(enum.IntEnum):

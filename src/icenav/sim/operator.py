@@ -12,16 +12,15 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import ArrayLike
 
+from icenav._typing import Array
 from icenav._validation import check_joint_state, check_positive
 from icenav.devices.robot import RobotBackend
 from icenav.errors import ConfigurationError
 from icenav.recovery.roadmap import Roadmap
 
 __all__ = ["OperatorConfig", "ScriptedOperator", "drive", "minimum_jerk"]
-
-Array = NDArray[np.float64]
 
 
 @dataclass(frozen=True)

@@ -1,4 +1,4 @@
-"""The catheter plant: a quasi-static physical model of one ICE catheter (issue 3).
+"""The catheter plant: a quasi-static physical model of one ICE catheter.
 
 Motor joint state ``q_motor = (phi1, phi2, phi3, d4)`` (rad, rad, rad, mm) in, true pose of the
 image centre frame out. The chain (equations numbered as in ``docs/digital-twin.md``):
@@ -28,8 +28,9 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import ArrayLike
 
+from icenav._typing import Array
 from icenav._validation import check_joint_state
 from icenav.errors import ConfigurationError, ShapeError
 from icenav.geometry.kinematics import DEFAULT_GEOMETRY, CatheterGeometry, forward
@@ -43,8 +44,6 @@ __all__ = [
     "elastic_tip2base",
     "elastic_tip2base_from_tensions",
 ]
-
-Array = NDArray[np.float64]
 
 MAX_SUBSTEP_RAD = 0.02
 """A move is split into substeps of at most this knob change (rad) so the play follows the

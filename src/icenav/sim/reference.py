@@ -25,13 +25,12 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from numpy.typing import NDArray
 from scipy.integrate import solve_ivp
 from scipy.optimize import root
 
-__all__ = ["RodSolution", "solve_tendon_rod"]
+from icenav._typing import Array
 
-Array = NDArray[np.float64]
+__all__ = ["RodSolution", "solve_tendon_rod"]
 
 
 @dataclass(frozen=True)

@@ -24,8 +24,8 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
-from numpy.typing import NDArray
 
+from icenav._typing import Array
 from icenav._validation import check_transform
 from icenav.devices.registration import Registration
 from icenav.devices.tracker import ToolStatus, TrackerFrame
@@ -41,8 +41,6 @@ __all__ = [
     "TrackerFrame",
     "rotvec_to_matrix",
 ]
-
-Array = NDArray[np.float64]
 
 
 def rotvec_to_matrix(w: Array) -> Array:

@@ -19,9 +19,9 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from numpy.typing import NDArray
 from scipy.optimize import least_squares
 
+from icenav._typing import Array
 from icenav.eval.metrics import rotation_angle
 from icenav.geometry.kinematics import DEFAULT_GEOMETRY, CatheterGeometry, forward
 from icenav.sim.params import PlantParams
@@ -36,8 +36,6 @@ __all__ = [
     "spin_errors",
     "spin_trajectory",
 ]
-
-Array = NDArray[np.float64]
 
 
 @dataclass(frozen=True)

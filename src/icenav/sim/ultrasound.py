@@ -35,6 +35,7 @@ import numpy as np
 import scipy.ndimage as ndi
 from numpy.typing import ArrayLike, NDArray
 
+from icenav._typing import Array
 from icenav._validation import check_finite, check_positive, check_transform
 from icenav.errors import ConfigurationError
 from icenav.sim.anatomy import ROI_LABELS, HeartPhantom, Tissue, default_phantom
@@ -45,8 +46,6 @@ __all__ = [
     "RoiObservation",
     "UltrasoundRenderer",
 ]
-
-Array = NDArray[np.float64]
 
 
 @dataclass(frozen=True)
