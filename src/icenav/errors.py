@@ -15,11 +15,16 @@ unit and the allowed range (as canopen's ``SdoAbortedError`` carries the abort c
     │   ├── TransformError                    a matrix that is not a rigid transform
     │   ├── UnreachablePoseError              no joint state reaches a pose
     │   ├── ConfigurationError                a bad setting (geometry, plant, tracker, ...)
+    │   ├── CommandStepError                  a position command jumps farther than allowed
+    │   ├── ViewExistsError                   a view of that name exists already
     │   └── UnsafeExportPathError             an export would land outside its directory
     ├── FileFormatError (ValueError)          a file that icenav cannot read
     │   └── UnsupportedVersionError           written by a newer icenav, or unknown version
+    ├── ViewNotFoundError (KeyError)          no view of that name
     ├── PlanningError                         no path can be planned
-    │   └── GoalUnreachableError              the goal is not connected to the start
+    │   ├── GoalUnreachableError              the goal is not connected to the start
+    │   ├── RoadmapFullError                  the roadmap's vertex budget is used up
+    │   └── NeighbourhoodError                a refinement would leave the view's neighbourhood
     ├── StoreError                            the session store failed (disk full, read-only, ...)
     ├── ExportError                           writing an export failed (disk full, permission)
     ├── MotionAborted                         an automatic motion was aborted or stopped
@@ -27,12 +32,19 @@ unit and the allowed range (as canopen's ``SdoAbortedError`` carries the abort c
     │   ├── DriveFaultError                   a motor drive is in FAULT (code and text)
     │   ├── HeartbeatLostError                a drive stopped sending heartbeats
     │   └── EmergencyStopError                the robot is e-stopped; reset required
-    └── TrackerError                          the tracker is not running or misconfigured
+    ├── TrackerError                          the tracker is not running or misconfigured
+    └── IgtlError                             the OpenIGTLink server cannot start or is misused
 """
 
 from __future__ import annotations
 
 __all__ = [
+    "NeighbourhoodError",
+    "ViewNotFoundError",
+    "ViewExistsError",
+    "RoadmapFullError",
+    "IgtlError",
+    "CommandStepError",
     "ConfigurationError",
     "DriveFaultError",
     "EmergencyStopError",
@@ -181,3 +193,31 @@ class ExportError(IcenavError):
 class UnsafeExportPathError(InvalidValueError):
     """An export would be written outside its export directory (a symlink, a directory
     replaced after it was configured)."""
+
+
+class CommandStepError(InvalidValueError):
+    """A position command jumps farther than the backend's per-command maximum step."""
+
+
+class IgtlError(IcenavError):
+    """The OpenIGTLink bridge cannot start or is used wrongly (e.g. off the main thread)."""
+
+
+class RoadmapFullError(PlanningError):
+    """The vertex budget (``RoadmapConfig.max_vertices``) is used up: a view whose state is
+    not already a vertex cannot be recorded exactly."""
+
+
+class ViewExistsError(InvalidValueError):
+    """A view with that name already exists in the library."""
+
+
+class ViewNotFoundError(IcenavError, KeyError):
+    """No view with that name in the library."""
+
+    def __str__(self) -> str:  # KeyError would quote the message
+        return str(self.args[0]) if self.args else ""
+
+
+class NeighbourhoodError(PlanningError):
+    """A refinement set-point would leave the neighbourhood of the saved view."""

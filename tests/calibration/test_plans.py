@@ -21,7 +21,7 @@ from icenav.calibration.plans import (
 )
 from icenav.compensation.elasticity import ElasticityMap
 from icenav.devices.robot import JointState, RobotStatus
-from icenav.errors import ConfigurationError, JointLimitError, TrackerError
+from icenav.errors import ConfigurationError, InvalidValueError, JointLimitError, TrackerError
 from icenav.geometry.kinematics import forward
 
 DEG = math.pi / 180
@@ -224,7 +224,7 @@ def test_a_plan_visits_its_states_and_reads_where_it_says() -> None:
     fresh = SyntheticCatheter()  # the same as the raster procedure reads it
     run = calibrate_points(fresh.move, Tracker(fresh), q, n_average=2)
     np.testing.assert_array_equal(run.calibration.tip2base, poses)
-    with pytest.raises(KeyError, match="no segment 'sweep'"):
+    with pytest.raises(InvalidValueError, match="no segment 'sweep'"):
         rec.part("sweep")
     for bad, match in (
         (dict(n_average=np.array([1, -1])), "n_average must be 2 integers >= 0"),

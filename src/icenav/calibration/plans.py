@@ -57,7 +57,7 @@ from icenav.compensation.hysteresis import (
     sweep_path,
 )
 from icenav.devices.robot import RobotBackend
-from icenav.errors import ConfigurationError, ShapeError, TrackerError
+from icenav.errors import ConfigurationError, InvalidValueError, ShapeError, TrackerError
 from icenav.geometry.kinematics import DEFAULT_GEOMETRY, CatheterGeometry, forward
 from icenav.geometry.kinematics import inverse as kin_inverse
 
@@ -304,14 +304,16 @@ class MotionPlan:
         for a, b, name in self.segments:
             if a <= i < b:
                 return name
-        raise IndexError(f"state {i} is not in a plan of {self.n}")
+        raise InvalidValueError(f"state {i} is not in a plan of {self.n}")
 
     def segment(self, phase: str) -> slice:
         """Index range of the (first) segment named ``phase``."""
         for a, b, name in self.segments:
             if name == phase:
                 return slice(a, b)
-        raise KeyError(f"no segment {phase!r} in the plan ({[s[2] for s in self.segments]})")
+        raise InvalidValueError(
+            f"no segment {phase!r} in the plan ({[s[2] for s in self.segments]})"
+        )
 
 
 @dataclass(frozen=True, eq=False)

@@ -19,6 +19,7 @@ from numpy.typing import ArrayLike, NDArray
 from icenav._validation import JOINT_NAMES, JOINT_UNITS, check_joint_state
 from icenav.devices.robot import TRANSITIONS, JointState, RobotStatus
 from icenav.errors import (
+    CommandStepError,
     DriveFaultError,
     EmergencyStopError,
     HardwareError,
@@ -27,10 +28,6 @@ from icenav.errors import (
 from icenav.geometry.kinematics import DEFAULT_GEOMETRY, CatheterGeometry, forward
 
 __all__ = ["CommandStepError", "IdealPlant", "Plant", "SimulatedRobot"]
-
-
-class CommandStepError(InvalidValueError):
-    """A position command jumps farther than the backend's per-command maximum step."""
 
 
 @runtime_checkable

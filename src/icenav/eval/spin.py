@@ -74,6 +74,7 @@ from icenav.compensation.transmission import (
     transmission_commands,
 )
 from icenav.control.servo import TipPoseServo
+from icenav.errors import InvalidValueError
 from icenav.eval.metrics import rotation_angle
 from icenav.eval.spin_report import (
     BENDS_DEG,
@@ -281,10 +282,10 @@ def _commands(condition: str, q_model: Array, cal: Calibrations | None) -> Array
     if condition == "none":
         return path
     if cal is None:
-        raise ValueError(f"condition {condition!r} needs the calibrations")
+        raise InvalidValueError(f"condition {condition!r} needs the calibrations")
     if condition == OURS:
         if cal.transmission is None:
-            raise ValueError(f"condition {condition!r} needs the transmission calibration")
+            raise InvalidValueError(f"condition {condition!r} needs the transmission calibration")
         tc = cal.transmission
         return transmission_commands(
             q_model, tc.effective_map, tc.compensator, tracker_bias=cal.tracker_bias
@@ -413,7 +414,7 @@ def run_vessel(
     (n, 4) and the true tip positions (n, 3) (mm, base frame) of the spin."""
     if cal is None:
         if any(c != "none" for c in conditions):
-            raise ValueError(f"conditions {list(conditions)} need the calibrations")
+            raise InvalidValueError(f"conditions {list(conditions)} need the calibrations")
     elif OURS in conditions:
         cal = with_transmission(seed, cal)
     in_situ = in_situ and vessel != "straight" and OURS in conditions
@@ -563,14 +564,14 @@ def parse_seeds(text: str) -> list[int]:
         try:
             a, b = (int(lo), int(hi)) if sep else (int(part), int(part))
         except ValueError:
-            raise ValueError(
+            raise InvalidValueError(
                 f"seeds must be integers or ranges like 110-119, got {part!r}"
             ) from None
         if a < 0 or b < a:
-            raise ValueError(f"seed range must be ascending and >= 0, got {part!r}")
+            raise InvalidValueError(f"seed range must be ascending and >= 0, got {part!r}")
         seeds.update(range(a, b + 1))
     if not seeds:
-        raise ValueError(f"no seed in {text!r}")
+        raise InvalidValueError(f"no seed in {text!r}")
     return sorted(seeds)
 
 

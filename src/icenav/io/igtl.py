@@ -46,7 +46,7 @@ import pyigtl
 from numpy.typing import ArrayLike, NDArray
 
 from icenav._validation import check_finite, check_transform
-from icenav.errors import IcenavError, InvalidValueError, ShapeError
+from icenav.errors import IgtlError, InvalidValueError, ShapeError
 
 __all__ = [
     "DEFAULT_PORT",
@@ -80,10 +80,6 @@ DEVICE_IMAGE = "Image"
 DEVICE_STATUS = "IcenavStatus"
 DEVICE_COMMAND = "IcenavCommand"
 DEVICE_COMMAND_ACK = "IcenavCommandAck"
-
-
-class IgtlError(IcenavError):
-    """The OpenIGTLink bridge cannot start or is used wrongly (e.g. off the main thread)."""
 
 
 class IgtlCommand(enum.Enum):

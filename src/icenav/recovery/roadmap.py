@@ -53,7 +53,13 @@ from scipy.sparse.csgraph import dijkstra
 
 from icenav._typing import Array
 from icenav._validation import check_joint_state, check_positive
-from icenav.errors import ConfigurationError, GoalUnreachableError, PlanningError, ShapeError
+from icenav.errors import (
+    ConfigurationError,
+    GoalUnreachableError,
+    PlanningError,
+    RoadmapFullError,
+    ShapeError,
+)
 from icenav.recovery.views import View
 
 __all__ = [
@@ -175,11 +181,6 @@ class RoadmapConfig:
         if self.max_vertices is None:
             return 0
         return max(64, int(self.max_vertices) // 10)
-
-
-class RoadmapFullError(PlanningError):
-    """The vertex budget (``RoadmapConfig.max_vertices``) is used up: a view whose state is
-    not already a vertex cannot be recorded exactly."""
 
 
 def direction_tracker(

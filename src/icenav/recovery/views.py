@@ -17,20 +17,9 @@ import numpy as np
 from numpy.typing import NDArray
 
 from icenav._validation import check_joint_state, check_transform
-from icenav.errors import IcenavError, InvalidValueError
+from icenav.errors import InvalidValueError, ViewExistsError, ViewNotFoundError
 
 __all__ = ["View", "ViewExistsError", "ViewLibrary", "ViewNotFoundError"]
-
-
-class ViewExistsError(InvalidValueError):
-    """A view with that name already exists in the library."""
-
-
-class ViewNotFoundError(IcenavError, KeyError):
-    """No view with that name in the library."""
-
-    def __str__(self) -> str:  # KeyError would quote the message
-        return str(self.args[0]) if self.args else ""
 
 
 @dataclass(frozen=True)

@@ -73,7 +73,7 @@ from icenav._typing import Array
 from icenav._validation import check_finite, check_joint_state, check_positive
 from icenav.control.state import Mode
 from icenav.devices.robot import RobotBackend
-from icenav.errors import ConfigurationError, PlanningError, ShapeError
+from icenav.errors import ConfigurationError, NeighbourhoodError, ShapeError
 from icenav.eval.metrics import match_by_phase
 
 __all__ = [
@@ -93,10 +93,6 @@ __all__ = [
 ]
 
 _DEG = math.pi / 180.0
-
-
-class NeighbourhoodError(PlanningError):
-    """A refinement set-point would leave the neighbourhood of the saved view."""
 
 
 @dataclass(frozen=True)

@@ -21,6 +21,8 @@ import enum
 import struct
 from dataclasses import dataclass
 
+from icenav.errors import HardwareError
+
 __all__ = [
     "CW_CHANGE_SET_IMMEDIATELY",
     "CW_DISABLE_VOLTAGE",
@@ -200,7 +202,7 @@ def decode_statusword(statusword: int) -> DriveState:
     for mask, state in _STATE_MASKS:
         if sw & mask == state.value:
             return state
-    raise ValueError(f"statusword 0x{sw:04X} matches no CiA 402 state")
+    raise HardwareError(f"statusword 0x{sw:04X} matches no CiA 402 state")
 
 
 def encode_statusword(state: DriveState, extra_bits: int = 0) -> int:

@@ -181,7 +181,7 @@ class EmulatedDrive:
         raw = self.node.get_data(index, 0)
         od = self.node.object_dictionary[index]
         if not isinstance(od, ODVariable):
-            raise TypeError(f"object 0x{index:04X} is not a variable")
+            raise ConfigurationError(f"object 0x{index:04X} of the EDS is not a variable")
         return od.decode_raw(raw)
 
     def _statusword(self) -> int:
