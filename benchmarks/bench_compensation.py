@@ -27,8 +27,9 @@ from icenav.compensation.transmission import (
     TransmissionCalibration,
     TransmissionFit,
 )
-from icenav.control.servo import TipPoseServo, body_pose_error
+from icenav.control.servo import TipPoseServo
 from icenav.geometry.kinematics import forward
+from icenav.geometry.se3 import body_pose_error
 from icenav.geometry.trajectories import spin_trajectory
 
 

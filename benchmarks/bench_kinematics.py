@@ -14,7 +14,8 @@ import time
 import numpy as np
 
 from benchmarks.common import Result, time_per_call
-from icenav.geometry.kinematics import CatheterGeometry, forward, inverse, jacobian
+from icenav.geometry.jacobian import jacobian
+from icenav.geometry.kinematics import CatheterGeometry, forward, inverse
 
 G = CatheterGeometry()
 

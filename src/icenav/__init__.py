@@ -31,9 +31,9 @@ _LAZY: dict[str, str] = {
     "forward": "icenav.geometry.kinematics",
     "inverse": "icenav.geometry.kinematics",
     "inverse_with_residual": "icenav.geometry.kinematics",
-    "jacobian": "icenav.geometry.kinematics",
+    "jacobian": "icenav.geometry.jacobian",
     "knobs_to_bend": "icenav.geometry.kinematics",
-    "tip_jog": "icenav.geometry.kinematics",
+    "tip_jog": "icenav.geometry.jacobian",
     "SessionStore": "icenav.persistence.store",
     "Roadmap": "icenav.recovery.roadmap",
     "RoadmapConfig": "icenav.recovery.roadmap",
@@ -72,6 +72,7 @@ if TYPE_CHECKING:  # for type checkers and IDEs: the same names, eagerly
         TransformError,
         UnreachablePoseError,
     )
+    from icenav.geometry.jacobian import jacobian, tip_jog
     from icenav.geometry.kinematics import (
         Backbone,
         CatheterGeometry,
@@ -81,9 +82,7 @@ if TYPE_CHECKING:  # for type checkers and IDEs: the same names, eagerly
         forward,
         inverse,
         inverse_with_residual,
-        jacobian,
         knobs_to_bend,
-        tip_jog,
     )
     from icenav.persistence.store import SessionStore
     from icenav.recovery.roadmap import Roadmap, RoadmapConfig

@@ -8,9 +8,10 @@ import numpy as np
 import pytest
 
 from icenav.calibration.catheter import DENSE_RASTER, catheter_plan, fit_catheter
-from icenav.calibration.plans import Recording, hysteresis_plan
-from icenav.compensation.tracker_bias import ROLL_CIRCLES, roll_circle_plan
-from icenav.compensation.transmission import KNOB_CIRCLES, circle_plan
+from icenav.calibration.hysteresis import hysteresis_plan
+from icenav.calibration.plans import Recording
+from icenav.calibration.tracker_bias import ROLL_CIRCLES, roll_circle_plan
+from icenav.calibration.transmission import KNOB_CIRCLES, circle_plan
 from icenav.errors import ConfigurationError
 from icenav.geometry.kinematics import DEFAULT_GEOMETRY
 

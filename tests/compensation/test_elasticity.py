@@ -231,7 +231,7 @@ def _doc(tmp_path: Path) -> dict[str, object]:
         (
             lambda d: d.update(version=CALIBRATION_VERSION + 1),
             UnsupportedVersionError,
-            "version 2 is not supported",
+            f"version {CALIBRATION_VERSION + 1} is not supported",
         ),
         (lambda d: d.update(version=0), UnsupportedVersionError, "version 0 is not supported"),
         (lambda d: d.update(version="1"), FileFormatError, "version must be an integer"),

@@ -1,5 +1,5 @@
-"""Tests of icenav.compensation.hysteresis: the backlash + dead-zone model, its inverse,
-identification."""
+"""Tests of icenav.compensation.hysteresis: the backlash + dead-zone model and its inverse
+(identification: tests/calibration/test_hysteresis.py)."""
 
 from __future__ import annotations
 
@@ -8,12 +8,8 @@ import math
 import numpy as np
 import pytest
 
-from icenav.compensation.hysteresis import (
-    HysteresisCompensator,
-    JointHysteresis,
-    identify,
-    sweep_path,
-)
+from icenav.calibration.hysteresis import sweep_path
+from icenav.compensation.hysteresis import HysteresisCompensator, JointHysteresis
 from icenav.errors import ConfigurationError
 
 DEG = math.pi / 180
@@ -137,39 +133,6 @@ def test_without_compensation_the_error_is_the_backlash() -> None:
     assert np.max(np.abs(z - x)) == pytest.approx(3 * DEG, rel=1e-6)
 
 
-@pytest.mark.parametrize(
-    ("r_deg", "slope", "d_deg", "c_deg"),
-    [(3.0, 0.0, 2.0, 0.5), (1.0, 0.0, 4.0, -0.5), (0.5, 0.06, 1.5, 0.3), (2.0, 0.12, 0.5, 0.0)],
-)
-def test_identify_recovers_a_known_transmission(
-    r_deg: float, slope: float, d_deg: float, c_deg: float
-) -> None:
-    m = JointHysteresis(
-        backlash=r_deg * DEG, backlash_slope=slope, dead_zone=d_deg * DEG, centre=c_deg * DEG
-    )
-    x = sweep_path(60 * DEG, 1.5 * DEG)
-    z = m.simulate(x, p0=0.0)
-    rng = np.random.default_rng(int(10 * r_deg + d_deg))
-    y = 0.02 + 0.9 * z - 0.05 * z**3 + rng.normal(0, 0.1 * DEG, z.shape)
-    y[::17] = np.nan  # missing samples are skipped
-    fit = identify(x, y)
-    assert fit.model.backlash == pytest.approx(r_deg * DEG, abs=0.25 * DEG)
-    assert fit.model.backlash_slope == pytest.approx(slope, abs=0.01)
-    assert fit.model.dead_zone == pytest.approx(d_deg * DEG, abs=0.25 * DEG)
-    assert fit.model.centre == pytest.approx(c_deg * DEG, abs=0.25 * DEG)
-    assert fit.gain[1] == pytest.approx(0.9, abs=0.05)
-    assert fit.rms < 0.2 * DEG
-
-
-def test_identify_backlash_only() -> None:
-    m = JointHysteresis(backlash=2 * DEG)
-    x = sweep_path(60 * DEG, 1.5 * DEG)
-    y = 1.0 * m.simulate(x, p0=0.0) + 0.3
-    fit = identify(x, y, cubic=False, with_dead_zone=False)
-    assert fit.model.backlash == pytest.approx(2 * DEG, abs=0.13 * DEG)
-    assert fit.model.dead_zone == 0.0
-
-
 def test_effective_path_matches_simulate() -> None:
     m = JointHysteresis(backlash=2 * DEG, dead_zone=1 * DEG)
     comp = HysteresisCompensator([m, None, m, None])
@@ -193,10 +156,6 @@ def test_bad_parameters_are_rejected() -> None:
         JointHysteresis(smoothing=0.0)
     with pytest.raises(ConfigurationError, match="4 entries"):
         HysteresisCompensator([None, None])
-    with pytest.raises(ConfigurationError, match="need 0 < step < amplitude"):
-        sweep_path(0.1, 0.2)
-    with pytest.raises(ConfigurationError, match=">= 10 samples"):
-        identify([0.0, 1.0], [0.0, 1.0])
 
 
 def test_compensator_cancels_play_that_grows_with_the_bend() -> None:

@@ -1,6 +1,5 @@
-"""Tests of icenav.compensation.tracker_bias: the roll circles, the fit of the tracker's base-frame
-field
-bias (Eq. TB1), the corrections it makes, and bad input."""
+"""Tests of icenav.compensation.tracker_bias: the affine field bias and the corrections it
+makes (its fit from roll circles: tests/calibration/test_tracker_bias.py)."""
 
 from __future__ import annotations
 
@@ -10,95 +9,9 @@ import numpy as np
 import pytest
 
 from icenav.compensation.elasticity import CalibrationSet
-from icenav.compensation.tracker_bias import (
-    BiasCorrectedTracker,
-    TrackerBias,
-    fit_tracker_bias,
-    identify_tracker_bias,
-    roll_circle_path,
-)
-from icenav.errors import ConfigurationError, ShapeError, TrackerError
+from icenav.compensation.tracker_bias import TrackerBias
+from icenav.errors import ConfigurationError, ShapeError
 from icenav.geometry.kinematics import forward
-from icenav.sim import CatheterPlant, EMTracker
-
-DEG = math.pi / 180
-
-
-def _rz(r: float) -> np.ndarray:
-    c, s = math.cos(r), math.sin(r)
-    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
-
-
-def _synthetic_stops(
-    rng: np.random.Generator, b0: np.ndarray, grad: np.ndarray, noise: float
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, list[np.ndarray]]:
-    """Roll-circle stops of a catheter whose knob-frame tips P_k are the model's plus a
-    random elastic deviation, measured through the affine field b0 + grad x."""
-    path, mask = roll_circle_path()
-    pose = np.cumsum(~mask) - 1
-    lag = rng.uniform(-2.0, 2.0, size=pose.max() + 1) * DEG  # the roll play, per circle
-    tips = [
-        forward(np.array([a, 0.0, 0.0, 0.0]))[:3, 3] + rng.normal(0.0, 2.0, 3)
-        for a in path[~mask, 0]
-    ]
-    q, t, k = [], [], []
-    for row, meas, kk in zip(path, mask, pose, strict=True):
-        if not meas:
-            continue
-        x = _rz(row[2] + lag[kk]) @ tips[kk]
-        pose_ = np.eye(4)
-        pose_[:3, 3] = x + b0 + grad @ x + rng.normal(0.0, noise, 3)
-        q.append(row)
-        t.append(pose_)
-        k.append(kk)
-    return np.array(q), np.array(t), np.array(k), tips
-
-
-def _roll_spread(correct: object, tip: np.ndarray, b0: np.ndarray, grad: np.ndarray) -> float:
-    """Largest distance (mm) between the corrected tips of a roll circle turned back to roll 0:
-    0 when the correction leaves only what turns with the roll."""
-    back = []
-    for r in np.arange(0, 360, 45) * DEG:
-        x = _rz(r) @ tip
-        m = x + b0 + grad @ x
-        back.append(_rz(r).T @ correct(m))  # type: ignore[operator]
-    arr = np.array(back)
-    return float(np.max(np.linalg.norm(arr - arr.mean(axis=0), axis=1)))
-
-
-def test_roll_circles_approach_every_stop_with_increasing_roll() -> None:
-    path, mask = roll_circle_path()
-    assert path.shape == (36, 4) and int(mask.sum()) == 32
-    pose = np.cumsum(~mask) - 1
-    for k in range(4):
-        rolls = path[pose == k, 2]
-        assert np.all(np.diff(rolls) > 0)  # the pre-roll, then each stop, increasing
-        assert np.ptp(path[pose == k, 0]) == 0.0 and np.all(path[pose == k, 1] == 0.0)
-
-
-def test_fit_recovers_the_roll_dependent_part_of_a_known_field() -> None:
-    rng = np.random.default_rng(4)
-    for _ in range(20):
-        b0 = rng.normal(0.0, 1.5, 3)
-        grad = rng.normal(0.0, 0.02, (3, 3))
-        q, t, k, tips = _synthetic_stops(rng, b0, grad, noise=0.02)
-        est = fit_tracker_bias(q, t, k)
-        assert est.rms_residual_mm < 0.1
-        # identifiable (and all that matters): the corrected tips of a roll circle must turn
-        # rigidly with the roll, as the true ones do (the tracked ones do not)
-        for tip in tips:
-            assert _roll_spread(lambda m: m, tip, b0, grad) > 0.3
-            assert _roll_spread(est.correct_positions, tip, b0, grad) < 0.05
-
-
-def test_no_field_gives_no_roll_dependent_bias() -> None:
-    rng = np.random.default_rng(5)
-    q, t, k, tips = _synthetic_stops(rng, np.zeros(3), np.zeros((3, 3)), noise=0.0)
-    est = fit_tracker_bias(q, t, k)
-    for tip in tips:
-        x = np.array([_rz(r) @ tip for r in np.linspace(0, 2 * math.pi, 9)])
-        b = est.at(x)
-        assert np.max(np.abs(b[:, :2])) < 1e-6
 
 
 def test_shifted_path_puts_the_model_tip_at_p_minus_b() -> None:
@@ -129,7 +42,7 @@ def test_zero_bias_changes_nothing() -> None:
     np.testing.assert_array_equal(TrackerBias.none().correct_poses(poses), poses)
 
 
-def test_corrections_remove_the_bias_from_poses_sets_and_trackers() -> None:
+def test_corrections_remove_the_bias_from_poses_and_sets() -> None:
     bias = TrackerBias(np.array([1.0, 2.0, -1.0]), np.zeros((3, 3)))
     q = np.array([[0.1, 0.2, 0.0, 0.0], [0.3, -0.1, 0.0, 0.0], [0.0, 0.0, 0.0, 0.0]])
     poses = forward(q)
@@ -139,55 +52,7 @@ def test_corrections_remove_the_bias_from_poses_sets_and_trackers() -> None:
     fixed = bias.correct_calibration(cal)
     np.testing.assert_allclose(fixed.tip2base, poses, atol=1e-12)
     assert fixed.catheter_id == "c1" and fixed.method == "dense-raster+bias-removed"
-
-    class Fake:
-        def __init__(self) -> None:
-            self.out: list[np.ndarray | None] = [measured[0], None]
-
-        def measure_tip2base(self) -> np.ndarray | None:
-            return self.out.pop(0)
-
-    view = bias.corrected(Fake())
-    assert isinstance(view, BiasCorrectedTracker)
-    np.testing.assert_allclose(view.measure_tip2base(), poses[0], atol=1e-12)
-    assert view.measure_tip2base() is None
-    with pytest.raises(TrackerError):
-        bias.corrected(object())  # type: ignore[arg-type]
-
-
-def test_on_the_twin_the_roll_dependent_bias_is_found() -> None:
-    plant = CatheterPlant(seed=53)
-    tracker = EMTracker(plant, seed=53)
-    est = identify_tracker_bias(plant.move, tracker)
-    t2b = tracker.config.tracker2base
-
-    def true_bias(x: np.ndarray) -> np.ndarray:
-        p = np.linalg.inv(t2b) @ np.append(x, 1.0)
-        b, _ = tracker.distortion_at(p[:3])
-        return np.asarray(t2b[:3, :3] @ b)
-
-    def tracked(x: np.ndarray) -> np.ndarray:
-        return x + true_bias(x)
-
-    worst, before = 0.0, 0.0
-    for a in (20, 40, 60):
-        tip = forward(np.array([a * DEG, 0.0, 0.0, 0.0]))[:3, 3]
-        raw, fixed = [], []
-        for r in np.arange(0, 360, 45) * DEG:
-            m = tracked(_rz(r) @ tip)
-            raw.append(_rz(r).T @ m)
-            fixed.append(_rz(r).T @ est.correct_positions(m))
-        for arr, name in ((np.array(raw), "raw"), (np.array(fixed), "fixed")):
-            spread = float(np.max(np.linalg.norm(arr - arr.mean(axis=0), axis=1)))
-            if name == "raw":
-                before = max(before, spread)
-            else:
-                worst = max(worst, spread)
-    # the field is not exactly affine; the part that does not turn with the roll (what makes
-    # the tip orbit during a spin) drops from over 1 mm to a few tenths
-    assert before > 1.0
-    assert worst < 0.5
-    assert est.n_samples == 32
+    np.testing.assert_allclose(bias.correct_poses(measured), poses, atol=1e-12)
 
 
 def test_bad_input_is_refused() -> None:
@@ -195,15 +60,5 @@ def test_bad_input_is_refused() -> None:
         TrackerBias(np.zeros(2), np.zeros((3, 3)))
     with pytest.raises(ConfigurationError, match="mm/mm"):
         TrackerBias(np.zeros(3), np.eye(3))
-    with pytest.raises(ConfigurationError, match="three roll stops"):
-        roll_circle_path(rolls=(0.0, 1.0))
-    with pytest.raises(ConfigurationError, match="90 deg"):
-        roll_circle_path(bends=(2.0,))
-    q = np.zeros((4, 4))
-    t = np.tile(np.eye(4), (4, 1, 1))
-    with pytest.raises(ConfigurationError, match=">= 3 tracked stops"):
-        fit_tracker_bias(q, t, np.array([0, 0, 1, 1]))
-    with pytest.raises(ShapeError):
-        fit_tracker_bias(q, t[:3], np.array([0, 0, 0, 0]))
     with pytest.raises(ShapeError):
         TrackerBias.none().shift_model_path(np.zeros((3, 3)))

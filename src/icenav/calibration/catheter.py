@@ -2,55 +2,44 @@
 one fit (beyond the paper).
 
 :func:`catheter_plan` strings together, from rest at zeros: the paper's dense raster, the
-hysteresis sweeps (:func:`icenav.calibration.plans.hysteresis_plan`), the roll circles that
-separate the tracker's field bias (:func:`icenav.compensation.tracker_bias.roll_circle_plan`) and
-the
-knob circles of the per-tendon model (:func:`icenav.compensation.transmission.circle_plan`): 2,345
-states. :func:`fit_catheter` turns its :class:`~icenav.calibration.plans.Recording` into
+hysteresis sweeps (:func:`icenav.calibration.hysteresis.hysteresis_plan`), the roll circles
+that separate the tracker's field bias (:func:`icenav.calibration.tracker_bias.roll_circle_plan`)
+and the knob circles of the per-tendon model (:func:`icenav.calibration.transmission.circle_plan`):
+2,345 states. :func:`fit_catheter` turns its :class:`~icenav.calibration.plans.Recording` into
 :class:`CatheterCalibration` -- F, the per-joint hysteresis, the tracker bias and the
-per-tendon transmission -- with the same fits :func:`icenav.eval.spin.calibrate` uses (there
-in the paper's order, with the 5-point search in between). :meth:`CatheterCalibration.knob_map`
-is the controller's compensation (:class:`icenav.compensation.tendon_map.TendonKnobMap`).
+per-tendon transmission. :meth:`CatheterCalibration.knob_map` is the controller's compensation
+(:class:`icenav.compensation.tendon_map.TendonKnobMap`).
 
-The same plan runs synchronously on a robot or the twin (:func:`calibrate_catheter`) and
-inside the controller's loop (:class:`icenav.control.controller.PlanTask`, the console's
-"Dense + hysteresis" calibration).
+It is the ``dense+hysteresis`` procedure of :func:`icenav.calibration.procedures.make_procedure`:
+the console's calibration runner, ``icenav eval spin`` and a bench script all drive that.
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
 from dataclasses import dataclass
 
 from numpy.typing import ArrayLike
 
 from icenav._typing import Array
-from icenav.calibration.plans import (
+from icenav.calibration.hysteresis import (
     HysteresisIdentification,
     HysteresisPlan,
-    MotionPlan,
-    Mover,
-    ProgressFn,
-    Recording,
-    TipTracker,
-    calibration_set_from,
-    execute_plan,
     fit_hysteresis,
     hysteresis_plan,
-    raster_grid,
 )
-from icenav.compensation.elasticity import CalibrationSet, ElasticityMap
-from icenav.compensation.tendon_map import TendonKnobMap
-from icenav.compensation.tracker_bias import TrackerBias, fit_tracker_bias_from, roll_circle_plan
-from icenav.compensation.transmission import (
+from icenav.calibration.plans import MotionPlan, Recording, calibration_set_from, raster_grid
+from icenav.calibration.tracker_bias import fit_tracker_bias_from, roll_circle_plan
+from icenav.calibration.transmission import (
     KNOB_CIRCLES,
-    TransmissionCalibration,
     build_transmission,
     circle_plan,
     motion_from,
 )
-from icenav.devices.robot import RobotBackend
+from icenav.compensation.elasticity import CalibrationSet, ElasticityMap
+from icenav.compensation.tendon_map import TendonKnobMap
+from icenav.compensation.tracker_bias import TrackerBias
+from icenav.compensation.transmission import TransmissionCalibration
 from icenav.errors import ConfigurationError
 from icenav.geometry.kinematics import DEFAULT_GEOMETRY, CatheterGeometry
 
@@ -58,7 +47,6 @@ __all__ = [
     "CatheterCalibration",
     "CatheterPlan",
     "DENSE_RASTER",
-    "calibrate_catheter",
     "catheter_plan",
     "fit_catheter",
 ]
@@ -162,20 +150,3 @@ def fit_catheter(
         tracker_bias=bias,
         transmission=transmission,
     )
-
-
-def calibrate_catheter(
-    robot: RobotBackend | Mover,
-    tracker: TipTracker,
-    *,
-    settle: Callable[[], None] | None = None,
-    progress: ProgressFn | None = None,
-    catheter_id: str = "",
-    geometry: CatheterGeometry = DEFAULT_GEOMETRY,
-) -> CatheterCalibration:
-    """Drive :func:`catheter_plan` on a robot (or the twin's ``move``) and fit it."""
-    cplan = catheter_plan(geometry=geometry)
-    rec = execute_plan(
-        robot, tracker, cplan.plan, settle=settle, progress=progress, geometry=geometry
-    )
-    return fit_catheter(cplan, rec, catheter_id=catheter_id, geometry=geometry)

@@ -1,117 +1,50 @@
-"""Calibration procedures: drive the robot, read the tracker, return calibration data.
+"""Motion plans and what they recorded: the fixed part of every calibration.
 
-They talk to the robot and the tracker only through small interfaces, so the same code
-runs on the digital twin today and on the hardware later:
+A :class:`MotionPlan` says where to go (motor joint states in order) and how many tracker
+samples to average at each state (0: pass through); a :class:`Recording` is what the tracker
+read there (NaN where it stayed MISSING). A plan runs as the visits of a calibration
+procedure (:func:`icenav.calibration.procedures.plan_visits`) through the one runner of
+:mod:`icenav.calibration.procedure` (synchronously on a robot or the twin) or the
+controller's calibration runner (inside the control loop); the fits read recordings.
 
-- the robot: a :class:`~icenav.devices.robot.RobotBackend` (``command_position`` then a
-  ``settle`` callable that returns when the axes have arrived), or any callable
-  ``move(q_motor)`` (e.g. ``CatheterPlant.move``);
-- the tracker: any object with ``measure_tip2base() -> (4, 4) ndarray or None`` (the tip
-  pose in the base frame, after the tracker-to-base registration; ``None`` when the sensor
-  is MISSING).
+Plans of the paper (Sec. IV-A, "Model calibration"): :func:`raster_grid`, the dense raster over
++-90 deg at 10 deg steps (19 x 19 = 361 knob pairs; the paper says 360), serpentine so the
+knobs never jump; :func:`five_point_targets`, the five targets the 5-point search aims at
+(:class:`icenav.calibration.procedures.FivePointProcedure`). Ours: the hysteresis sweeps
+(:mod:`icenav.calibration.hysteresis`), the knob circles (:mod:`icenav.calibration.transmission`)
+and the roll circles (:mod:`icenav.calibration.tracker_bias`).
 
-Procedures (paper Sec. IV-A, "Model scenarios" and "Model calibration"):
-
-- :func:`calibrate_dense`: the raster over +-90 deg at 10 deg steps (19 x 19 = 361 knob
-  pairs; the paper says 360), in serpentine order so the knobs never jump.
-- :func:`calibrate_five_point`: the simplified calibration: the centre, the 90 deg bends in
-  the anterior-posterior plane with the tip in y = 0 and in the right-left plane with
-  x = 0. The paper jogs the knobs until the tip is there; here a damped Gauss-Newton
-  search with the tracker finds the *motor* knobs that put the real tip at the model's
-  (x, y) for those bends (z ignored, as the paper does, because of the arc constraint).
-- :func:`calibrate_points`: any list of knob pairs (N-point subsets, 9, 13, ...).
-- :func:`identify_hysteresis`: short up/down sweeps of each knob and of the roll, fitted
-  with :func:`icenav.compensation.hysteresis.identify`.
-
-Every fixed motion is a :class:`MotionPlan` (where to go, how many tracker samples to average
-there) executed by :func:`execute_plan` into a :class:`Recording`, and fitted separately
-(:func:`hysteresis_plan` and :func:`fit_hysteresis`; the knob circles and roll circles of
-:mod:`icenav.compensation.transmission` and :mod:`icenav.compensation.tracker_bias` likewise). So
-the same plans run
-here synchronously (the bench, the twin) and inside the controller's loop as a task
-(:class:`icenav.control.controller.PlanTask`), whose fits run the same code. The 5-point search is
-adaptive (each move depends on the last reading) and stays a procedure.
-
-Missing samples are retried, then skipped with a :class:`SkippedSample` record (also logged
-as a warning on the ``icenav.calibration.plans`` logger). Progress goes to a callback.
+Unmeasured states are skipped by :func:`calibration_set_from` with a :class:`SkippedSample`
+record (also logged as a warning on the ``icenav.calibration.plans`` logger).
 """
 
 from __future__ import annotations
 
 import logging
 import math
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from icenav._typing import Array
-from icenav._validation import check_finite, check_joint_state
+from icenav._validation import check_finite
 from icenav.compensation.elasticity import CalibrationSet
-from icenav.compensation.hysteresis import (
-    HysteresisCompensator,
-    HysteresisFit,
-    identify,
-    sweep_path,
-)
-from icenav.devices.robot import RobotBackend
 from icenav.errors import ConfigurationError, InvalidValueError, ShapeError, TrackerError
 from icenav.geometry.kinematics import DEFAULT_GEOMETRY, CatheterGeometry, forward
-from icenav.geometry.kinematics import inverse as kin_inverse
 
 __all__ = [
     "CalibrationRun",
-    "HysteresisIdentification",
-    "HysteresisPlan",
     "MotionPlan",
-    "Mover",
-    "Progress",
     "Recording",
     "SkippedSample",
-    "TipTracker",
-    "as_mover",
-    "calibrate_dense",
-    "calibrate_five_point",
-    "calibrate_points",
     "calibration_set_from",
-    "execute_plan",
-    "fit_hysteresis",
     "five_point_targets",
-    "hysteresis_plan",
-    "identify_hysteresis",
     "raster_grid",
 ]
 
 log = logging.getLogger("icenav.calibration.plans")
-
-Mover = Callable[[Array], object]
-"""``move(q_motor)``: command the motor joint state (rad, rad, rad, mm) and return once
-there (the return value is ignored)."""
-
-
-@runtime_checkable
-class TipTracker(Protocol):
-    """What calibration needs from a tracker."""
-
-    def measure_tip2base(self) -> NDArray[np.float64] | None:
-        """Tip pose (4, 4) in the base frame (mm), or None when the sensor is MISSING."""
-        ...
-
-
-@dataclass(frozen=True)
-class Progress:
-    """A progress report, sent to the ``progress`` callback after each sample."""
-
-    done: int
-    """Samples finished (measured or skipped)."""
-    total: int
-    """Samples planned."""
-    q_motor: Array
-    """(4,) motor joint state of the sample just finished."""
-    phase: str
-    """What is running (``dense-raster``, ``five-point``, ``sweep phi1``, ...)."""
 
 
 @dataclass(frozen=True)
@@ -136,75 +69,6 @@ class CalibrationRun:
     """Samples skipped after retries (empty when all went well)."""
     n_moves: int
     """Robot moves made (including search moves)."""
-
-
-ProgressFn = Callable[[Progress], None]
-
-
-def as_mover(robot: RobotBackend | Mover, settle: Callable[[], None] | None = None) -> Mover:
-    """A ``move(q_motor)`` callable for a robot backend or a plain callable.
-
-    For a :class:`RobotBackend`, ``move`` calls ``command_position(q)`` and then
-    ``settle()`` (which must return when the axes have arrived, e.g. by polling
-    ``read_state``); without ``settle`` a backend is refused, because a calibration must
-    not read the tracker while the catheter still moves.
-    """
-    if isinstance(robot, RobotBackend):
-        if settle is None:
-            raise ConfigurationError(
-                "a RobotBackend needs a settle() callable that returns once the axes have "
-                "arrived (calibration must not read the tracker while the catheter moves)"
-            )
-        backend = robot
-        wait = settle
-
-        def move(q: Array) -> None:
-            backend.command_position(q)
-            wait()
-
-        return move
-    if callable(robot):
-        return robot
-    raise ConfigurationError(
-        f"robot must be a RobotBackend or a callable move(q_motor), got {type(robot).__name__}"
-    )
-
-
-def _measure(tracker: TipTracker, retries: int, n_average: int) -> tuple[Array | None, int]:
-    """Average of n_average valid tip poses (retrying MISSING), and the attempts made."""
-    poses: list[Array] = []
-    attempts = 0
-    misses = 0
-    while len(poses) < n_average:
-        attempts += 1
-        t = tracker.measure_tip2base()
-        if t is None:
-            misses += 1
-            if misses > retries:
-                return None, attempts
-            continue
-        arr = np.asarray(t, dtype=np.float64)
-        if arr.shape != (4, 4) or not np.all(np.isfinite(arr)):
-            raise TrackerError(f"tracker returned a bad pose (shape {arr.shape} or non-finite)")
-        poses.append(arr)
-    return _average_poses(np.asarray(poses)), attempts
-
-
-def _average_poses(poses: Array) -> Array:
-    """Mean of poses (n, 4, 4): mean position, rotation projected from the mean matrix (one
-    pose: itself)."""
-    if poses.shape[0] == 1:
-        return np.array(poses[0])
-    out = np.eye(4)
-    out[:3, 3] = poses[:, :3, 3].mean(axis=0)
-    m = poses[:, :3, :3].mean(axis=0)
-    u, _, vt = np.linalg.svd(m)
-    r = u @ vt
-    if np.linalg.det(r) < 0:
-        u[:, -1] *= -1
-        r = u @ vt
-    out[:3, :3] = r
-    return out
 
 
 def _check_counts(retries: int, n_average: int) -> None:
@@ -352,38 +216,6 @@ class Recording:
         return self.plan.q_motor[sl], self.tip2base[sl]
 
 
-def execute_plan(
-    robot: RobotBackend | Mover,
-    tracker: TipTracker,
-    plan: MotionPlan,
-    *,
-    settle: Callable[[], None] | None = None,
-    progress: ProgressFn | None = None,
-    geometry: CatheterGeometry = DEFAULT_GEOMETRY,
-) -> Recording:
-    """Drive ``plan`` state by state and read the tracker where it says (averaging its
-    ``n_average`` samples, retrying MISSING ones up to its ``retries``); progress after each
-    state. The controller runs the same plans as a task
-    (:class:`icenav.control.controller.PlanTask`).
-    """
-    if not isinstance(plan, MotionPlan):
-        raise ConfigurationError(f"plan must be a MotionPlan, got {type(plan).__name__}")
-    check_joint_state(plan.q_motor, geometry.joint_limits, name="plan q_motor")
-    move = as_mover(robot, settle)
-    poses = np.full((plan.n, 4, 4), np.nan)
-    attempts = np.zeros(plan.n, dtype=np.int64)
-    for i, q in enumerate(plan.q_motor):
-        move(q)
-        k = int(plan.n_average[i])
-        if k > 0:
-            pose, attempts[i] = _measure(tracker, int(plan.retries[i]), k)
-            if pose is not None:
-                poses[i] = pose
-        if progress is not None:
-            progress(Progress(done=i + 1, total=plan.n, q_motor=q.copy(), phase=plan.phase_at(i)))
-    return Recording(plan=plan, tip2base=poses, attempts=attempts)
-
-
 def raster_grid(step: float = math.radians(10.0), limit: float = math.radians(90.0)) -> Array:
     """Serpentine raster of knob pairs over [-limit, limit]^2 (rad), as (n, 4) joint states.
 
@@ -407,33 +239,6 @@ def raster_grid(step: float = math.radians(10.0), limit: float = math.radians(90
         for b in line:
             rows.append((a, b, 0.0, 0.0))
     return np.array(rows)
-
-
-def calibrate_points(
-    robot: RobotBackend | Mover,
-    tracker: TipTracker,
-    q_points: ArrayLike,
-    *,
-    settle: Callable[[], None] | None = None,
-    retries: int = 10,
-    n_average: int = 1,
-    progress: ProgressFn | None = None,
-    catheter_id: str = "",
-    vessel: str = "straight",
-    method: str = "points",
-    geometry: CatheterGeometry = DEFAULT_GEOMETRY,
-) -> CalibrationRun:
-    """Move to each motor joint state (n, 4) in order and record the tracked tip pose."""
-    _check_counts(retries, n_average)
-    q = check_joint_state(q_points, geometry.joint_limits, name="q_points")
-    if q.ndim != 2:
-        raise ConfigurationError(f"q_points must have shape (n, 4), got {q.shape}")
-    plan = MotionPlan.make(q, method, n_average=n_average, retries=retries)
-    return calibration_set_from(
-        execute_plan(robot, tracker, plan, settle=settle, progress=progress, geometry=geometry),
-        catheter_id=catheter_id,
-        vessel=vessel,
-    )
 
 
 def calibration_set_from(
@@ -484,25 +289,6 @@ def calibration_set_from(
     return CalibrationRun(calibration=cal, skipped=tuple(skipped), n_moves=q.shape[0])
 
 
-def calibrate_dense(
-    robot: RobotBackend | Mover,
-    tracker: TipTracker,
-    *,
-    step: float = math.radians(10.0),
-    limit: float | None = None,
-    **kwargs: Any,
-) -> CalibrationRun:
-    """The paper's dense raster (19 x 19 knob pairs at 10 deg over +-90 deg, serpentine).
-
-    ``kwargs`` go to :func:`calibrate_points` (settle, retries, n_average, progress,
-    catheter_id, vessel, geometry).
-    """
-    g = kwargs.get("geometry", DEFAULT_GEOMETRY)
-    lim = g.knob_limit if limit is None else float(limit)
-    kwargs.setdefault("method", "dense-raster")
-    return calibrate_points(robot, tracker, raster_grid(step, lim), **kwargs)
-
-
 def five_point_targets(geometry: CatheterGeometry = DEFAULT_GEOMETRY) -> tuple[Array, Array]:
     """The simplified calibration's targets.
 
@@ -519,351 +305,3 @@ def five_point_targets(geometry: CatheterGeometry = DEFAULT_GEOMETRY) -> tuple[A
     q = np.zeros((5, 4))
     q[:, :2] = knobs
     return knobs, forward(q, geometry)[:, :2, 3]
-
-
-def calibrate_five_point(
-    robot: RobotBackend | Mover,
-    tracker: TipTracker,
-    *,
-    settle: Callable[[], None] | None = None,
-    tol_mm: float = 1.0,
-    max_iterations: int = 8,
-    fd_step: float = math.radians(4.0),
-    retries: int = 10,
-    n_average: int = 1,
-    progress: ProgressFn | None = None,
-    catheter_id: str = "",
-    vessel: str = "straight",
-    geometry: CatheterGeometry = DEFAULT_GEOMETRY,
-) -> CalibrationRun:
-    """The simplified 5-point calibration, searching the motor knobs with the tracker.
-
-    For each target of :func:`five_point_targets` a damped Gauss-Newton search (finite
-    differences of ``fd_step`` measured on the catheter, steps clipped to the knob limits)
-    finds the motor knob pair whose real tip (x, y) is within ``tol_mm`` of the model's, or
-    the closest one within the limits; that pair and its tracked pose are the sample.
-    The centre target starts at (0, 0) and needs no search unless the tip is off by more
-    than ``tol_mm``.
-    """
-    _check_counts(retries, n_average)
-    move = as_mover(robot, settle)
-    lim = geometry.knob_limit
-    knobs, xy = five_point_targets(geometry)
-    kept_q: list[Array] = []
-    kept_t: list[Array] = []
-    skipped: list[SkippedSample] = []
-    n_moves = 0
-
-    def measure_at(k: Array) -> Array | None:
-        nonlocal n_moves
-        q = np.array([k[0], k[1], 0.0, 0.0])
-        move(q)
-        n_moves += 1
-        pose, _ = _measure(tracker, retries, n_average)
-        return pose
-
-    for i in range(5):
-        target = xy[i]
-        k = knobs[i].copy()
-        best_k, best_pose, best_err = None, None, math.inf
-        for _ in range(max_iterations):
-            pose = measure_at(k)
-            if pose is None:
-                break
-            e = pose[:2, 3] - target
-            err = float(np.linalg.norm(e))
-            if err < best_err:
-                best_k, best_pose, best_err = k.copy(), pose, err
-            if err <= tol_mm:
-                break
-            jac = np.empty((2, 2))
-            ok = True
-            for j in range(2):
-                h = fd_step if k[j] + fd_step <= lim else -fd_step
-                kh = k.copy()
-                kh[j] += h
-                ph = measure_at(kh)
-                if ph is None:
-                    ok = False
-                    break
-                jac[:, j] = (ph[:2, 3] - pose[:2, 3]) / h
-            if not ok:
-                break
-            step = -np.linalg.solve(jac.T @ jac + 1e-2 * np.eye(2), jac.T @ e)
-            max_step = math.radians(20.0)
-            norm = float(np.linalg.norm(step))
-            if norm > max_step:
-                step *= max_step / norm
-            k_new = np.clip(k + step, -lim, lim)
-            if np.allclose(k_new, k, atol=1e-6):
-                break
-            k = k_new
-        if best_k is None or best_pose is None:
-            q_rec = np.array([k[0], k[1], 0.0, 0.0])
-            skipped.append(
-                SkippedSample(
-                    q_motor=q_rec, attempts=retries + 1, reason="tracker MISSING during the search"
-                )
-            )
-            log.warning("five-point target %d skipped: tracker MISSING", i)
-        else:
-            if best_err > tol_mm:
-                log.info("five-point target %d: closest tip %.2f mm from the target", i, best_err)
-            # record the best pair with a fresh measurement taken there
-            pose = measure_at(best_k)
-            kept_q.append(np.array([best_k[0], best_k[1], 0.0, 0.0]))
-            kept_t.append(best_pose if pose is None else pose)
-        if progress is not None:
-            progress(
-                Progress(
-                    done=i + 1,
-                    total=5,
-                    q_motor=np.array([k[0], k[1], 0.0, 0.0]),
-                    phase="five-point",
-                )
-            )
-    move(np.zeros(4))
-    n_moves += 1
-    if len(kept_q) < 3:
-        raise TrackerError(f"only {len(kept_q)} of 5 calibration points could be measured")
-    cal = CalibrationSet(
-        q_motor=np.array(kept_q),
-        tip2base=np.array(kept_t),
-        catheter_id=catheter_id,
-        vessel=vessel,
-        method="five-point",
-    )
-    return CalibrationRun(calibration=cal, skipped=tuple(skipped), n_moves=n_moves)
-
-
-# --- hysteresis identification -----------------------------------------------------------
-
-
-@dataclass(frozen=True)
-class HysteresisIdentification:
-    """Result of :func:`identify_hysteresis`."""
-
-    compensator: HysteresisCompensator
-    """Compensator with the identified models (phi1, phi2, phi3; d4 passes through)."""
-    fits: tuple[HysteresisFit, ...]
-    """The fits of phi1, phi2 and phi3."""
-    n_moves: int
-    """Robot moves made."""
-
-
-def _observe_sweep(
-    x: Array, poses: Array, joint: int, base: Array, geometry: CatheterGeometry
-) -> tuple[Array, Array]:
-    """Observed output of a sweep of ``joint`` (values ``x`` (m,), tracked poses (m, 4, 4),
-    NaN where missing) from ``base``: the bend in the knob's plane (knobs); for the roll,
-    the azimuth of the tip about the base z axis when bent, else phi3 of the model inverse
-    kinematics (rad). Also returns the image frame's roll (phi3 of the model inverse
-    kinematics; NaN for the knobs)."""
-    y = np.full(x.size, np.nan)
-    y_frame = np.full(x.size, np.nan)
-    valid = np.flatnonzero(np.all(np.isfinite(poses.reshape(x.size, -1)), axis=1))
-    if valid.size == 0:
-        return y, y_frame
-    t = poses[valid]
-    qm = kin_inverse(t, geometry, check=False)
-    if joint == 2:
-        y_frame[valid] = np.unwrap(qm[:, 2])  # the roll of the model for the image frame
-        if math.hypot(base[0], base[1]) > 0.1:
-            # bent: the azimuth of the tip about the base axis turns with the base roll only
-            y[valid] = np.unwrap(np.arctan2(t[:, 1, 3], t[:, 0, 3]))
-        else:
-            y = y_frame.copy()
-        return y, y_frame
-    k2 = qm[:, :2]
-    # principal direction of the tip's bend during the sweep
-    _, _, vt = np.linalg.svd(k2 - k2.mean(axis=0), full_matrices=False)
-    d = vt[0]
-    if d[joint] < 0:
-        d = -d
-    y[valid] = k2 @ d
-    return y, y_frame
-
-
-@dataclass(frozen=True, eq=False)
-class HysteresisPlan:
-    """The sweeps of :func:`identify_hysteresis` as a :class:`MotionPlan`, with what the fit
-    needs to read them."""
-
-    plan: MotionPlan
-    """Segments ``sweep phi1``, ``sweep phi1, phi2 bent``, ``sweep phi2``, ``sweep phi3``,
-    ``sweep phi3, phi1 bent``, ``bend check`` (those of the joints asked for), the moves
-    between them unread."""
-    sweep: Array
-    """(m,) joint values of one sweep (rad): 0 -> +A -> -A -> +A -> 0 of the knobs."""
-    roll_sweep: Array
-    """(m',) the same for the roll."""
-    joints: tuple[int, ...]
-    """Joints swept (0, 1, 2: phi1, phi2, phi3)."""
-    bend: float
-    """Knob angle of the bent sweeps (rad; 0: none)."""
-
-
-def hysteresis_plan(
-    *,
-    amplitude: float = math.radians(60.0),
-    step: float = math.radians(1.5),
-    roll_amplitude: float = math.radians(60.0),
-    roll_bend: float = math.radians(50.0),
-    joints: Sequence[int] = (0, 1, 2),
-    retries: int = 10,
-) -> HysteresisPlan:
-    """The sweeps: each joint of ``joints`` 0 -> +A -> -A -> +A -> 0 with the others at 0,
-    one tracker sample per step; phi1 again with phi2 at ``roll_bend``, phi3 again with phi1
-    at ``roll_bend`` and then a 5-sample reading of the bend there (0: no bent sweeps). The
-    robot starts and ends at zeros (unread moves)."""
-    _check_counts(retries, 1)
-    js = tuple(int(j) for j in joints)
-    for j in js:
-        if j not in (0, 1, 2):
-            raise ConfigurationError(f"joints must be among 0, 1, 2 (phi1..phi3), got {j}")
-    sweep = sweep_path(amplitude, step)
-    roll_sweep = sweep_path(roll_amplitude, step)
-    zero = np.zeros((1, 4))
-    parts: list[MotionPlan] = []
-
-    def swept(path: Array, joint: int, base: Array, phase: str) -> MotionPlan:
-        q = np.tile(base, (path.size, 1))
-        q[:, joint] = path
-        return MotionPlan.make(q, phase, n_average=1, retries=retries)
-
-    def unread(q: Array, phase: str) -> MotionPlan:
-        return MotionPlan.make(np.atleast_2d(q), phase, n_average=0, retries=0)
-
-    for j in js:
-        path = roll_sweep if j == 2 else sweep
-        parts += [unread(zero, "to zero"), swept(path, j, np.zeros(4), f"sweep phi{j + 1}")]
-        if j == 0 and roll_bend > 0.0:
-            base = np.array([0.0, roll_bend, 0.0, 0.0])
-            parts += [unread(base, "to zero"), swept(path, 0, base, "sweep phi1, phi2 bent")]
-        if j == 2 and roll_bend > 0.0:
-            base = np.array([roll_bend, 0.0, 0.0, 0.0])
-            parts += [
-                unread(base, "to zero"),
-                swept(path, 2, base, "sweep phi3, phi1 bent"),
-                MotionPlan.make(base[None, :], "bend check", n_average=5, retries=retries),
-            ]
-    parts.append(unread(zero, "to zero"))
-    return HysteresisPlan(
-        plan=MotionPlan.concat(parts),
-        sweep=sweep,
-        roll_sweep=roll_sweep,
-        joints=js,
-        bend=float(roll_bend),
-    )
-
-
-def fit_hysteresis(
-    hplan: HysteresisPlan,
-    recording: Recording,
-    geometry: CatheterGeometry = DEFAULT_GEOMETRY,
-) -> HysteresisIdentification:
-    """Fit the models of :func:`identify_hysteresis` to the recorded sweeps of ``hplan``."""
-    if recording.plan is not hplan.plan and recording.plan.segments != hplan.plan.segments:
-        raise ConfigurationError("the recording is not of this hysteresis plan")
-    models: list[Any] = [None, None, None, None]
-    fits: list[HysteresisFit] = []
-    per_bend = 0.0
-    knob_per_bend = 0.0
-    twist_per_bend = 0.0
-    bend = hplan.bend
-
-    def observed(phase: str, joint: int) -> tuple[Array, Array, Array]:
-        q, poses = recording.part(phase)
-        x = q[:, joint].copy()
-        y, y_frame = _observe_sweep(x, poses, joint, q[0], geometry)
-        return x, y, y_frame
-
-    for j in hplan.joints:
-        roll = j == 2
-        x, y, _ = observed(f"sweep phi{j + 1}", j)
-        fit = identify(
-            x, y, cubic=not roll, with_dead_zone=not roll, max_slope=0.0 if roll else 0.2
-        )
-        models[j] = fit.model
-        fits.append(fit)
-        if j == 0 and bend > 0.0:
-            # the same sweep with the other knob bent: the play grows with the other bend
-            x, y, _ = observed("sweep phi1, phi2 bent", 0)
-            bent_fit = identify(x, y, cubic=True, with_dead_zone=True)
-            mean_abs = float(np.mean(np.abs(x)))
-            w_bent = bent_fit.model.backlash + bent_fit.model.backlash_slope * mean_abs
-            w_straight = fit.model.backlash + fit.model.backlash_slope * mean_abs
-            knob_per_bend = min(max(0.0, (w_bent - w_straight) / bend), 0.5)
-        if roll and bend > 0.0:
-            x, y, y_frame = observed("sweep phi3, phi1 bent", 2)
-            wide = math.radians(30.0)
-            bent = identify(x, y, cubic=False, with_dead_zone=False, max_slope=0.0, max_width=wide)
-            frame = identify(
-                x, y_frame, cubic=False, with_dead_zone=False, max_slope=0.0, max_width=wide
-            )
-            # the true bend during that sweep, from the tracked poses
-            _, check = recording.part("bend check")
-            pose = check[0]
-            true_bend = (
-                bend
-                if not np.all(np.isfinite(pose))
-                else math.acos(max(-1.0, min(1.0, float(pose[2, 2]))))
-            )
-            per_bend = min(max(0.0, (bent.model.backlash - fit.model.backlash) / true_bend), 0.5)
-            # the image frame lags further than the base: the distal twist play
-            twist_per_bend = min(
-                max(0.0, (frame.model.backlash - bent.model.backlash) / true_bend), 0.5
-            )
-    return HysteresisIdentification(
-        compensator=HysteresisCompensator(
-            models,
-            roll_play_per_bend=per_bend,
-            knob_play_per_bend=knob_per_bend,
-            twist_play_per_bend=twist_per_bend,
-        ),
-        fits=tuple(fits),
-        n_moves=hplan.plan.n,
-    )
-
-
-def identify_hysteresis(
-    robot: RobotBackend | Mover,
-    tracker: TipTracker,
-    *,
-    settle: Callable[[], None] | None = None,
-    amplitude: float = math.radians(60.0),
-    step: float = math.radians(1.5),
-    roll_amplitude: float = math.radians(60.0),
-    roll_bend: float = math.radians(50.0),
-    joints: Sequence[int] = (0, 1, 2),
-    retries: int = 10,
-    progress: ProgressFn | None = None,
-    geometry: CatheterGeometry = DEFAULT_GEOMETRY,
-) -> HysteresisIdentification:
-    """Identify backlash and dead-zone of the knobs (and the roll's play) by sweeps:
-    :func:`hysteresis_plan` executed (:func:`execute_plan`) and fitted (:func:`fit_hysteresis`).
-
-    Each joint in ``joints`` is swept 0 -> +A -> -A -> +A -> 0 with the others at 0, and
-    :func:`icenav.compensation.hysteresis.identify` fits the model to the tracked response (knobs:
-    the
-    bend in the knob's plane from the model inverse kinematics, odd-cubic static map;
-    roll: the tip roll, linear map, no dead-zone). The roll is swept a second time with the
-    AP knob at ``roll_bend`` (0 to skip): the growth of its play with the tracked bend
-    angle gives the compensator's ``roll_play_per_bend`` (rad per rad of true bend), and the
-    extra lag of the image frame (model roll of the tracked orientation) over the base (the
-    tip's azimuth) its ``twist_play_per_bend``; and the
-    AP knob a second time with the RL knob at ``roll_bend``: the growth of its mean play
-    gives ``knob_play_per_bend`` (the other pair's bend adds sheath friction).
-    """
-    hplan = hysteresis_plan(
-        amplitude=amplitude,
-        step=step,
-        roll_amplitude=roll_amplitude,
-        roll_bend=roll_bend,
-        joints=joints,
-        retries=retries,
-    )
-    rec = execute_plan(
-        robot, tracker, hplan.plan, settle=settle, progress=progress, geometry=geometry
-    )
-    return fit_hysteresis(hplan, rec, geometry)

@@ -2,17 +2,20 @@
 
 A procedure is a *generator of visits*: it yields :class:`Visit` (go to this motor state,
 then read the tracker ``n_average`` times, or pass through when 0) and is sent back what the
-tracker read there (the averaged ``tip2base`` (4, 4), or None when it stayed MISSING through
-the visit's retries). A fixed motion (the dense raster, the hysteresis sweeps, the circles)
-never looks at what it is sent; an adaptive one (the paper's 5-point calibration, which
-searches the knobs until the tip reaches each target) chooses its next visit from it. When
-the generator returns, its value is the :class:`~icenav.calibration.plans.Recording` of
-every visit, and :meth:`Procedure.fit` turns it into a :class:`CalibrationOutcome`.
+tracker read there (the averaged ``tip2base`` (4, 4) -- or, for a visit in the ``tracker``
+frame, the averaged ``sensor2tracker`` that the registration itself needs -- or None when it
+stayed MISSING through the visit's retries). A fixed motion (the dense raster, the
+hysteresis sweeps, the circles) never looks at what it is sent; an adaptive one (the
+paper's 5-point calibration, which searches the knobs until the tip reaches each target)
+chooses its next visit from it. When the generator returns, its value is the
+:class:`~icenav.calibration.plans.Recording` of every visit, and :meth:`Procedure.fit` turns
+it into a :class:`CalibrationOutcome`.
 
 Two runners drive the same generator, so the console, the command line and the
 evaluations run the same algorithm:
 
-- :func:`run_procedure` on a robot (or the twin's ``move``) and a tracker, synchronously;
+- :func:`run_procedure` on a robot (or the twin's ``move``) and a tracker
+  (:class:`icenav.devices.tracker.TrackerBackend`), synchronously;
 - the controller's calibration runner (:mod:`icenav.control`), one visit at a time inside
   the control loop, under its speed limits, stop and e-stop.
 
@@ -20,11 +23,13 @@ evaluations run the same algorithm:
 
     procedure = make_procedure("dense", geometry=g)         # icenav.calibration.procedures
     outcome = procedure.fit(run_procedure(procedure, move, tracker))
+    print(outcome.quality.describe())
     outcome.knob_map                                           # the controller's compensation
 """
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable, Generator
 from dataclasses import dataclass
 from typing import Any, Protocol, runtime_checkable
@@ -42,8 +47,15 @@ __all__ = [
     "Procedure",
     "Visit",
     "VisitGenerator",
+    "VISIT_FRAMES",
     "run_procedure",
+    "run_visits",
 ]
+
+VISIT_FRAMES = ("base", "tracker")
+"""What a visit reads: ``base`` the tip pose in the robot base frame (``measure_tip2base``),
+``tracker`` the sensor pose in the tracker frame (``measure_sensor2tracker``; the registration
+procedure, which estimates the base frame, reads this)."""
 
 
 @dataclass(frozen=True, eq=False)
@@ -59,6 +71,9 @@ class Visit:
     phase: str
     """What this visit belongs to (``dense raster``, ``five-point search``, ...), for
     progress reports and for the fits."""
+    frame: str = "base"
+    """What to read there (:data:`VISIT_FRAMES`): ``base`` (tip2base, the default) or
+    ``tracker`` (sensor2tracker)."""
 
     def __post_init__(self) -> None:
         q = check_finite(self.q_motor, "q_motor", "rad, rad, rad, mm")
@@ -69,6 +84,10 @@ class Visit:
         if int(self.n_average) < 0 or int(self.retries) < 0:
             raise ConfigurationError(
                 f"n_average and retries must be >= 0, got {self.n_average} and {self.retries}"
+            )
+        if self.frame not in VISIT_FRAMES:
+            raise ConfigurationError(
+                f"a visit's frame must be one of {VISIT_FRAMES}, got {self.frame!r}"
             )
 
 
@@ -92,14 +111,27 @@ class FitQuality:
     """Largest tip position residual (mm)."""
     rms_deg: float
     """RMS tip orientation residual (deg)."""
+    n_left_out: int = 0
+    """Tracked samples the residual leaves out (see ``left_out``)."""
+    left_out: str = ""
+    """Why they are left out (empty when none is)."""
+    max_deg: float = math.nan
+    """Largest tip orientation residual (deg); NaN when the fit has no orientation."""
 
     def describe(self) -> str:
-        """One line for the operator."""
-        missing = f", {self.n_missing} not tracked" if self.n_missing else ""
-        return (
-            f"{self.n_used} samples{missing}; residual {self.rms_mm:.2f} mm RMS "
-            f"(max {self.max_mm:.2f} mm), {self.rms_deg:.2f} deg RMS"
-        )
+        """What the operator reads at the end of a calibration: samples used / not tracked /
+        left out and why, then the residuals in mm and deg."""
+        parts = [f"{self.n_used} samples used"]
+        if self.n_missing:
+            parts.append(f"{self.n_missing} not tracked (sensor MISSING)")
+        if self.n_left_out:
+            parts.append(f"{self.n_left_out} left out ({self.left_out})")
+        text = ", ".join(parts) + f"; residual {self.rms_mm:.2f} mm RMS (max {self.max_mm:.2f} mm)"
+        if math.isfinite(self.rms_deg):
+            text += f", {self.rms_deg:.2f} deg RMS"
+            if math.isfinite(self.max_deg):
+                text += f" (max {self.max_deg:.2f} deg)"
+        return text
 
 
 @dataclass(frozen=True, eq=False)
@@ -107,28 +139,35 @@ class CalibrationOutcome:
     """What a calibration produced."""
 
     kind: str
-    """The procedure's kind ("dense", "five_point", "dense+hysteresis")."""
+    """The procedure's kind ("dense", "five_point", "dense+hysteresis", "registration")."""
     knob_map: Any
     """The compensation the controller installs: ``model_to_motor`` / ``motor_to_model``
     (:class:`icenav.control.controller.KnobMap`), and ``observe(q_motor)`` when it keeps
-    state."""
+    state; None for the registration."""
     calibration_set: Any
     """The tracked samples behind it (:class:`icenav.compensation.elasticity.CalibrationSet`),
-    for the session and for calibration files."""
+    for the session and for calibration files; None for the registration."""
     quality: FitQuality
     """Fit quality, for the operator."""
     details: Any = None
-    """Kind-specific results (e.g. :class:`icenav.calibration.catheter.CatheterCalibration`)."""
+    """Kind-specific results (:class:`icenav.calibration.catheter.CatheterCalibration` for
+    dense+hysteresis, the :class:`icenav.devices.registration.Registration` for the
+    registration, the map's build report for dense and five_point)."""
 
 
 @runtime_checkable
 class Procedure(Protocol):
     """A calibration: its visits (a generator) and the fit of what they measured."""
 
-    kind: str
-    """"dense", "five_point" or "dense+hysteresis"."""
-    label: str
-    """What the operator reads ("Dense grid: 361 points")."""
+    @property
+    def kind(self) -> str:
+        """The kind: "dense", "five_point", "dense+hysteresis" or "registration"."""
+        ...
+
+    @property
+    def label(self) -> str:
+        """What the operator reads ("Dense grid: 361 points")."""
+        ...
 
     def visits(self) -> VisitGenerator:
         """A new generator of this procedure's visits (see the module docstring)."""
@@ -142,40 +181,68 @@ class Procedure(Protocol):
 def run_procedure(
     procedure: Procedure,
     move: Callable[[Array], object],
-    measure: Callable[[int], Array | None],
+    tracker: Any,
     *,
     progress: Callable[[int, Visit], None] | None = None,
 ) -> Any:
-    """Drive ``procedure`` synchronously and return its recording.
+    """Drive ``procedure`` synchronously and return its recording (``procedure.fit`` it).
 
     Parameters
     ----------
     move : callable
         ``move(q_motor (4,))``: go there and return once the catheter has settled.
-    measure : callable
-        ``measure(n_average) -> tip2base (4, 4) | None``: one tracker reading averaged over
-        ``n_average`` samples (None when MISSING); retried by this runner up to the visit's
-        ``retries``.
+    tracker : TrackerBackend or callable
+        A tracker (:class:`icenav.devices.tracker.TrackerBackend`; a visit in the ``base``
+        frame reads ``measure_tip2base(n_average)``, one in the ``tracker`` frame
+        ``measure_sensor2tracker(n_average)``), or a callable ``measure(n_average) ->
+        tip2base (4, 4) | None`` (``base`` visits only). A reading that is None (MISSING)
+        is retried up to the visit's ``retries``.
     progress : callable, optional
         ``progress(i, visit)`` after each visit (i counts from 1).
     """
-    gen = procedure.visits()
+    return run_visits(procedure.visits(), move, tracker, progress=progress)
+
+
+def _reader(tracker: Any, frame: str) -> Callable[[int], Any]:
+    name = "measure_tip2base" if frame == "base" else "measure_sensor2tracker"
+    method = getattr(tracker, name, None)
+    if callable(method):
+        return method
+    if frame == "base" and callable(tracker):
+        return tracker
+    raise ConfigurationError(
+        f"a visit in the {frame!r} frame needs a tracker with {name}(n_average), got "
+        f"{type(tracker).__name__}"
+    )
+
+
+def run_visits(
+    visits: VisitGenerator,
+    move: Callable[[Array], object],
+    tracker: Any,
+    *,
+    progress: Callable[[int, Visit], None] | None = None,
+) -> Any:
+    """Drive a visit generator (:meth:`Procedure.visits`, or
+    :func:`icenav.calibration.procedures.plan_visits` of a plan) as :func:`run_procedure`
+    does, and return what it returns."""
     i = 0
     try:
-        visit = next(gen)
+        visit = next(visits)
         while True:
             move(visit.q_motor)
             pose: Array | None = None
             if visit.n_average > 0:
+                read = _reader(tracker, visit.frame)
                 for _ in range(visit.retries + 1):
-                    pose = measure(visit.n_average)
+                    pose = read(visit.n_average)
                     if pose is not None:
                         pose = _check_pose(pose)
                         break
             i += 1
             if progress is not None:
                 progress(i, visit)
-            visit = gen.send(pose)
+            visit = visits.send(pose)
     except StopIteration as done:
         return done.value
 

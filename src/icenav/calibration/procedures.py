@@ -14,6 +14,10 @@ evaluations all get their calibration from it.
 - ``dense+hysteresis``: ours: the raster, hysteresis sweeps, roll circles and knob circles
   (:func:`icenav.calibration.catheter.catheter_plan`), fitted by
   :func:`icenav.calibration.catheter.fit_catheter`.
+- ``registration``: the tracker to the robot base: the straight catheter translated and rolled
+  (:func:`icenav.devices.registration.registration_joint_states`), the sensor read in the
+  tracker frame, fitted by :func:`icenav.devices.registration.register_tracker` (the outcome's
+  ``details`` is the :class:`~icenav.devices.registration.Registration`; no knob map).
 
 Every procedure starts from rest at zeros of the knobs and ends there; the runner brings the
 catheter back to where the operator left it.
@@ -26,8 +30,10 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from icenav._typing import Array
+from icenav._validation import check_transform
 from icenav.calibration.plans import (
     MotionPlan,
     Recording,
@@ -37,19 +43,22 @@ from icenav.calibration.plans import (
 )
 from icenav.calibration.procedure import CalibrationOutcome, FitQuality, Visit, VisitGenerator
 from icenav.compensation.elasticity import CalibrationSet, ElasticityMap
+from icenav.devices.registration import register_tracker, registration_joint_states
 from icenav.errors import ConfigurationError, TrackerError
 from icenav.geometry.kinematics import DEFAULT_GEOMETRY, CatheterGeometry, forward
+from icenav.geometry.se3 import rotation_angle
 
 __all__ = [
     "CALIBRATION_KINDS",
     "FivePointProcedure",
     "PlanProcedure",
+    "RegistrationProcedure",
     "fit_quality",
     "make_procedure",
     "plan_visits",
 ]
 
-CALIBRATION_KINDS = ("dense", "five_point", "dense+hysteresis")
+CALIBRATION_KINDS = ("dense", "five_point", "dense+hysteresis", "registration")
 """The kinds :func:`make_procedure` knows."""
 
 
@@ -71,9 +80,9 @@ def fit_quality(
     knob_map: Any, cal: CalibrationSet, geometry: CatheterGeometry, n_missing: int = 0
 ) -> FitQuality:
     """Residual of a compensation on its own samples: the model tip of each motor state mapped
-    back through the map (``motor_to_model``) against the tracked tip. Samples whose model
-    knobs land on the model's limit (the real catheter bends beyond what the model reaches
-    there) are left out: no model state explains them."""
+    back through the map (``motor_to_model``) against the tracked tip (mm, deg). Samples whose
+    model knobs land on the model's limit are left out and counted (the real catheter bends
+    beyond what the model reaches there: no model state explains them)."""
     q_model = np.asarray(knob_map.motor_to_model(cal.q_motor, check=False))
     inside = np.all(np.abs(q_model[:, :2]) < geometry.knob_limit - 1e-6, axis=1)
     if not np.any(inside):
@@ -81,15 +90,22 @@ def fit_quality(
     predicted = forward(q_model[inside], geometry, check=False)
     measured = cal.tip2base[inside]
     d = np.linalg.norm(predicted[:, :3, 3] - measured[:, :3, 3], axis=1)
-    r = np.einsum("nji,njk->nik", predicted[:, :3, :3], measured[:, :3, :3])
-    cos = np.clip((np.trace(r, axis1=1, axis2=2) - 1.0) / 2.0, -1.0, 1.0)
-    ang = np.degrees(np.arccos(cos))
+    ang = np.degrees(rotation_angle(predicted[:, :3, :3], measured[:, :3, :3], check=False))
+    n_out = int((~inside).sum())
     return FitQuality(
         n_used=int(inside.sum()),
         n_missing=int(n_missing),
         rms_mm=float(np.sqrt(np.mean(d**2))),
         max_mm=float(d.max()),
         rms_deg=float(np.sqrt(np.mean(ang**2))),
+        n_left_out=n_out,
+        left_out=(
+            f"the model's knobs at their +-{math.degrees(geometry.knob_limit):.0f} deg limit: "
+            "the catheter bends further than the model reaches"
+            if n_out
+            else ""
+        ),
+        max_deg=float(ang.max()),
     )
 
 
@@ -231,6 +247,59 @@ class FivePointProcedure:
         return CalibrationOutcome(self.kind, emap, cal, quality, details=emap.report)
 
 
+@dataclass(frozen=True, eq=False)
+class RegistrationProcedure:
+    """The tracker's registration to the robot base as a calibration procedure: the straight
+    catheter at several translations, rolled up and back down
+    (:func:`icenav.devices.registration.registration_joint_states`), the sensor pose averaged
+    in the tracker frame at each, fitted by
+    :func:`icenav.devices.registration.register_tracker` with the given sensor mount."""
+
+    sensor2tip: Array
+    """(4, 4) pose of the sensor in the tip frame (mm): the mount, measured or from its
+    drawing."""
+    kind: str = "registration"
+    label: str = "Registration: straight catheter, 3 translations x 12 rolls"
+    geometry: CatheterGeometry = DEFAULT_GEOMETRY
+    n_average: int = 8
+    """Tracker samples averaged at each state."""
+    retries: int = 10
+
+    def visits(self) -> VisitGenerator:
+        q = registration_joint_states()
+        plan = MotionPlan.make(q, "registration", n_average=self.n_average, retries=self.retries)
+        poses = np.full((plan.n, 4, 4), np.nan)
+        for i in range(plan.n):
+            pose = yield Visit(q[i], self.n_average, self.retries, "registration", "tracker")
+            if pose is not None:
+                poses[i] = pose
+        yield Visit(np.zeros(4), 0, 0, "to zero")
+        return Recording(plan=plan, tip2base=poses, attempts=np.ones(plan.n, dtype=np.int64))
+
+    def fit(self, recording: Any) -> CalibrationOutcome:
+        """The :class:`~icenav.devices.registration.Registration` (in ``details``); the
+        recording's poses are the sensor in the tracker frame. Quality: the registration's
+        position residual (mm) over the tracked states."""
+        rec: Recording = recording
+        ok = rec.measured
+        if int(ok.sum()) < 3:
+            raise TrackerError(
+                f"only {int(ok.sum())} of {rec.plan.n} registration states were tracked; check "
+                "the tracker (sensor in the field volume, cable)"
+            )
+        reg = register_tracker(
+            rec.plan.q_motor[ok], rec.tip2base[ok], self.sensor2tip, self.geometry
+        )
+        quality = FitQuality(
+            n_used=reg.n_points,
+            n_missing=int((~ok).sum()),
+            rms_mm=reg.rms_residual_mm,
+            max_mm=reg.max_residual_mm,
+            rms_deg=math.nan,
+        )
+        return CalibrationOutcome(self.kind, None, None, quality, details=reg)
+
+
 def _rest(q: list[Array], t: list[Array], phases: list[str]) -> VisitGenerator:
     """Back to rest at zeros (not read)."""
     yield Visit(np.zeros(4), 0, 0, "to zero")
@@ -250,9 +319,13 @@ def _segments(phases: list[str]) -> tuple[tuple[int, int, str], ...]:
 
 
 def make_procedure(
-    kind: str, *, geometry: CatheterGeometry = DEFAULT_GEOMETRY
-) -> PlanProcedure | FivePointProcedure:
-    """The calibration of ``kind`` ("dense", "five_point" or "dense+hysteresis")."""
+    kind: str,
+    *,
+    geometry: CatheterGeometry = DEFAULT_GEOMETRY,
+    sensor2tip: ArrayLike | None = None,
+) -> PlanProcedure | FivePointProcedure | RegistrationProcedure:
+    """The calibration of ``kind`` (one of :data:`CALIBRATION_KINDS`); ``sensor2tip`` (4, 4)
+    (mm, the sensor mount) is what ``registration`` needs."""
     if kind == "dense":
         raster = raster_grid(math.radians(10.0), geometry.knob_limit)
         plan = MotionPlan.concat(
@@ -276,6 +349,16 @@ def make_procedure(
             geometry,
             catheter_plan=cplan,
         )
+    if kind == "registration":
+        if sensor2tip is None:
+            raise ConfigurationError(
+                "the registration needs sensor2tip: the (4, 4) pose of the sensor in the tip "
+                "frame (mm), measured or from the mount's drawing"
+            )
+        mount = check_transform(sensor2tip, "sensor2tip")
+        if mount.shape != (4, 4):
+            raise ConfigurationError(f"sensor2tip must be one (4, 4) transform, got {mount.shape}")
+        return RegistrationProcedure(sensor2tip=mount, geometry=geometry)
     raise ConfigurationError(
         f"unknown calibration kind {kind!r}: use one of {', '.join(CALIBRATION_KINDS)}"
     )

@@ -38,7 +38,6 @@ from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import ArrayLike
-from scipy.optimize import least_squares
 
 from icenav._typing import Array
 from icenav._validation import check_finite
@@ -46,10 +45,7 @@ from icenav.errors import ConfigurationError
 
 __all__ = [
     "HysteresisCompensator",
-    "HysteresisFit",
     "JointHysteresis",
-    "identify",
-    "sweep_path",
 ]
 
 
@@ -345,160 +341,3 @@ class HysteresisCompensator:
 
 
 # --- identification ----------------------------------------------------------------------
-
-
-def sweep_path(amplitude: float, step: float = math.radians(1.0), cycles: int = 1) -> Array:
-    """A short up/down sweep 0 -> +A -> -A -> +A ... -> 0 (rad), for :func:`identify`."""
-    if not (0.0 < amplitude <= math.pi) or not (0.0 < step < amplitude):
-        raise ConfigurationError(
-            f"need 0 < step < amplitude <= pi rad, got amplitude={amplitude}, step={step}"
-        )
-    n = max(2, int(math.ceil(amplitude / step)))
-    up = np.linspace(0.0, amplitude, n + 1)
-    down = np.linspace(amplitude, -amplitude, 2 * n + 1)[1:]
-    parts = [up]
-    for _ in range(cycles):
-        parts += [down, -down]
-    parts.append(np.linspace(amplitude, 0.0, n + 1)[1:])
-    return np.concatenate(parts)
-
-
-@dataclass(frozen=True)
-class HysteresisFit:
-    """Result of :func:`identify`."""
-
-    model: JointHysteresis
-    """The identified transmission model."""
-    gain: tuple[float, float, float]
-    """(offset, linear, cubic) of the static map z -> observed output."""
-    rms: float
-    """RMS residual of the fit, in the unit of the observed output."""
-
-
-def _static_fit(z: Array, y: Array, cubic: bool) -> tuple[Array, float]:
-    cols = [np.ones_like(z), z, z**3] if cubic else [np.ones_like(z), z]
-    a = np.stack(cols, axis=-1)
-    coef, *_ = np.linalg.lstsq(a, y, rcond=None)
-    r = a @ coef - y
-    if not cubic:
-        coef = np.append(coef, 0.0)
-    return np.asarray(coef, dtype=np.float64), float(np.sqrt(np.mean(r * r)))
-
-
-def _batched_static_fit(z: Array, y: Array, cubic: bool) -> tuple[Array, Array]:
-    """Least-squares fits of y ~ a + b z (+ c z^3) for many z rows (m, n): coefs, rms.
-
-    Normal equations from power sums (one pass per power over z), solved in a batch.
-    """
-    n = z.shape[-1]
-    z2 = z * z
-    z3 = z2 * z
-    s1, s2, s3 = z.sum(-1), z2.sum(-1), z3.sum(-1)
-    sy, szy, syy = float(y.sum()), z @ y, float(y @ y)
-    if cubic:
-        s4, s6 = (z2 * z2).sum(-1), (z3 * z3).sum(-1)
-        sz3y = z3 @ y
-        ata = np.stack(
-            [
-                np.stack([np.full_like(s1, n), s1, s3], -1),
-                np.stack([s1, s2, s4], -1),
-                np.stack([s3, s4, s6], -1),
-            ],
-            -2,
-        )
-        aty = np.stack([np.full_like(s1, sy), szy, sz3y], -1)
-    else:
-        ata = np.stack([np.stack([np.full_like(s1, n), s1], -1), np.stack([s1, s2], -1)], -2)
-        aty = np.stack([np.full_like(s1, sy), szy], -1)
-    k = ata.shape[-1]
-    coef = np.linalg.solve(ata + 1e-12 * np.eye(k), aty[..., None])[..., 0]
-    # residual sum of squares = y.y - 2 c.A^T y + c.A^T A c
-    rss = syy - 2.0 * np.sum(coef * aty, -1) + np.einsum("mi,mij,mj->m", coef, ata, coef)
-    return coef, np.sqrt(np.maximum(rss, 0.0) / n)
-
-
-def identify(
-    x: ArrayLike,
-    y: ArrayLike,
-    *,
-    max_width: float = math.radians(10.0),
-    resolution: float = math.radians(0.5),
-    max_slope: float = 0.2,
-    cubic: bool = True,
-    with_dead_zone: bool = True,
-) -> HysteresisFit:
-    """Identify a joint's backlash + dead-zone from a sweep.
-
-    Parameters
-    ----------
-    x : array-like, shape (n,)
-        Commanded motor angles of the sweep (rad), starting from a relaxed state
-        (e.g. :func:`sweep_path`).
-    y : array-like, shape (n,)
-        Observed output at each sample (e.g. the tip's bend in the knob's plane, rad).
-        NaN marks a missing sample (skipped).
-    max_width : float
-        Largest backlash and dead-zone half-width searched (rad).
-    max_slope : float
-        Largest growth of the play with |x| searched (rad/rad); 0 for a constant play.
-    cubic : bool
-        Fit an odd cubic static map (for the elastic nonlinearity of the bend) or a line.
-    with_dead_zone : bool
-        Search a dead-zone (False: backlash only, e.g. for the roll joint).
-    """
-    xs = check_finite(x, "x", "rad").ravel()
-    ys = np.asarray(y, dtype=np.float64).ravel()
-    if xs.shape != ys.shape or xs.size < 10:
-        raise ConfigurationError(
-            f"x and y must have the same shape with >= 10 samples, got {xs.shape}, {ys.shape}"
-        )
-    ok = np.isfinite(ys)
-    if ok.sum() < 10:
-        raise ConfigurationError(f"only {int(ok.sum())} valid samples; need >= 10")
-    yv = ys[ok]
-    widths = np.arange(0.0, max_width + 0.5 * resolution, resolution)
-    slopes = np.linspace(0.0, max_slope, 9) if max_slope > 0 else np.array([0.0])
-    dzs = widths if with_dead_zone else np.array([0.0])
-    centres = np.arange(-4, 5) * resolution if with_dead_zone else np.array([0.0])
-    best = (math.inf, 0.0, 0.0, 0.0, 0.0)
-    x0 = float(xs[0])
-    for r in widths:
-        for r1 in slopes:
-            p = _play(xs, float(r), x0, float(r1))[ok]
-            u = p[None, :] - centres[:, None]  # (nc, n)
-            z = np.sign(u)[None] * np.maximum(np.abs(u)[None] - dzs[:, None, None], 0.0)
-            _, rms = _batched_static_fit(z.reshape(-1, p.size), yv, cubic)
-            k = int(np.argmin(rms))
-            if rms[k] < best[0]:
-                di, ci = divmod(k, centres.size)
-                best = (float(rms[k]), float(r), float(r1), float(dzs[di]), float(centres[ci]))
-
-    def resid(theta: Array) -> Array:
-        r, r1, d, c = (float(v) for v in theta)
-        p = _play(xs, max(r, 0.0), x0, max(r1, 0.0))[ok] - c
-        z = np.sign(p) * np.maximum(np.abs(p) - max(d, 0.0), 0.0)
-        coef, _ = _static_fit(z, yv, cubic)
-        return np.asarray((coef[0] + coef[1] * z + coef[2] * z**3) - yv)
-
-    theta0 = np.array(best[1:])
-    lo = [0.0, 0.0, 0.0, -math.radians(10)]
-    hi = [
-        max_width,
-        max(max_slope, 1e-9),
-        max_width if with_dead_zone else 1e-9,
-        math.radians(10) if with_dead_zone else 1e-9,
-    ]
-    theta0 = np.clip(theta0, lo, [h - 1e-12 for h in hi])
-    sol = least_squares(resid, theta0, bounds=(lo, hi), diff_step=1e-3)
-    theta = sol.x if float(np.sqrt(np.mean(sol.fun**2))) < best[0] else theta0
-    r, r1, d, c = (float(v) for v in theta)
-    if not with_dead_zone:
-        d, c = 0.0, 0.0
-    model = JointHysteresis(
-        backlash=max(r, 0.0), backlash_slope=max(r1, 0.0), dead_zone=max(d, 0.0), centre=c
-    )
-    p = _play(xs, model.backlash, x0, model.backlash_slope)[ok]
-    coef, fit_rms = _static_fit(model.dead_zone_out(p), yv, cubic)
-    return HysteresisFit(
-        model=model, gain=(float(coef[0]), float(coef[1]), float(coef[2])), rms=fit_rms
-    )

@@ -16,7 +16,7 @@ whoever moves the robot: the operator in knob mode, a path, a spin). Asking it i
 - :meth:`~TendonKnobMap.motor_to_model`: the model joint state the catheter is in now.
 
 Chain (the ``dense+hysteresis`` condition of ``icenav eval spin``,
-:func:`icenav.compensation.transmission.transmission_commands`, one sample at a time)::
+one sample at a time, as ``icenav eval spin`` drives it too)::
 
     model q -> twist pre-shape (direction of the roll) -> F_eff (knobs)
             -> tendon inverse (knobs) and roll play inverse (phi3) -> motor q
@@ -52,7 +52,8 @@ class TendonKnobMap:
     Parameters
     ----------
     calibration : TransmissionCalibration
-        From :func:`icenav.compensation.transmission.calibrate_transmission` or
+        From :func:`icenav.calibration.catheter.fit_catheter` (the ``dense+hysteresis``
+        procedure) or
         :func:`~icenav.compensation.transmission.build_transmission`, with the roll's per-joint
         model
         (``calibration.compensator.roll``: its play, ``roll_play_per_bend`` and

@@ -1,31 +1,16 @@
 """The EM tracker's field bias in the *base* frame, separated from the catheter's elasticity by
 rolling the catheter (beyond the paper).
 
-Why: the map F (:mod:`icenav.compensation.elasticity`) is built from EM-tracked tips in the *knob*
-frame
-(each sample's roll removed). A tracker measures ``m = p + b(p)``: the true tip plus a smooth
-field distortion ``b`` that belongs to the *base* (tracker) frame (1-2 mm over a catheter's
-workspace for an NDI 3D Guidance field; ``icenav.sim.tracker``). The raster is driven at roll
-0, so F learns ``b`` as if it were part of the bend, and when the spin turns the roll by
-``r`` the correction turns with it: the true tip orbits the model tip on a circle of radius
-``|b_xy|`` and the tracker sees up to twice that (measured on the twin: 1.5 mm of the 3.1 mm
-EM error of the per-knob ``dense+knob-hysteresis`` at 20 deg on development catheter 50;
-without a field bias 1.5 mm in all).
+Why: the map F (:mod:`icenav.compensation.elasticity`) is built from EM-tracked tips in the
+*knob* frame (each sample's roll removed). A tracker measures ``m = p + b(p)``: the true tip
+plus a smooth field distortion ``b`` that belongs to the *base* (tracker) frame (1-2 mm over a
+catheter's workspace for an NDI 3D Guidance field). The raster is driven at roll 0, so F
+learns ``b`` as if it were part of the bend, and when the spin turns the roll by ``r`` the
+correction turns with it: the true tip orbits the model tip on a circle of radius ``|b_xy|``
+and the tracker sees up to twice that (docs/calibration.md, section 4d).
 
-What: *roll circles* (:func:`roll_circle_path`): at a few knob poses the roll is turned through
-a full circle in one direction and the tip is tracked (averaged) at each stop. A roll moves the
-bent tip on a circle in the base frame while the field stays put, so the part of ``b`` that
-does not turn with the roll is separable from the bend. :func:`fit_tracker_bias` fits, by
-linear least squares (Eq. TB1)::
-
-    m_i = R_z(r_i) P_k + b0 + B R_z(r_i) P_k                            # (TB1)
-
-with ``P_k`` the (knob-frame) tip of pose ``k`` (its roll lag is the same at every stop,
-approached the same way, so it is absorbed in ``P_k``), and an affine field
-``b(x) = b0 + B x`` (base frame, mm). The bilinear term is linearised around the first
-estimate of ``P_k`` (two passes). Components that turn with the roll (``b0_z``, the parts of
-``B`` that commute with ``R_z``) cannot be separated from ``P_k``, nor need they be: F absorbs
-them correctly. A small ridge keeps them at their minimum norm.
+What: an affine estimate ``b(x) = b0 + B x`` (base frame, mm), fitted from roll circles by
+:mod:`icenav.calibration.tracker_bias` (Eq. TB1 there).
 
 Use (:class:`TrackerBias`):
 
@@ -40,58 +25,20 @@ Use (:class:`TrackerBias`):
 
 from __future__ import annotations
 
-import math
-from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import ArrayLike
 
 from icenav._typing import Array
 from icenav._validation import check_finite
-from icenav.calibration.plans import (
-    MotionPlan,
-    ProgressFn,
-    Recording,
-    TipTracker,
-    execute_plan,
-)
 from icenav.compensation.elasticity import CalibrationSet
-from icenav.errors import ConfigurationError, ShapeError, TrackerError
+from icenav.errors import ConfigurationError, ShapeError
 from icenav.geometry.kinematics import DEFAULT_GEOMETRY, CatheterGeometry, forward
 
 __all__ = [
-    "BiasCorrectedTracker",
-    "DEFAULT_ROLLS",
-    "DEFAULT_ROLL_BENDS",
-    "ROLL_CIRCLES",
     "TrackerBias",
-    "fit_tracker_bias",
-    "fit_tracker_bias_from",
-    "identify_tracker_bias",
-    "roll_circle_path",
-    "roll_circle_plan",
 ]
-
-DEFAULT_ROLL_BENDS = tuple(math.radians(a) for a in (0.0, 25.0, 50.0, 75.0))
-"""AP knob angles (rad) of the roll circles: the straight tip and three bends spanning the
-spin's workspace."""
-DEFAULT_ROLLS = tuple(math.radians(a) for a in range(0, 360, 45))
-"""Roll stops (rad) of each circle: 8, every 45 deg, always approached increasing."""
-_PRE_ROLL = math.radians(45.0)
-_RIDGE = 1e-3
-
-
-def _rz(r: Array) -> Array:
-    """(n, 3, 3) rotations about z by angles r (n,) (rad)."""
-    c, s = np.cos(r), np.sin(r)
-    out = np.zeros((r.size, 3, 3))
-    out[:, 0, 0] = c
-    out[:, 0, 1] = -s
-    out[:, 1, 0] = s
-    out[:, 1, 1] = c
-    out[:, 2, 2] = 1.0
-    return out
 
 
 @dataclass(frozen=True)
@@ -167,10 +114,6 @@ class TrackerBias:
             notes=calibration.notes,
         )
 
-    def corrected(self, tracker: TipTracker) -> BiasCorrectedTracker:
-        """A tracker view whose ``measure_tip2base`` returns poses with this bias removed."""
-        return BiasCorrectedTracker(tracker, self)
-
     def shift_model_path(
         self,
         q_model: ArrayLike,
@@ -205,185 +148,3 @@ class TrackerBias:
             step = np.linalg.solve(jtj, np.einsum("nij,ni->nj", jac, r)[..., None])[..., 0]
             out[:, :2] = np.clip(out[:, :2] + step, -lim, lim)
         return out
-
-
-class BiasCorrectedTracker:
-    """``measure_tip2base(*args)`` of a tracker with a :class:`TrackerBias` removed (None,
-    MISSING, passes through)."""
-
-    def __init__(self, tracker: TipTracker, bias: TrackerBias) -> None:
-        measure = getattr(tracker, "measure_tip2base", None)
-        if not callable(measure):
-            raise TrackerError("tracker must have a measure_tip2base() method")
-        self.tracker = tracker
-        self.bias = bias
-
-    def measure_tip2base(self, *args: int) -> Array | None:
-        """The wrapped tracker's pose (4, 4) with the bias removed, or None."""
-        pose = self.tracker.measure_tip2base(*args)
-        return None if pose is None else self.bias.correct_poses(pose)
-
-
-def roll_circle_path(
-    bends: Sequence[float] = DEFAULT_ROLL_BENDS,
-    rolls: Sequence[float] = DEFAULT_ROLLS,
-) -> tuple[Array, NDArray[np.bool_]]:
-    """Command path of the roll circles and which stops are measured.
-
-    For each AP knob angle ``a`` of ``bends`` (rad): the knobs go to ``(a, 0)`` at roll
-    ``rolls[0] - 45 deg``, then the roll visits each of ``rolls`` (rad, increasing), so every
-    stop is approached in the same direction (the roll's play lags the same at each).
-    Returns the path (m, 4) and a boolean mask (m,) of the stops to measure.
-    """
-    b = [float(x) for x in bends]
-    r = sorted(float(x) for x in rolls)
-    if not b or len(r) < 3:
-        raise ConfigurationError(
-            f"need at least one bend and three roll stops, got {len(b)} and {len(r)}"
-        )
-    if any(not math.isfinite(x) or abs(x) > math.pi / 2 for x in b):
-        raise ConfigurationError(f"bends must be within +-90 deg, got {np.degrees(b).round(1)}")
-    if r[-1] - r[0] >= 2.0 * math.pi:
-        raise ConfigurationError("roll stops must span less than 360 deg")
-    rows: list[tuple[float, float, float, float]] = []
-    mask: list[bool] = []
-    for a in b:
-        rows.append((a, 0.0, r[0] - _PRE_ROLL, 0.0))
-        mask.append(False)
-        for ri in r:
-            rows.append((a, 0.0, ri, 0.0))
-            mask.append(True)
-    return np.array(rows), np.array(mask)
-
-
-def fit_tracker_bias(
-    q_motor: ArrayLike,
-    tip2base: ArrayLike,
-    pose_index: ArrayLike,
-    ridge: float = _RIDGE,
-) -> TrackerBias:
-    """Fit Eq. (TB1) to tracked stops of roll circles.
-
-    Parameters
-    ----------
-    q_motor : array-like, shape (n, 4)
-        Commanded joint states of the stops (only the roll phi3 is used).
-    tip2base : array-like, shape (n, 4, 4)
-        Tracked tip poses (mm, base frame).
-    pose_index : array-like of int, shape (n,)
-        Which circle (knob pose) each stop belongs to; each needs >= 3 stops.
-    ridge : float
-        Weight of the minimum-norm regularisation of ``b0`` (mm) and ``B`` (per 100 mm).
-    """
-    q = check_finite(q_motor, "q_motor")
-    t = check_finite(tip2base, "tip2base", "mm")
-    k = np.asarray(pose_index)
-    if q.ndim != 2 or q.shape[1] != 4 or t.shape != (q.shape[0], 4, 4) or k.shape != (q.shape[0],):
-        raise ShapeError(
-            f"need q_motor (n, 4), tip2base (n, 4, 4), pose_index (n,); got {q.shape}, "
-            f"{t.shape}, {k.shape}"
-        )
-    poses, kk = np.unique(k, return_inverse=True)
-    counts = np.bincount(kk)
-    if np.any(counts < 3):
-        raise ConfigurationError(
-            f"each roll circle needs >= 3 tracked stops, got {counts.min()} for pose "
-            f"{poses[int(np.argmin(counts))]}"
-        )
-    n, npose = q.shape[0], poses.size
-    m = t[:, :3, 3]
-    rot = _rz(q[:, 2])
-    # first estimate of P_k: the measured tips turned back to roll 0, averaged per circle
-    back = np.einsum("nji,nj->ni", rot, m)
-    pk = np.zeros((npose, 3))
-    np.add.at(pk, kk, back)
-    pk /= counts[:, None]
-    scale = 100.0  # B in the design per 100 mm, so the ridge treats b0 and B alike
-    for _ in range(2):
-        x = np.einsum("nij,nj->ni", rot, pk[kk])  # R_i P_k, base frame
-        # unknowns: P (3 npose), b0 (3), B (9, scaled); rows: 3 per stop
-        a = np.zeros((3 * n, 3 * npose + 12))
-        for c in range(3):
-            rows = 3 * np.arange(n) + c
-            for j in range(3):
-                # (R_i P_k)_c = sum_j R_i[c, j] P_k[j] (B's action linearised at the estimate)
-                a[rows, 3 * kk + j] = rot[:, c, j]
-            a[rows, 3 * npose + c] = 1.0
-            for j in range(3):
-                a[rows, 3 * npose + 3 + 3 * c + j] = x[:, j] / scale
-        y = m.reshape(-1)
-        reg = np.zeros((12, a.shape[1]))
-        reg[:, 3 * npose :] = math.sqrt(float(ridge)) * np.eye(12)
-        sol, *_ = np.linalg.lstsq(
-            np.vstack([a, reg]), np.concatenate([y, np.zeros(12)]), rcond=None
-        )
-        pk = sol[: 3 * npose].reshape(npose, 3)
-        b0 = sol[3 * npose : 3 * npose + 3]
-        grad = sol[3 * npose + 3 :].reshape(3, 3) / scale
-    resid = a @ sol - y
-    return TrackerBias(
-        offset_mm=b0,
-        gradient=grad,
-        rms_residual_mm=float(np.sqrt(np.mean(resid**2) * 3.0)),
-        n_samples=n,
-    )
-
-
-ROLL_CIRCLES = "roll circles"
-"""Segment name of the roll circles in a :class:`icenav.calibration.plans.MotionPlan`."""
-
-
-def roll_circle_plan(
-    bends: Sequence[float] = DEFAULT_ROLL_BENDS,
-    rolls: Sequence[float] = DEFAULT_ROLLS,
-    n_average: int = 8,
-    retries: int = 10,
-) -> MotionPlan:
-    """The roll circles (:func:`roll_circle_path`) as a plan, every stop read (averaging
-    ``n_average`` samples; the fit uses the roll stops, not the pre-roll moves), then back
-    to rest at zeros."""
-    path, _ = roll_circle_path(bends, rolls)
-    return MotionPlan.concat(
-        [
-            MotionPlan.make(path, ROLL_CIRCLES, n_average=n_average, retries=retries),
-            MotionPlan.make(np.zeros((1, 4)), "to zero", n_average=0, retries=0),
-        ]
-    )
-
-
-def fit_tracker_bias_from(
-    recording: Recording,
-    bends: Sequence[float] = DEFAULT_ROLL_BENDS,
-    rolls: Sequence[float] = DEFAULT_ROLLS,
-) -> TrackerBias:
-    """:func:`fit_tracker_bias` on the recorded roll circles of :func:`roll_circle_plan`
-    (the same ``bends`` and ``rolls``)."""
-    path, stops = roll_circle_path(bends, rolls)
-    q, poses = recording.part(ROLL_CIRCLES)
-    if q.shape != path.shape or not np.array_equal(q, path):
-        raise ConfigurationError("the recording's roll circles are not those of these bends/rolls")
-    # the tracked roll stops (the pre-roll moves are in the path, not in the fit)
-    tracked = np.all(np.isfinite(poses.reshape(len(q), -1)), axis=1)
-    keep = np.flatnonzero(stops & tracked)
-    if keep.size < 6:
-        raise TrackerError(f"only {keep.size} roll-circle stops were tracked; need >= 6")
-    pose_of = np.cumsum(~stops) - 1  # which bend (circle) each state belongs to
-    return fit_tracker_bias(q[keep], np.array(poses[keep]), pose_of[keep])
-
-
-def identify_tracker_bias(
-    move: Callable[[Array], object],
-    tracker: TipTracker,
-    *,
-    bends: Sequence[float] = DEFAULT_ROLL_BENDS,
-    rolls: Sequence[float] = DEFAULT_ROLLS,
-    n_average: int = 8,
-    progress: ProgressFn | None = None,
-    geometry: CatheterGeometry = DEFAULT_GEOMETRY,
-) -> TrackerBias:
-    """Drive the roll circles (:func:`roll_circle_plan`; 36 moves by default), track the tip
-    at each stop (averaged over ``n_average`` samples) and fit :func:`fit_tracker_bias`.
-    The robot ends at rest (zeros)."""
-    plan = roll_circle_plan(bends, rolls, n_average)
-    rec = execute_plan(move, tracker, plan, progress=progress, geometry=geometry)
-    return fit_tracker_bias_from(rec, bends, rolls)

@@ -1,15 +1,14 @@
-"""A transmission model per *tendon* (tendon-sheath capstan play), its identification from
-two-knob motions, and its stateful inverse (beyond the paper).
+"""A transmission model per *tendon* (tendon-sheath capstan play) and its stateful inverse
+(beyond the paper); its identification is :mod:`icenav.calibration.transmission`.
 
 :mod:`icenav.compensation.hysteresis` gives each knob one play whose half-width grows with that
-knob's own
-angle. The physics it stands for is per tendon (Kaneko et al. 1991; Palli & Melchiorri 2006;
-Do et al. 2014; Kato et al. 2016): each knob pulls one tendon of an antagonistic pair through
-a long sheath, and capstan friction lets the *distal* pull stick inside a band around the
-*proximal* pull whose width grows with the tendon's tension and with the total wrap angle of
-its path -- the shaft, the vessel and the bending section's own bend, so the play of one knob
-widens when the *other* knob bends the section. Angles below are knob angles (rad): a pull is
-expressed as the knob rotation that makes it (pull / handle radius).
+knob's own angle. The physics it stands for is per tendon (Kaneko et al. 1991; Palli &
+Melchiorri 2006; Do et al. 2014; Kato et al. 2016): each knob pulls one tendon of an
+antagonistic pair through a long sheath, and capstan friction lets the *distal* pull stick
+inside a band around the *proximal* pull whose width grows with the tendon's tension and with
+the total wrap angle of its path -- the shaft, the vessel and the bending section's own bend,
+so the play of one knob widens when the *other* knob bends the section. Angles below are knob
+angles (rad): a pull is expressed as the knob rotation that makes it (pull / handle radius).
 
 Tendons A, B (AP knob x1) and C, D (RL knob x2), sign ``sigma = +1`` for A, C and ``-1`` for B,
 D; pair j, other pair k. Per substep (knob change <= ``max_substep``; TR = this module's
@@ -31,85 +30,41 @@ tendons are routed), ``wrap`` the capstan exponent of the straight catheter (mu 
 shaft's curvature) and ``friction`` (mu) its growth per rad of bend. The effective knobs
 ``z`` are what an elasticity map F built on them sees.
 
-Identification (:func:`identify_transmission`) uses only motor commands and the EM-tracked tip:
-the model is simulated along the commanded calibration paths (the dense raster, knob circles
-of a few radii in both directions, :func:`circle_path`), the tracked tip is turned into model
-knob angles (:func:`observed_knobs`, position only), and a static map ``G`` (a bivariate
-polynomial, fitted by linear least squares for each parameter vector: variable projection)
-from ``z`` to them closes the residual that :func:`scipy.optimize.least_squares` minimises.
-
 Compensation (:class:`TendonCompensator`): for a wanted effective knob pair ``z*`` the motor
 knobs ``x`` are found by a 1-D root search per knob (``z_j`` is non-decreasing in ``x_j``)
 inside Gauss-Seidel sweeps over the pair (coupled through the bend and the tensions), from
 the model's current state, which is then advanced; inside the dead-zone (``|z*_j| < eps``)
 the command is interpolated between the solutions for ``+-eps`` (no jump across it). The
 roll and the distal twist keep the per-joint models of :mod:`icenav.compensation.hysteresis`.
-:func:`transmission_commands` composes it with F; it is the ``dense+hysteresis`` condition of
-:mod:`icenav.eval.spin`::
-
-    model path -> [tracker-bias shift] -> preshape_model (twist) -> F_eff -> Savitzky-Golay
-               -> TendonCompensator -> motors
-
-Calibration (:func:`calibrate_transmission`): knob circles at 25 / 50 / 75 deg, both ways
-(~740 moves), with the dense raster; F_eff is a smoothed thin-plate RBF over the raster and
-circle samples relabelled with the identified model's effective knobs
-(:func:`build_transmission`). Before a procedure in a curved vessel, :func:`reidentify_in_situ`
-refits the plays from the circles alone there (F and G kept).
-
-Measured on the twin's development catheters 50-52 (the spin protocol of ``icenav eval spin``,
-EM-tracked, mean; calibrated in the straight vessel; before the tracker-bias separation of
-:mod:`icenav.compensation.tracker_bias`): 2.1 / 2.2 / 2.3 mm and 2.2 / 2.7 / 3.4 deg at 20 / 40 /
-60 deg in
-the straight vessel, against 2.7 / 3.0 / 3.6 mm and 3.2 / 4.0 / 5.0 deg for the per-knob model
-(``dense+knob-hysteresis``); lower than it in the curved vessels too. Re-identified in the
-curved vessel (:func:`reidentify_in_situ` with the roll sweeps there), the curved vessels added
-at most +1.0 mm / +1.4 deg to the straight result (steep, 60 deg; on the twin before its
-vessel review, docs/digital-twin.md section 2.2). With the tracker bias separated: 1.5 / 1.5 /
-1.8 mm (same catheters; held-out results, in every vessel, in docs/results.md).
+:class:`icenav.compensation.tendon_map.TendonKnobMap` composes it with F as the controller's
+compensation.
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
-from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike
-from scipy.optimize import brentq, least_squares
+from scipy.optimize import brentq
 
 from icenav._typing import Array
 from icenav._validation import check_finite
-from icenav.calibration.plans import MotionPlan, Recording, execute_plan
-from icenav.compensation.elasticity import CalibrationSet, ElasticityMap
+from icenav.compensation.elasticity import ElasticityMap
 from icenav.compensation.hysteresis import HysteresisCompensator
-from icenav.compensation.tracker_bias import TrackerBias
-from icenav.errors import ConfigurationError, ShapeError, TrackerError
-from icenav.geometry.kinematics import DEFAULT_GEOMETRY, CatheterGeometry
-from icenav.geometry.trajectories import savgol_smooth
+from icenav.errors import ConfigurationError, ShapeError
+from icenav.geometry.kinematics import DEFAULT_GEOMETRY
 
 __all__ = [
-    "CalibrationMotion",
-    "F_SMOOTHING",
-    "KNOB_CIRCLES",
     "PairTransmission",
     "TendonCompensator",
     "TendonTransmission",
     "TransmissionCalibration",
     "TransmissionFit",
-    "build_transmission",
-    "calibrate_transmission",
-    "circle_path",
-    "circle_plan",
     "g_minus",
     "g_plus",
-    "identify_transmission",
-    "motion_from",
-    "observed_knobs",
-    "record_motion",
-    "reidentify_in_situ",
-    "transmission_commands",
 ]
 
 _MAX_PLAY = math.radians(20.0)
@@ -315,179 +270,7 @@ class TendonTransmission:
 # --- observations ----------------------------------------------------------------------------
 
 
-def observed_knobs(tip2base: ArrayLike, geometry: CatheterGeometry = DEFAULT_GEOMETRY) -> Array:
-    """Model knob pairs (n, 2) (rad) whose model tip *position* is the tracked one.
-
-    Position only (the roll and the image frame's twist do not enter): the bending plane is
-    ``theta = atan2(y, x)`` and the bend alpha solves, by Gauss-Newton, the radial distance
-    and height of the constant-curvature tip with the ultrasound offset (Eq. (2))::
-
-        rho(alpha) = L (1 - cos alpha) / alpha + off sin alpha,  z(alpha) = L sin alpha / alpha
-        + off cos alpha
-
-    ``tip2base`` (n, 4, 4) in the base frame (mm), roll 0, d4 0; NaN poses give NaN rows.
-    """
-    t = np.asarray(tip2base, dtype=np.float64)
-    if t.ndim != 3 or t.shape[1:] != (4, 4):
-        raise ShapeError(f"tip2base must have shape (n, 4, 4), got {t.shape}")
-    p = t[:, :3, 3]
-    big_l, off = geometry.bending_length, geometry.us_offset
-    theta = np.arctan2(p[:, 1], p[:, 0])
-    rho = np.hypot(p[:, 0], p[:, 1])
-    pz = p[:, 2]
-    a = np.clip(rho / (0.5 * big_l + off), 1e-6, math.pi)  # small-angle start
-    for _ in range(30):
-        sa, ca = np.sin(a), np.cos(a)
-        r1 = big_l * (1.0 - ca) / a + off * sa - rho
-        r2 = big_l * sa / a + off * ca - pz
-        j1 = big_l * (sa * a - (1.0 - ca)) / a**2 + off * ca
-        j2 = big_l * (ca * a - sa) / a**2 - off * sa
-        da = (j1 * r1 + j2 * r2) / (j1 * j1 + j2 * j2)
-        a = np.clip(a - da, 1e-9, math.pi)
-    k = geometry.knob_ratio
-    return np.stack([a * np.cos(theta) / k, a * np.sin(theta) / k], axis=-1)
-
-
-def circle_path(
-    radii: Sequence[float] = (math.radians(25.0), math.radians(50.0), math.radians(75.0)),
-    step: float = math.radians(3.0),
-) -> Array:
-    """Knob circles for identification: motor joint states (n, 4) (rad).
-
-    From rest, for each radius r: a ray to (r, 0), one turn counter-clockwise, one turn
-    clockwise, back to (0, 0); ``step`` (rad) is the largest knob change per sample.
-    """
-    rr = [float(r) for r in radii]
-    if not rr or any(not (0.0 < r <= math.pi / 2) for r in rr):
-        raise ConfigurationError(f"radii must be in (0, pi/2] rad, got {radii!r}")
-    if not (0.0 < step <= math.radians(10.0)):
-        raise ConfigurationError(f"step must be in (0, {math.radians(10):.4f}] rad, got {step}")
-    rows: list[Array] = []
-    for r in rr:
-        n_ray = max(1, math.ceil(r / step))
-        ray = np.linspace(0.0, r, n_ray + 1)[1:]
-        n_turn = max(8, math.ceil(2.0 * math.pi * r / step))
-        t = np.linspace(0.0, 2.0 * math.pi, n_turn + 1)[1:]
-        ccw = np.stack([r * np.cos(t), r * np.sin(t)], axis=-1)
-        cw = np.stack([r * np.cos(-t), r * np.sin(-t)], axis=-1)
-        rows += [np.stack([ray, 0 * ray], -1), ccw, cw, np.stack([ray[::-1] - ray[0], 0 * ray], -1)]
-    k2 = np.concatenate(rows)
-    out = np.zeros((k2.shape[0], 4))
-    out[:, :2] = k2
-    return out
-
-
-@dataclass(frozen=True)
-class CalibrationMotion:
-    """One continuous commanded motion and what the tracker saw (from a relaxed start)."""
-
-    q_motor: Array
-    """(n, 4) motor joint states commanded in order (rad, rad, rad, mm)."""
-    observed: Array
-    """(n, 2) model knob angles of the tracked tip after each command (rad); NaN = MISSING."""
-    q_start: Array = field(default_factory=lambda: np.zeros(4))
-    """(4,) motor joint state at which the transmission was relaxed before the motion."""
-    tip2base: Array | None = None
-    """(n, 4, 4) the tracked tip poses (mm, base frame; NaN = MISSING), if kept: they can
-    join the samples of the elasticity map (:func:`build_transmission`)."""
-
-    def __post_init__(self) -> None:
-        q = check_finite(self.q_motor, "q_motor")
-        y = np.asarray(self.observed, dtype=np.float64)
-        if q.ndim != 2 or q.shape[1] != 4 or q.shape[0] < 1:
-            raise ShapeError(f"q_motor must have shape (n, 4), got {q.shape}")
-        if y.shape != (q.shape[0], 2):
-            raise ShapeError(f"observed must have shape ({q.shape[0]}, 2), got {y.shape}")
-        if np.any(np.isinf(y)):
-            raise ConfigurationError("observed must be finite or NaN (missing), got inf")
-        s = check_finite(self.q_start, "q_start").ravel()
-        if s.size != 4:
-            raise ShapeError(f"q_start must have 4 values, got {s.size}")
-        object.__setattr__(self, "q_motor", q)
-        object.__setattr__(self, "observed", y)
-        object.__setattr__(self, "q_start", s)
-        if self.tip2base is not None:
-            t = np.asarray(self.tip2base, dtype=np.float64)
-            if t.shape != (q.shape[0], 4, 4):
-                raise ShapeError(f"tip2base must have shape ({q.shape[0]}, 4, 4), got {t.shape}")
-            object.__setattr__(self, "tip2base", t)
-
-
-KNOB_CIRCLES = "knob circles"
-"""Segment name of the knob circles in a :class:`icenav.calibration.plans.MotionPlan`."""
-
-
-def circle_plan(
-    radii: Sequence[float] = (math.radians(25.0), math.radians(50.0), math.radians(75.0)),
-    step: float = math.radians(3.0),
-) -> MotionPlan:
-    """The knob circles (:func:`circle_path`) as a plan from rest: one tracker sample per
-    move, no retry (a MISSING sample is a gap), then back to rest at zeros."""
-    return MotionPlan.concat(
-        [
-            MotionPlan.make(circle_path(radii, step), KNOB_CIRCLES, n_average=1, retries=0),
-            MotionPlan.make(np.zeros((1, 4)), "to zero", n_average=0, retries=0),
-        ]
-    )
-
-
-def motion_from(
-    recording: Recording,
-    phase: str = KNOB_CIRCLES,
-    tracker_bias: TrackerBias | None = None,
-    geometry: CatheterGeometry = DEFAULT_GEOMETRY,
-) -> CalibrationMotion:
-    """The recorded segment ``phase`` as a :class:`CalibrationMotion` (observed knobs from the
-    tracked tips; NaN where MISSING), with ``tracker_bias`` removed from the tips if given."""
-    q, poses = recording.part(phase)
-    poses = np.array(poses)
-    ok = np.all(np.isfinite(poses.reshape(q.shape[0], -1)), axis=1)
-    if tracker_bias is not None and np.any(ok):
-        poses[ok] = tracker_bias.correct_poses(poses[ok])
-    obs = np.full((q.shape[0], 2), np.nan)
-    if np.any(ok):
-        obs[ok] = observed_knobs(poses[ok], geometry)
-    return CalibrationMotion(q_motor=np.array(q), observed=obs, tip2base=poses)
-
-
-def record_motion(
-    move: Callable[[Array], object],
-    tracker: object,
-    q_path: ArrayLike,
-    geometry: CatheterGeometry = DEFAULT_GEOMETRY,
-) -> CalibrationMotion:
-    """Drive ``q_path`` (n, 4) with ``move(q)`` and read ``tracker.measure_tip2base()`` after
-    each command (None = MISSING -> NaN poses and knobs). The robot must start at rest at
-    zeros (the motion's ``q_start``), e.g. right after a relaxation move."""
-    q = check_finite(q_path, "q_path")
-    if q.ndim != 2 or q.shape[1] != 4:
-        raise ShapeError(f"q_path must have shape (n, 4), got {q.shape}")
-    if not callable(getattr(tracker, "measure_tip2base", None)):
-        raise TrackerError("tracker must have a measure_tip2base() method")
-    plan = MotionPlan.make(q, KNOB_CIRCLES, n_average=1, retries=0)
-    rec = execute_plan(move, tracker, plan, geometry=geometry)  # type: ignore[arg-type]
-    return motion_from(rec, geometry=geometry)
-
-
 # --- identification --------------------------------------------------------------------------
-
-
-def _least_squares_fit(a: Array, y: Array) -> Array:
-    """argmin_c |a c - y| for a small tall system (n, m), by the normal equations with the
-    columns scaled to unit norm (a hot loop: LAPACK's lstsq costs ~20 ms per call with two
-    BLAS threads on two cores, this ~0.2 ms)."""
-    scale = np.sqrt(np.einsum("ij,ij->j", a, a))
-    scale[scale == 0.0] = 1.0
-    an = a / scale
-    ata = an.T @ an
-    ata[np.diag_indices_from(ata)] += 1e-12
-    return np.asarray(np.linalg.solve(ata, an.T @ y) / scale[:, None], dtype=np.float64)
-
-
-def _poly_basis(z: Array, degree: int) -> Array:
-    """Bivariate monomials z1^a z2^b, a + b <= degree: (n, m)."""
-    cols = [z[:, 0] ** a * z[:, 1] ** (n - a) for n in range(degree + 1) for a in range(n + 1)]
-    return np.stack(cols, axis=-1)
 
 
 @dataclass(frozen=True)
@@ -510,126 +293,6 @@ class TransmissionFit:
     degree: int = 7
     """Total degree of the static map G (``static_coefficients`` has (degree+1)(degree+2)/2
     rows)."""
-
-
-def _design(motions: Sequence[CalibrationMotion], weight_limit: float) -> tuple[list, Array, Array]:
-    ys, masks = [], []
-    for m in motions:
-        ok = np.all(np.isfinite(m.observed), axis=1)
-        ok &= np.max(np.abs(m.q_motor[:, :2]), axis=1) <= weight_limit + 1e-9
-        masks.append(ok)
-        ys.append(m.observed[ok])
-    return masks, np.concatenate(ys), np.concatenate([np.flatnonzero(k) for k in masks])
-
-
-def identify_transmission(
-    motions: Sequence[CalibrationMotion],
-    *,
-    initial: TendonTransmission | None = None,
-    degree: int = 7,
-    fit_limit: float = math.radians(70.0),
-    max_gain: float = 1.0,
-    max_nfev: int = 60,
-    static_coefficients: ArrayLike | None = None,
-) -> TransmissionFit:
-    """Identify a :class:`TendonTransmission` from commanded motions and the tracked tip.
-
-    For a parameter vector the model is simulated along every motion (each from its relaxed
-    start), a bivariate polynomial ``G`` of total ``degree`` from the effective knobs to the
-    observed model knobs is fitted by linear least squares, and the residuals
-    ``G(z_k) - y_k`` (rad) of all valid samples are minimised over the 10 parameters with
-    :func:`scipy.optimize.least_squares` (trust-region reflective, bounds). Samples whose
-    commanded knobs exceed ``fit_limit`` (rad) are left out of the residual (the workspace
-    corners saturate) but still simulated.
-
-    Parameters
-    ----------
-    motions : sequence of CalibrationMotion
-        E.g. the dense raster (serpentine) and :func:`circle_path` recorded with
-        :func:`record_motion`; at least 50 valid samples in all, with two-knob motion.
-    initial : TendonTransmission, optional
-        Start of the search (default: 1 deg slack and play, kappa 0.05, wrap 0.5, mu 0.5).
-    degree, fit_limit : int, float
-        Degree of ``G`` and the largest commanded knob angle (rad) of a sample in the fit.
-    max_gain : float
-        Bound of |kappa| and |gamma| (rad/rad).
-    static_coefficients : array-like, shape (m, 2), optional
-        Keep ``G`` fixed (e.g. a straight-vessel fit's ``static_coefficients``) instead of
-        refitting it: for re-identifying the plays in situ (in a curved vessel) from knob
-        circles alone, with the bending section's elasticity as calibrated.
-    """
-    if not motions or not all(isinstance(m, CalibrationMotion) for m in motions):
-        raise ConfigurationError("motions must be a non-empty sequence of CalibrationMotion")
-    if not (1 <= int(degree) <= 9):
-        raise ConfigurationError(f"degree must be in [1, 9], got {degree}")
-    if not (0.0 < float(max_gain) <= 2.0):
-        raise ConfigurationError(f"max_gain must be in (0, 2] rad/rad, got {max_gain}")
-    masks, y, _ = _design(motions, float(fit_limit))
-    n_valid = y.shape[0]
-    if n_valid < 50:
-        raise ConfigurationError(f"only {n_valid} valid samples within fit_limit; need >= 50")
-    one = math.radians(1.0)
-    init = (
-        TendonTransmission(
-            ap=PairTransmission(one, one, 0.05, 0.0),
-            rl=PairTransmission(one, one, 0.05, 0.0),
-            wrap=0.5,
-            friction=0.5,
-        )
-        if initial is None
-        else initial
-    )
-    b = float(max_gain)
-    lo = np.array([0, 0, 0, -b, 0, 0, 0, -b, 0, 0])
-    hi = np.array([_MAX_PLAY, _MAX_PLAY, b, b, _MAX_PLAY, _MAX_PLAY, b, b, 5.0, 3.0])
-    x0 = np.clip(init.to_vector(), lo, hi - 1e-9)
-    step = init.max_substep
-    count = [0]
-
-    def effective(theta: Array) -> Array:
-        model = TendonTransmission.from_vector(np.clip(theta, lo, hi), max_substep=step)
-        count[0] += 1
-        zs = [
-            model.simulate(m.q_motor, m.q_start[:2])[k] for m, k in zip(motions, masks, strict=True)
-        ]
-        return np.concatenate(zs)
-
-    fixed = None
-    if static_coefficients is not None:
-        fixed = check_finite(static_coefficients, "static_coefficients")
-        m_terms = (int(degree) + 1) * (int(degree) + 2) // 2
-        if fixed.shape != (m_terms, 2):
-            raise ShapeError(
-                f"static_coefficients must have shape ({m_terms}, 2) for degree {degree}, "
-                f"got {fixed.shape}"
-            )
-
-    def resid_for(z: Array) -> tuple[Array, Array]:
-        a = _poly_basis(z, int(degree))
-        if fixed is not None:
-            return np.asarray(a @ fixed - y, dtype=np.float64).ravel(), fixed
-        coef = _least_squares_fit(a, y)
-        return np.asarray(a @ coef - y, dtype=np.float64).ravel(), coef
-
-    def resid(theta: Array) -> Array:
-        return resid_for(effective(theta))[0]
-
-    sol = least_squares(
-        resid, x0, bounds=(lo, hi), x_scale="jac", diff_step=1e-3, max_nfev=max_nfev
-    )
-    model = TendonTransmission.from_vector(sol.x, max_substep=step)
-    r, coef = resid_for(effective(sol.x))
-    x_cmd = np.concatenate([m.q_motor[k, :2] for m, k in zip(motions, masks, strict=True)])
-    r0, _ = resid_for(x_cmd)
-    return TransmissionFit(
-        model=model,
-        rms=float(np.sqrt(np.mean(r**2) * 2.0)),
-        rms_without_play=float(np.sqrt(np.mean(r0**2) * 2.0)),
-        static_coefficients=coef,
-        n_samples=n_valid,
-        n_evaluations=count[0],
-        degree=int(degree),
-    )
 
 
 # --- compensation ----------------------------------------------------------------------------
@@ -799,62 +462,6 @@ class TendonCompensator:
         return np.array([self.command(row, float(bi)) for row, bi in zip(path, b, strict=True)])
 
 
-def transmission_commands(
-    q_model: ArrayLike,
-    effective_map: object,
-    compensator: TendonCompensator,
-    *,
-    approach_steps: int = 20,
-    savgol_window: int = 15,
-    geometry: CatheterGeometry = DEFAULT_GEOMETRY,
-    tracker_bias: TrackerBias | None = None,
-) -> Array:
-    """Motor commands (approach_steps + n, 4) for a model path (n, 4): the ``dense+hysteresis``
-    condition of :mod:`icenav.eval.spin`::
-
-        approach from rest -> twist pre-shape -> F_eff -> Savitzky-Golay -> TendonCompensator
-
-    ``effective_map`` is F on effective knobs, normally ``TransmissionCalibration.
-    effective_map`` (anything with ``model_to_motor(q, check=False)``); the compensator
-    (``TransmissionCalibration.compensator``) is reset to rest first. Defaults match spin's
-    constants (``APPROACH_STEPS`` 20, ``SAVGOL_WINDOW`` 15); the knob commands are clipped to
-    the knob limits. In ``icenav.eval.spin._commands`` the condition is one line::
-
-        return transmission_commands(q_model, cal.transmission.effective_map,
-                                     cal.transmission.compensator)
-
-    With a ``tracker_bias`` (the calibration's, :mod:`icenav.compensation.tracker_bias`) the model
-    path is
-    first shifted so the tracker reads the intended tip (F must then be built bias-free, as
-    :func:`calibrate_transmission` does with the same bias).
-    """
-
-    qm = check_finite(q_model, "q_model")
-    if qm.ndim != 2 or qm.shape[1] != 4:
-        raise ShapeError(f"q_model must have shape (n, 4), got {qm.shape}")
-    if tracker_bias is not None:
-        qm = tracker_bias.shift_model_path(qm, geometry)
-    n_app = int(approach_steps)
-    if n_app < 1:
-        raise ConfigurationError(f"approach_steps must be >= 1, got {approach_steps}")
-    approach = np.linspace(np.zeros(4), qm[0], n_app + 1)[1:]
-    path = np.vstack([approach, qm])
-    lim = geometry.knob_limit
-    model = path if compensator.roll is None else compensator.roll.preshape_model(path)
-    model[:, :2] = np.clip(model[:, :2], -lim, lim)
-    to_motor = getattr(effective_map, "model_to_motor", None)
-    if not callable(to_motor):
-        raise ConfigurationError("effective_map must have model_to_motor (an ElasticityMap)")
-    eff = np.asarray(to_motor(model, check=False), dtype=np.float64)
-    eff[n_app:] = savgol_smooth(eff[n_app:], savgol_window)
-    eff[:n_app] = np.linspace(np.zeros(4), eff[n_app], n_app + 1)[1:]
-    bends = geometry.knob_ratio * np.hypot(path[:, 0], path[:, 1])
-    compensator.reset()
-    cmd = compensator.command_path(eff, bends=bends)
-    cmd[:, :2] = np.clip(cmd[:, :2], -lim, lim)
-    return cmd
-
-
 # --- calibration (identification + the elasticity map on effective knobs) --------------------
 
 
@@ -870,168 +477,5 @@ class TransmissionCalibration:
     compensator: TendonCompensator
     """The stateful inverse (knobs), with the roll's per-joint play if given."""
     n_moves: int
-    """Robot moves made by :func:`calibrate_transmission` (0 for :func:`build_transmission`)."""
-
-
-F_SMOOTHING = 0.3
-"""Smoothing of the thin-plate RBF of F on effective knobs (RBFInterpolator's ``smoothing``).
-The relabelled samples are no longer a grid and include exact duplicates (saturated corners);
-an exact interpolant (0) oscillates between them (spin errors up to 10 mm on catheter 50).
-Measured on development catheters 50-52 (straight vessel, mean EM position at 20 / 40 / 60
-deg): 0.1: 2.12 / 2.10 / 2.32 mm; 0.3: 2.11 / 2.15 / 2.31; 1: 2.13 / 2.20 / 2.35; 3: 2.17 /
-2.27 / 2.44 (10 and more worse still, catheter 50); 0.3 keeps a margin from the exact fit."""
-
-
-def build_transmission(
-    dense: CalibrationSet,
-    raster: ArrayLike,
-    circles: CalibrationMotion | None = None,
-    roll: HysteresisCompensator | None = None,
-    *,
-    smoothing: float = F_SMOOTHING,
-    circles_in_map: bool = True,
-    geometry: CatheterGeometry = DEFAULT_GEOMETRY,
-    **identify_kwargs: Any,
-) -> TransmissionCalibration:
-    """Identify the tendon transmission and build F on its effective knobs.
-
-    Parameters
-    ----------
-    dense : CalibrationSet
-        The dense raster as measured (skipped samples missing).
-    raster : array-like, shape (n, 4)
-        The raster's full command path in the order driven, from rest at zeros
-        (:func:`icenav.calibration.plans.raster_grid`); each sample of ``dense`` is matched to it.
-    circles : CalibrationMotion, optional
-        Knob circles (:func:`circle_path` recorded by :func:`record_motion`): the two-knob
-        motions that identify the coupling. With ``circles_in_map`` and poses kept, their
-        relabelled samples also join F.
-    roll : HysteresisCompensator, optional
-        The per-joint model whose roll and twist plays the compensator keeps.
-    smoothing : float
-        RBF smoothing of F (see :data:`F_SMOOTHING`).
-    identify_kwargs
-        Passed to :func:`identify_transmission` (degree, fit_limit, max_gain, max_nfev).
-    """
-    if not isinstance(dense, CalibrationSet):
-        raise ConfigurationError(f"dense must be a CalibrationSet, got {type(dense).__name__}")
-    path = check_finite(raster, "raster", "rad")
-    if path.ndim != 2 or path.shape[1] != 4:
-        raise ShapeError(f"raster must have shape (n, 4), got {path.shape}")
-    gap = np.max(np.abs(path[None, :, :3] - dense.q_motor[:, None, :3]), axis=-1)
-    keep = np.argmin(gap, axis=1)
-    if float(np.max(gap[np.arange(keep.size), keep])) > 1e-6:
-        raise ConfigurationError("the dense calibration's samples are not on the raster path")
-    obs = np.full((path.shape[0], 2), np.nan)
-    obs[keep] = observed_knobs(dense.tip2base, geometry)
-    motions = [CalibrationMotion(q_motor=path, observed=obs)]
-    if circles is not None:
-        motions.append(circles)
-    fit = identify_transmission(motions, **identify_kwargs)
-    eff = fit.model.simulate(path, x_start=[0.0, 0.0])
-    q_eff = np.zeros((keep.size, 4))
-    q_eff[:, :2] = eff[keep]
-    poses = [dense.tip2base]
-    if circles is not None and circles_in_map and circles.tip2base is not None:
-        zc = fit.model.simulate(circles.q_motor, x_start=circles.q_start[:2])
-        ok = np.all(np.isfinite(circles.tip2base.reshape(zc.shape[0], -1)), axis=1)
-        qc = np.zeros((int(ok.sum()), 4))
-        qc[:, :2] = zc[ok]
-        q_eff = np.vstack([q_eff, qc])
-        poses.append(circles.tip2base[ok])
-    lim = geometry.knob_limit
-    q_eff[:, :2] = np.clip(q_eff[:, :2], -lim, lim)
-    samples = CalibrationSet(
-        q_motor=q_eff,
-        tip2base=np.concatenate(poses),
-        catheter_id=dense.catheter_id,
-        vessel=dense.vessel,
-        method="tendon-effective",
-    )
-    fmap = ElasticityMap.build(samples, geometry, interpolant="rbf", smoothing=float(smoothing))
-    return TransmissionCalibration(
-        fit=fit,
-        effective_map=fmap,
-        compensator=TendonCompensator(fit.model, roll, knob_limit=lim),
-        n_moves=0,
-    )
-
-
-def calibrate_transmission(
-    move: Callable[[Array], object],
-    tracker: object,
-    dense: CalibrationSet,
-    raster: ArrayLike,
-    roll: HysteresisCompensator | None = None,
-    *,
-    radii: Sequence[float] = (math.radians(25.0), math.radians(50.0), math.radians(75.0)),
-    step: float = math.radians(3.0),
-    tracker_bias: TrackerBias | None = None,
-    **kwargs: Any,
-) -> TransmissionCalibration:
-    """Drive the knob circles (:func:`circle_path`, ~800 moves for the default radii) from
-    rest at zeros, then :func:`build_transmission` with the dense raster. ``kwargs`` go to
-    :func:`build_transmission`. With a ``tracker_bias`` the raster's and the circles' tracked
-    tips are corrected for it first (then pass it to :func:`transmission_commands` too)."""
-    if tracker_bias is not None:
-        dense = tracker_bias.correct_calibration(dense)
-        tracker = tracker_bias.corrected(tracker)  # type: ignore[arg-type]
-    path = circle_path(radii, step)
-    circles = record_motion(move, tracker, path)
-    move(np.zeros(4))
-    cal = build_transmission(dense, raster, circles, roll, **kwargs)
-    return replace(cal, n_moves=path.shape[0] + 1)
-
-
-def reidentify_in_situ(
-    move: Callable[[Array], object],
-    tracker: object,
-    calibration: TransmissionCalibration,
-    roll: HysteresisCompensator | None = None,
-    *,
-    radii: Sequence[float] = (math.radians(25.0), math.radians(50.0), math.radians(75.0)),
-    step: float = math.radians(3.0),
-    max_nfev: int = 60,
-    tracker_bias: TrackerBias | None = None,
-) -> TransmissionCalibration:
-    """Re-identify the plays in the vessel of use (e.g. a curved one) from knob circles
-    alone (~800 moves, no raster), before a procedure.
-
-    The shaft's path through the vessel widens every tendon's friction band (capstan wrap);
-    the bending section's elasticity -- the static map G and F -- stays as calibrated. So the
-    10 parameters are refitted with G fixed to the calibration's (``static_coefficients``),
-    starting from the calibrated model, and F is kept. ``roll``: the per-joint model for the
-    roll and twist in that vessel (e.g. :func:`icenav.calibration.plans.identify_hysteresis` run
-    there); default: the calibration's. The robot must start at rest at zeros. With the
-    calibration's ``tracker_bias`` the circles' tracked tips are corrected for it (the bias
-    belongs to the tracker's field, not to the vessel).
-    """
-    if not isinstance(calibration, TransmissionCalibration):
-        raise ConfigurationError(
-            f"calibration must be a TransmissionCalibration, got {type(calibration).__name__}"
-        )
-    if tracker_bias is not None:
-        tracker = tracker_bias.corrected(tracker)  # type: ignore[arg-type]
-    path = circle_path(radii, step)
-    circles = record_motion(move, tracker, path)
-    move(np.zeros(4))
-    fit = identify_transmission(
-        [circles],
-        initial=calibration.fit.model,
-        degree=calibration.fit.degree,
-        static_coefficients=calibration.fit.static_coefficients,
-        max_nfev=max_nfev,
-    )
-    old = calibration.compensator
-    comp = TendonCompensator(
-        fit.model,
-        old.roll if roll is None else roll,
-        knob_limit=old.knob_limit,
-        dead_zone_ramp=old.dead_zone_ramp,
-    )
-    return TransmissionCalibration(
-        fit=fit,
-        effective_map=calibration.effective_map,
-        compensator=comp,
-        n_moves=path.shape[0] + 1,
-    )
+    """Robot moves of the circles it was (re-)identified from (0 for
+    :func:`icenav.calibration.transmission.build_transmission`)."""

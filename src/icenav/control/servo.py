@@ -7,7 +7,7 @@ paper attaches one for its evaluation; some clinical ICE catheters carry one) ca
 that error while it moves and correct it. :class:`TipPoseServo` is an integral controller
 on the tracked pose: after every measurement it computes the joint correction that removes
 the pose error in the model's tip frame, by damped, weighted least squares on the model's
-body Jacobian (``icenav.geometry.kinematics.jacobian``), and adds a fraction ``gain`` of it to the
+body Jacobian (``icenav.geometry.jacobian.jacobian``), and adds a fraction ``gain`` of it to the
 correction it keeps::
 
     e_k = [R_m^T (p_t - p_m) ; w vee(log(R_m^T R_t))]          # body pose error (mm, mm)
@@ -38,9 +38,11 @@ from numpy.typing import ArrayLike
 from icenav._typing import Array
 from icenav._validation import check_finite, check_transform
 from icenav.errors import ConfigurationError
-from icenav.geometry.kinematics import DEFAULT_GEOMETRY, CatheterGeometry, jacobian
+from icenav.geometry.jacobian import jacobian
+from icenav.geometry.kinematics import DEFAULT_GEOMETRY, CatheterGeometry
+from icenav.geometry.se3 import body_pose_error
 
-__all__ = ["PoseServoConfig", "TipPoseServo", "body_pose_error"]
+__all__ = ["PoseServoConfig", "TipPoseServo", "body_pose_error"]  # the last from geometry.se3
 
 
 def _tuple4(name: str, unit: str, values: tuple[float, float, float, float]) -> None:
@@ -85,24 +87,6 @@ class PoseServoConfig:
                 raise ConfigurationError(f"{name} must be finite and > 0 {unit}, got {v}")
         _tuple4("max_step", "rad, rad, rad, mm", self.max_step)
         _tuple4("max_correction", "rad, rad, rad, mm", self.max_correction)
-
-
-def body_pose_error(target: ArrayLike, measured: ArrayLike, rotation_weight: float) -> Array:
-    """Pose error (6,) of ``measured`` against ``target`` (both (4, 4), base frame, mm) in
-    the measured tip frame: position (mm) then ``rotation_weight`` times the rotation vector
-    of ``R_m^T R_t`` (mm), the twist that moves the measured pose onto the target."""
-    t = np.asarray(target, dtype=np.float64)
-    m = np.asarray(measured, dtype=np.float64)
-    rm_t = m[:3, :3].T
-    dp = rm_t @ (t[:3, 3] - m[:3, 3])
-    r = rm_t @ t[:3, :3]
-    vee = np.array([r[2, 1] - r[1, 2], r[0, 2] - r[2, 0], r[1, 0] - r[0, 1]])
-    s = 0.5 * float(np.linalg.norm(vee))
-    c = 0.5 * (float(np.trace(r)) - 1.0)
-    angle = math.atan2(s, c)  # robust at 0 and near pi, unlike acos
-    # log map: angle * axis, axis = vee / (2 sin angle); for small angles -> vee / 2
-    rot = vee * (angle / (2.0 * s) if s > 1e-12 else 0.5)
-    return np.concatenate([dp, rotation_weight * rot])
 
 
 class TipPoseServo:

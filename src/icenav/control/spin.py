@@ -33,12 +33,13 @@ from numpy.typing import ArrayLike
 
 from icenav._typing import Array
 from icenav._validation import check_finite
-from icenav.calibration.plans import _average_poses
 from icenav.compensation.hysteresis import HysteresisCompensator
 from icenav.control.servo import TipPoseServo
 from icenav.control.state import Mode
 from icenav.errors import InvalidValueError
-from icenav.geometry.kinematics import DEFAULT_GEOMETRY, CatheterGeometry, _rigid_inverse, forward
+from icenav.geometry.kinematics import DEFAULT_GEOMETRY, CatheterGeometry, forward
+from icenav.geometry.se3 import pose_mean as _average_poses
+from icenav.geometry.se3 import rigid_inverse as _rigid_inverse
 
 __all__ = ["SpinTask", "tracked_tip2base"]
 

@@ -26,15 +26,35 @@ from numpy.typing import ArrayLike
 
 from icenav._typing import Array
 from icenav._validation import check_finite, check_joint_state, check_transform
-from icenav.errors import InvalidValueError, ShapeError
+from icenav.errors import (
+    FileFormatError,
+    IcenavError,
+    InvalidValueError,
+    ShapeError,
+    UnsupportedVersionError,
+)
 from icenav.geometry.kinematics import DEFAULT_GEOMETRY, CatheterGeometry, forward
+from icenav.geometry.se3 import rigid_inverse
 
-__all__ = ["Registration", "kabsch_umeyama", "register_tracker", "registration_joint_states"]
+__all__ = [
+    "REGISTRATION_FORMAT",
+    "Registration",
+    "kabsch_umeyama",
+    "register_tracker",
+    "registration_joint_states",
+]
+
+REGISTRATION_FORMAT = 1
+"""Version of :meth:`Registration.to_dict`'s layout (``format`` key); version 1 is the first."""
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class Registration:
-    """Result of :func:`register_tracker`."""
+    """Where the tracker sits in the robot base frame and where the sensor sits in the tip
+    frame: what turns a tracked sensor pose into ``tip2base`` (Eq. R1 of
+    :mod:`icenav.devices.tracker`). Made by :func:`register_tracker` (with its residuals) or
+    :meth:`given` (known transforms); stored in the session and in calibration files
+    (:meth:`to_dict` / :meth:`from_dict`)."""
 
     tracker2base: Array
     """(4, 4) estimated pose of the tracker frame in the base frame (mm)."""
@@ -48,6 +68,82 @@ class Registration:
     """(4, 4) pose of the sensor in the tip frame (mm): the mount, measured or from its
     drawing (an input of the registration, kept with it)."""
 
+    def __post_init__(self) -> None:
+        for name in ("tracker2base", "sensor2tip"):
+            t = check_transform(getattr(self, name), name)
+            if t.shape != (4, 4):
+                raise ShapeError(f"{name} must be one (4, 4) transform, got {t.shape}")
+            t = t.copy()
+            t.setflags(write=False)
+            object.__setattr__(self, name, t)
+        for name in ("rms_residual_mm", "max_residual_mm"):
+            v = float(getattr(self, name))
+            if not math.isfinite(v) or v < 0.0:
+                raise InvalidValueError(f"{name} must be finite and >= 0 mm, got {v} mm")
+            object.__setattr__(self, name, v)
+        if int(self.n_points) != self.n_points or int(self.n_points) < 0:
+            raise InvalidValueError(f"n_points must be an integer >= 0, got {self.n_points!r}")
+        object.__setattr__(self, "n_points", int(self.n_points))
+
+    @classmethod
+    def given(cls, tracker2base: ArrayLike, sensor2tip: ArrayLike) -> Registration:
+        """A registration of known transforms (from a fixture's drawing, or the twin's
+        truth): no residuals, no points."""
+        return cls(
+            tracker2base=np.asarray(tracker2base, dtype=np.float64),
+            rms_residual_mm=0.0,
+            max_residual_mm=0.0,
+            n_points=0,
+            sensor2tip=np.asarray(sensor2tip, dtype=np.float64),
+        )
+
+    def __eq__(self, other: object) -> bool:
+        if not isinstance(other, Registration):
+            return NotImplemented
+        return (
+            np.array_equal(self.tracker2base, other.tracker2base)
+            and np.array_equal(self.sensor2tip, other.sensor2tip)
+            and (self.rms_residual_mm, self.max_residual_mm, self.n_points)
+            == (other.rms_residual_mm, other.max_residual_mm, other.n_points)
+        )
+
+    __hash__ = None  # type: ignore[assignment]  # holds arrays
+
+    def to_dict(self) -> dict[str, object]:
+        """A JSON-ready dict (``format`` = :data:`REGISTRATION_FORMAT`; mm)."""
+        return {
+            "format": REGISTRATION_FORMAT,
+            "tracker2base": self.tracker2base.tolist(),
+            "sensor2tip": self.sensor2tip.tolist(),
+            "rms_residual_mm": self.rms_residual_mm,
+            "max_residual_mm": self.max_residual_mm,
+            "n_points": self.n_points,
+        }
+
+    @classmethod
+    def from_dict(cls, data: object, source: str = "registration") -> Registration:
+        """Inverse of :meth:`to_dict`; FileFormatError naming ``source`` and the bad key."""
+        if not isinstance(data, dict):
+            raise FileFormatError(f"{source}: a registration must be an object, got {data!r}")
+        version = data.get("format")
+        if version != REGISTRATION_FORMAT:
+            raise UnsupportedVersionError(
+                f"{source}: registration format {version!r} is not known "
+                f"(this version reads format {REGISTRATION_FORMAT})"
+            )
+        try:
+            return cls(
+                tracker2base=np.asarray(data["tracker2base"], dtype=np.float64),
+                rms_residual_mm=float(data.get("rms_residual_mm", 0.0)),
+                max_residual_mm=float(data.get("max_residual_mm", 0.0)),
+                n_points=int(data.get("n_points", 0)),
+                sensor2tip=np.asarray(data["sensor2tip"], dtype=np.float64),
+            )
+        except KeyError as exc:
+            raise FileFormatError(f"{source}: registration lacks {exc.args[0]!r}") from exc
+        except (TypeError, ValueError, IcenavError) as exc:
+            raise FileFormatError(f"{source}: bad registration: {exc}") from exc
+
     def sensor2base(self, sensor2tracker: Array) -> Array:
         """The tracked sensor pose (4, 4) in the base frame (mm)."""
         return self.tracker2base @ np.asarray(sensor2tracker, dtype=np.float64)
@@ -55,11 +151,7 @@ class Registration:
     def tip2base(self, sensor2tracker: Array) -> Array:
         """The tip pose (4, 4) in the base frame implied by a tracked sensor pose (mm):
         ``tracker2base @ sensor2tracker @ inv(sensor2tip)``."""
-        m = self.sensor2tip
-        tip2sensor = np.eye(4)
-        tip2sensor[:3, :3] = m[:3, :3].T
-        tip2sensor[:3, 3] = -m[:3, :3].T @ m[:3, 3]
-        return self.sensor2base(sensor2tracker) @ tip2sensor
+        return self.sensor2base(sensor2tracker) @ rigid_inverse(self.sensor2tip)
 
 
 def kabsch_umeyama(points_a: ArrayLike, points_b: ArrayLike) -> Array:

@@ -1,39 +1,47 @@
-"""Tracker backends: one protocol for the simulated EM tracker and a real NDI Aurora.
+"""The tracker protocol: one interface for the twin's EM tracker and a real NDI Aurora.
 
-:class:`TrackerBackend` is what the calibration, the evaluation and the controller use; the
-simulated tracker (:class:`icenav.sim.tracker.EMTracker`) and :class:`NDIAuroraTracker`
-both satisfy it. A frame is a :class:`~icenav.sim.tracker.TrackerFrame` (timestamp,
-``sensor2tracker`` or None, :class:`~icenav.sim.tracker.ToolStatus`, quality): a tool that
-is not seen is reported MISSING with no pose, never with its last pose.
+:class:`TrackerBackend` is what calibration, the closed-loop spin, the pose stage and the
+controller use; the simulated tracker (:class:`icenav.sim.tracker.EMTracker`) and the NDI
+backend (:class:`icenav.devices.ndi.NDIAuroraTracker`) both satisfy it:
 
-:class:`NDIAuroraTracker` talks to the Aurora through scikit-surgerynditracker's
-``NDITracker`` (which drives NDI's serial command set through ``ndicapy``). It always asks
-for unsmoothed quaternion frames: ``NDITracker``'s smoothing buffer averages with
-``nanmean``, which would keep reporting the last pose of a tool that went missing.
+- ``get_frame() -> TrackerFrame``: the newest sample (timestamp, ``sensor2tracker`` or None,
+  :class:`ToolStatus`, quality), non-blocking; a tool that is not seen is MISSING with no
+  pose, never with its last pose;
+- ``measure_sensor2tracker(n_average=1)``: the sensor pose in the tracker frame averaged over
+  the next ``n_average`` samples (blocking for them), None when none was VALID;
+- ``measure_tip2base(n_average=1)``: the same reading as the tip pose in the robot base
+  frame through the tracker's :attr:`registration` (Eq. R1 below), None when MISSING or when
+  the tracker is not registered;
+- ``registration``: a :class:`icenav.devices.registration.Registration` value
+  (``tracker2base``, ``sensor2tip``, residuals) or None; settable (a lab estimates it with the
+  ``registration`` calibration procedure, or loads it from the session).
+
+::
+
+    tip2base = tracker2base @ sensor2tracker @ inv(sensor2tip)                    # (R1)
 """
 
 from __future__ import annotations
 
 import enum
 import math
-import time
-from collections.abc import Callable, Mapping
+from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Any, Protocol, runtime_checkable
+from typing import Protocol, runtime_checkable
 
 import numpy as np
-from numpy.typing import NDArray
 
 from icenav._typing import Array
-from icenav.errors import ConfigurationError, TrackerError
+from icenav.devices.registration import Registration
+from icenav.errors import ConfigurationError
+from icenav.geometry.se3 import pose_mean
 
 __all__ = [
-    "NDIAuroraConfig",
-    "NDIAuroraTracker",
     "ToolStatus",
     "TrackerBackend",
     "TrackerFrame",
-    "quaternion_to_transform",
+    "check_n_average",
+    "mean_sensor_pose",
 ]
 
 
@@ -65,7 +73,10 @@ class TrackerFrame:
 
 @runtime_checkable
 class TrackerBackend(Protocol):
-    """What icenav needs from a tracker (simulated or real)."""
+    """What icenav needs from a tracker (simulated or real); see the module docstring."""
+
+    registration: Registration | None
+    """Tracker to robot base and sensor mount; None: not registered (no ``tip2base``)."""
 
     def start(self) -> None:
         """Start tracking (open the device if needed)."""
@@ -79,170 +90,34 @@ class TrackerBackend(Protocol):
         """The newest sample of the tracked sensor (MISSING / OUT_OF_VOLUME without pose)."""
         ...
 
+    def measure_sensor2tracker(self, n_average: int = 1) -> Array | None:
+        """(4, 4) sensor pose in the tracker frame (mm) averaged over the next
+        ``n_average`` samples (VALID ones only); None when none was VALID."""
+        ...
 
-@dataclass(frozen=True)
-class NDIAuroraConfig:
-    """How to reach the Aurora and which tool is the catheter's sensor."""
-
-    serial_port: str | None = None
-    """Serial device ("/dev/ttyUSB0", "COM3"); None = probe the ports for an NDI device."""
-    ports_to_probe: int = 20
-    """How many serial ports to probe when ``serial_port`` is None."""
-    tool_index: int = 0
-    """Which of the wired tools (in port-handle order) is the catheter sensor."""
-    quality_scale_mm: float = 1.0
-    """The NDI error indicator (RMS, mm) that maps to quality 0.5 (quality = s / (s + e))."""
-
-    def __post_init__(self) -> None:
-        if self.tool_index < 0:
-            raise ConfigurationError(f"tool_index must be >= 0, got {self.tool_index}")
-        if self.ports_to_probe < 1:
-            raise ConfigurationError(f"ports_to_probe must be >= 1, got {self.ports_to_probe}")
-        if not self.quality_scale_mm > 0:
-            raise ConfigurationError(
-                f"quality_scale_mm must be > 0 mm, got {self.quality_scale_mm} mm"
-            )
-
-    def as_nditracker_settings(self) -> dict[str, Any]:
-        """The configuration dictionary scikit-surgerynditracker expects."""
-        settings: dict[str, Any] = {
-            "tracker type": "aurora",
-            "ports to probe": self.ports_to_probe,
-            "use quaternions": True,
-            "smoothing buffer": 1,
-        }
-        if self.serial_port is not None:
-            settings["serial port"] = self.serial_port
-        return settings
+    def measure_tip2base(self, n_average: int = 1) -> Array | None:
+        """(4, 4) tip pose in the base frame (mm) from :meth:`measure_sensor2tracker`
+        through :attr:`registration` (Eq. R1); None when MISSING or unregistered."""
+        ...
 
 
-def _default_factory(settings: Mapping[str, Any]) -> Any:
-    from sksurgerynditracker.nditracker import NDITracker
-
-    return NDITracker(dict(settings))
-
-
-def quaternion_to_transform(
-    quat_wxyz: NDArray[np.float64], translation_mm: NDArray[np.float64]
-) -> NDArray[np.float64]:
-    """(4, 4) transform from a unit quaternion (w, x, y, z) and a translation (mm).
-
-    The quaternion is normalised first (the tracker sends 4 significant digits).
-    """
-    q = np.asarray(quat_wxyz, dtype=np.float64)
-    n = float(np.linalg.norm(q))
-    if not math.isfinite(n) or n < 1e-9:
-        raise TrackerError(f"tracker sent an invalid quaternion {q.tolist()}")
-    w, x, y, z = q / n
-    t = np.eye(4)
-    t[:3, :3] = [
-        [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
-        [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
-        [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
-    ]
-    t[:3, 3] = translation_mm
-    return t
-
-
-class NDIAuroraTracker:
-    """An NDI Aurora through scikit-surgerynditracker, as a :class:`TrackerBackend`.
-
-    Parameters
-    ----------
-    config : NDIAuroraConfig
-        Port and tool selection.
-    clock : callable
-        Clock for the frames' timestamps (s); the host time of the reply, as NDI's
-        ``NDITracker`` stamps it. Default ``time.monotonic``.
-    tracker_factory : callable, optional
-        Builds the ``NDITracker`` from its settings dictionary (for tests or other NDI
-        models); default scikit-surgerynditracker's ``NDITracker``.
-    """
-
-    def __init__(
-        self,
-        config: NDIAuroraConfig | None = None,
-        clock: Callable[[], float] = time.monotonic,
-        tracker_factory: Callable[[Mapping[str, Any]], Any] | None = None,
+def check_n_average(n_average: object) -> int:
+    """``n_average`` as an int >= 1 samples, or ConfigurationError naming it."""
+    if (
+        isinstance(n_average, bool)
+        or not isinstance(n_average, int | np.integer | float)
+        or not math.isfinite(float(n_average))
+        or int(n_average) != n_average
+        or int(n_average) < 1
     ):
-        self.config = config or NDIAuroraConfig()
-        self._clock = clock
-        self._factory = tracker_factory or _default_factory
-        self._tracker: Any = None
-        self._last_frame_number: float | None = None
-        self._last: TrackerFrame | None = None
+        raise ConfigurationError(f"n_average must be an integer >= 1 (samples), got {n_average!r}")
+    return int(n_average)
 
-    @property
-    def running(self) -> bool:
-        """Whether tracking is started."""
-        return self._tracker is not None
 
-    def start(self) -> None:
-        """Open the Aurora, enable its wired tools and start tracking.
-
-        Raises TrackerError when the device cannot be reached or the tool does not exist.
-        """
-        if self._tracker is not None:
-            return
-        try:
-            tracker = self._factory(self.config.as_nditracker_settings())
-        except (OSError, ValueError, KeyError) as exc:
-            raise TrackerError(f"cannot open the NDI Aurora: {exc}") from exc
-        handles, _ = tracker.get_tool_descriptions()
-        if self.config.tool_index >= len(handles):
-            tracker.close()
-            raise TrackerError(
-                f"tool_index {self.config.tool_index} does not exist: the Aurora reports "
-                f"{len(handles)} wired tool(s) (port handles {list(handles)})"
-            )
-        try:
-            tracker.start_tracking()
-        except (OSError, ValueError) as exc:
-            raise TrackerError(f"the NDI Aurora refused to start tracking: {exc}") from exc
-        self._tracker = tracker
-        self._last_frame_number = None
-        self._last = None
-
-    def stop(self) -> None:
-        """Stop tracking and close the serial connection."""
-        tracker, self._tracker = self._tracker, None
-        if tracker is not None:
-            try:
-                tracker.close()  # stops tracking first
-            except (OSError, ValueError) as exc:
-                raise TrackerError(f"closing the NDI Aurora failed: {exc}") from exc
-
-    def get_frame(self) -> TrackerFrame:
-        """Read one frame (a BX / TX command round trip).
-
-        A tool the Aurora reports MISSING or DISABLED (NaN pose) is MISSING with no pose.
-        When the tracker's frame number has not advanced, the previous report is repeated
-        unchanged (same timestamp), so a consumer sees that no new sample exists.
-        """
-        if self._tracker is None:
-            raise TrackerError("the NDI Aurora is not started; call start() first")
-        try:
-            _, _, frame_numbers, tracking, qualities = self._tracker.get_frame()
-        except (OSError, ValueError) as exc:
-            raise TrackerError(f"reading a frame from the NDI Aurora failed: {exc}") from exc
-        i = self.config.tool_index
-        now = self._clock()
-        row = np.asarray(tracking[i], dtype=np.float64).reshape(-1)
-        frame_number = float(frame_numbers[i])
-        if row.shape != (7,) or not np.all(np.isfinite(row)):
-            frame = TrackerFrame(now, None, ToolStatus.MISSING, 0.0)
-            self._last, self._last_frame_number = frame, None
-            return frame
-        if (
-            self._last is not None
-            and self._last.status is ToolStatus.VALID
-            and frame_number == self._last_frame_number
-        ):
-            return self._last
-        error_mm = float(qualities[i])
-        scale = self.config.quality_scale_mm
-        quality = scale / (scale + error_mm) if math.isfinite(error_mm) and error_mm >= 0 else 0.0
-        sensor2tracker = quaternion_to_transform(row[:4], row[4:7])
-        frame = TrackerFrame(now, sensor2tracker, ToolStatus.VALID, quality)
-        self._last, self._last_frame_number = frame, frame_number
-        return frame
+def mean_sensor_pose(frames: Sequence[TrackerFrame]) -> Array | None:
+    """Mean (4, 4) of the VALID frames' ``sensor2tracker`` (mean position, chordal mean
+    rotation; :func:`icenav.geometry.se3.pose_mean`); None when no frame is VALID."""
+    poses = [f.sensor2tracker for f in frames if f.sensor2tracker is not None]
+    if not poses:
+        return None
+    return pose_mean(np.stack(poses))

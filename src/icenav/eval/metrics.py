@@ -26,6 +26,7 @@ from numpy.typing import ArrayLike, NDArray
 from icenav._typing import Array
 from icenav._validation import check_finite, check_positive, check_transform
 from icenav.errors import InvalidValueError, ShapeError
+from icenav.geometry.se3 import rotation_angle
 
 __all__ = [
     "ErrorStats",
@@ -39,7 +40,7 @@ __all__ = [
     "ncc",
     "pose_errors",
     "roi_centroid_distance",
-    "rotation_angle",
+    "rotation_angle",  # from icenav.geometry.se3
 ]
 
 
@@ -243,27 +244,6 @@ def error_stats(errors: ArrayLike) -> ErrorStats:
         max=float(e.max()),
         n=int(e.size),
     )
-
-
-def rotation_angle(r_a: ArrayLike, r_b: ArrayLike) -> Array:
-    """Angle (rad, in [0, pi]) of the rotation between orientations ``r_a`` and ``r_b``.
-
-    Parameters
-    ----------
-    r_a, r_b : array-like, shape (..., 3, 3)
-        Rotation matrices (broadcast against each other).
-    """
-    a = check_finite(r_a, "r_a")
-    b = check_finite(r_b, "r_b")
-    if a.shape[-2:] != (3, 3) or b.shape[-2:] != (3, 3):
-        raise ShapeError(f"rotations must have shape (..., 3, 3), got {a.shape} and {b.shape}")
-    rel = np.swapaxes(a, -1, -2) @ b
-    # robust: angle from both the trace (cos) and the skew part (sin)
-    cos = 0.5 * (np.trace(rel, axis1=-2, axis2=-1) - 1.0)
-    sk = rel - np.swapaxes(rel, -1, -2)
-    sin = 0.5 * np.sqrt(sk[..., 0, 1] ** 2 + sk[..., 0, 2] ** 2 + sk[..., 1, 2] ** 2)
-    out: Array = np.arctan2(sin, cos)
-    return out
 
 
 @dataclass(frozen=True)

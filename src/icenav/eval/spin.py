@@ -50,32 +50,31 @@ import math
 import multiprocessing
 import sys
 import time
-from collections.abc import Callable, Sequence
-from dataclasses import asdict, dataclass, replace
+from collections.abc import Sequence
+from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from icenav._typing import Array
-from icenav.calibration.plans import (
-    calibrate_dense,
-    calibrate_five_point,
-    identify_hysteresis,
-    raster_grid,
-)
-from icenav.compensation.elasticity import CalibrationSet, ElasticityMap, grid_subset_indices
-from icenav.compensation.hysteresis import HysteresisCompensator
-from icenav.compensation.tracker_bias import TrackerBias, identify_tracker_bias
-from icenav.compensation.transmission import (
-    TransmissionCalibration,
-    calibrate_transmission,
+from icenav.calibration.catheter import CatheterCalibration
+from icenav.calibration.hysteresis import fit_hysteresis, hysteresis_plan
+from icenav.calibration.plans import raster_grid
+from icenav.calibration.procedure import CalibrationOutcome, run_procedure, run_visits
+from icenav.calibration.procedures import make_procedure, plan_visits
+from icenav.calibration.transmission import (
+    KNOB_CIRCLES,
+    circle_plan,
+    motion_from,
     reidentify_in_situ,
-    transmission_commands,
 )
+from icenav.compensation.elasticity import CalibrationSet, ElasticityMap
+from icenav.compensation.hysteresis import HysteresisCompensator
+from icenav.compensation.tendon_map import TendonKnobMap
+from icenav.compensation.tracker_bias import TrackerBias
 from icenav.control.servo import TipPoseServo
 from icenav.errors import InvalidValueError
-from icenav.eval.metrics import rotation_angle
 from icenav.eval.spin_report import (
     BENDS_DEG,
     format_table,
@@ -85,6 +84,7 @@ from icenav.eval.spin_report import (
     plot_tip,
 )
 from icenav.geometry.kinematics import DEFAULT_GEOMETRY, forward
+from icenav.geometry.se3 import rotation_angle
 from icenav.geometry.trajectories import savgol_smooth, spin_trajectory
 
 __all__ = [
@@ -94,15 +94,15 @@ __all__ = [
     "CatheterRun",
     "SpinRecord",
     "calibrate",
-    "calibration_study",
     "evaluate_catheter",
     "identify_in_situ",
+    "knob_map_commands",
     "main",
     "parse_seeds",
+    "run_calibration",
     "run_spin",
     "run_spin_closed_loop",
     "run_vessel",
-    "with_transmission",
 ]
 
 OURS = "dense+hysteresis"
@@ -117,14 +117,9 @@ ALL_CONDITIONS = CONDITIONS
 """Every condition ``--conditions`` accepts."""
 SETTLE_UPDATES = 10
 """Closed loop: tracker updates at the start pose before the spin starts (1/8 s at 80 Hz)."""
-CLOSED_LOOP_REVERSAL_DEG = 1.0
-"""Closed loop: the play inverse's reversal threshold (deg). The servo's corrections carry
-the tracker's jitter; with the exact inverse (0) every jitter reversal jumps the command
-across the whole play. Chosen with the servo's gain on development catheters 50-52,
-straight and steep vessels (of 0, 0.5, 1, 2, 3 deg; the open loop is best with 0 and keeps
-it)."""
 SAVGOL_WINDOW = 15
-"""Savitzky-Golay window (samples = deg of spin) for the compensated commands."""
+"""Savitzky-Golay window (samples = deg of spin) of the ablation ``dense+knob-hysteresis``
+(the console's knob maps send each command as it is computed, unfiltered)."""
 APPROACH_STEPS = 20
 """Steps of the approach from the relaxed state to the start of the spin."""
 
@@ -160,33 +155,52 @@ class SpinRecord:
     the spin (``--in-situ``, ``dense+hysteresis`` only); False: as calibrated straight."""
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class Calibrations:
-    """Everything calibrated on one catheter in the straight vessel."""
+    """Everything calibrated on one catheter in the straight vessel, by the console's
+    procedures (:func:`icenav.calibration.procedures.make_procedure`) and their fits."""
 
-    dense: ElasticityMap
-    """F from the dense raster."""
-    simplified: ElasticityMap
-    """F from the 5-point calibration."""
+    dense: CalibrationOutcome
+    """``dense``: the paper's raster and F (the outcome's ``knob_map``)."""
+    simplified: CalibrationOutcome
+    """``five_point``: the paper's 5-point search and F."""
+    ours: CalibrationOutcome
+    """``dense+hysteresis``: raster, sweeps, roll and knob circles; ``details`` is the
+    :class:`icenav.calibration.catheter.CatheterCalibration`, ``knob_map`` the controller's
+    :class:`icenav.compensation.tendon_map.TendonKnobMap`."""
     dense_effective: ElasticityMap
-    """F from the dense raster in effective (hysteresis-free) knob angles."""
-    compensator: HysteresisCompensator
-    """The per-joint (knob, roll, twist) hysteresis compensator: ``dense+knob-hysteresis`` and
-    the closed loop use it whole, ``dense+hysteresis`` its roll and twist."""
-    dense_set: CalibrationSet
-    """The raw dense calibration set."""
-    five_set: CalibrationSet
-    """The raw 5-point calibration set."""
+    """The ablation ``dense+knob-hysteresis``: F from the same raster (tracker bias removed)
+    in the per-joint model's effective knob angles."""
     seconds: float
     """Wall time of the calibration (s)."""
-    transmission: TransmissionCalibration | None = None
-    """The per-tendon transmission calibration of ``dense+hysteresis`` (made by
-    :func:`run_vessel` when that condition runs)."""
-    tracker_bias: TrackerBias | None = None
-    """The tracker's base-frame field bias from the roll circles
-    (:mod:`icenav.compensation.tracker_bias`),
-    used by our conditions (not by the paper's ``dense`` and ``simplified``); None: not
-    separated."""
+
+    @property
+    def catheter(self) -> CatheterCalibration:
+        """The ``dense+hysteresis`` fit."""
+        cal: CatheterCalibration = self.ours.details
+        return cal
+
+    @property
+    def compensator(self) -> HysteresisCompensator:
+        """The per-joint (knob, roll, twist) hysteresis compensator of the sweeps."""
+        return self.catheter.hysteresis.compensator
+
+    @property
+    def tracker_bias(self) -> TrackerBias:
+        """The tracker's base-frame field bias from the roll circles."""
+        return self.catheter.tracker_bias
+
+    @property
+    def dense_set(self) -> CalibrationSet:
+        """The dense procedure's tracked samples."""
+        cs: CalibrationSet = self.dense.calibration_set
+        return cs
+
+    @property
+    def five_set(self) -> CalibrationSet:
+        """The 5-point procedure's tracked samples."""
+        cs: CalibrationSet = self.simplified.calibration_set
+        return cs
 
 
 def _make_plant(seed: int, vessel: str) -> tuple[Any, Any]:
@@ -197,49 +211,56 @@ def _make_plant(seed: int, vessel: str) -> tuple[Any, Any]:
     return plant, tracker
 
 
-def calibrate(seed: int, separate_bias: bool = True) -> Calibrations:
-    """Calibrate catheter ``seed`` in the straight vessel (dense, 5-point, hysteresis and,
-    with ``separate_bias``, the roll circles of :mod:`icenav.compensation.tracker_bias`)."""
+def run_calibration(kind: str, plant: Any, tracker: Any) -> CalibrationOutcome:
+    """The console's calibration ``kind`` on the twin: :func:`make_procedure`, driven by
+    :func:`run_procedure` from rest, then its fit (exactly what the controller's calibration
+    runner drives and fits)."""
+    plant.reset()
+    procedure = make_procedure(kind)
+    return procedure.fit(run_procedure(procedure, plant.move, tracker))
+
+
+def calibrate(seed: int) -> Calibrations:
+    """Calibrate catheter ``seed`` in the straight vessel with the console's procedures:
+    ``dense``, ``five_point`` and ``dense+hysteresis``, one after the other on one plant and
+    tracker (each from rest)."""
     t0 = time.perf_counter()
     plant, tracker = _make_plant(seed, "straight")
-    cid = f"sim-seed-{seed}"
+    dense = run_calibration("dense", plant, tracker)
+    five = run_calibration("five_point", plant, tracker)
+    ours = run_calibration("dense+hysteresis", plant, tracker)
+    cat: CatheterCalibration = ours.details
+    # the ablation: F on the per-joint model's effective knobs along the raster (from rest)
+    comp = cat.hysteresis.compensator
     raster = raster_grid()
-    dense = calibrate_dense(plant.move, tracker, catheter_id=cid).calibration
-    plant.reset()
-    five = calibrate_five_point(plant.move, tracker, catheter_id=cid).calibration
-    plant.reset()
-    hyst = identify_hysteresis(plant.move, tracker)
-    comp = hyst.compensator
-    # effective knob angles along the raster's command path (from the relaxed start)
     eff = comp.effective_path(np.vstack([np.zeros(4), raster]))[1:]
-    keep = [int(np.argmin(np.max(np.abs(raster - q), axis=1))) for q in dense.q_motor]
-    # beyond the paper: the roll circles separate the tracker's base-frame bias (last, so the
-    # paper's calibrations see the same tracker samples as without them)
-    plant.reset()
-    bias = identify_tracker_bias(plant.move, tracker) if separate_bias else None
-    ours = dense if bias is None else bias.correct_calibration(dense)
-    dense_eff = ours.with_motor_knobs(eff[keep, :2], method="dense-raster-effective")
+    keep = [int(np.argmin(np.max(np.abs(raster - q), axis=1))) for q in cat.dense.q_motor]
+    unbiased = cat.tracker_bias.correct_calibration(cat.dense)
+    dense_eff = unbiased.with_motor_knobs(eff[keep, :2], method="dense-raster-effective")
     return Calibrations(
-        dense=ElasticityMap.build(dense),
-        simplified=ElasticityMap.build(five),
+        dense=dense,
+        simplified=five,
+        ours=ours,
         dense_effective=ElasticityMap.build(dense_eff),
-        compensator=comp,
-        dense_set=dense,
-        five_set=five,
         seconds=time.perf_counter() - t0,
-        tracker_bias=bias,
     )
 
 
-def identify_in_situ(seed: int, vessel: str) -> HysteresisCompensator:
-    """The hysteresis sweeps of :func:`calibrate` repeated on catheter ``seed`` in the test
-    ``vessel`` (a robot can run them before a procedure: about 1000 small moves, no raster).
-
-    The shaft's path through the vessel widens the knob and roll plays (capstan friction);
-    the bending section's elasticity, hence F, stays as calibrated in the straight vessel.
-    """
+def identify_in_situ(seed: int, vessel: str, cal: Calibrations) -> TendonKnobMap:
+    """Our compensation with its plays re-identified on catheter ``seed`` in the test
+    ``vessel`` (opt-in ``--in-situ``): the hysteresis sweeps and the knob circles there
+    (about 1,700 small moves, no raster; a robot with a tip sensor can run them before a
+    procedure), fitted with F and G kept from the straight vessel (the section's elasticity
+    does not change with the vessel, the shaft's friction does)."""
     plant, tracker = _make_plant(seed, vessel)
-    return identify_hysteresis(plant.move, tracker).compensator
+    plant.reset()
+    hplan = hysteresis_plan()
+    roll = fit_hysteresis(hplan, run_visits(plan_visits(hplan.plan), plant.move, tracker))
+    plant.reset()
+    rec = run_visits(plan_visits(circle_plan()), plant.move, tracker)
+    circles = motion_from(rec, KNOB_CIRCLES, tracker_bias=cal.tracker_bias)
+    transmission = reidentify_in_situ(cal.catheter.transmission, circles, roll.compensator)
+    return TendonKnobMap(transmission)
 
 
 def _rmse(measured: Array, intended: Array) -> tuple[float, float]:
@@ -254,54 +275,70 @@ def _approach_path(q_model: Array) -> Array:
     return np.vstack([approach, q_model])
 
 
-def _effective_path(q_model: Array, cal: Calibrations) -> tuple[Array, Array]:
-    """dense + knob hysteresis before the play inverse: the wanted effective joint states
-    (APPROACH_STEPS + n, 4) (twist pre-shaped, F, Savitzky-Golay) and the intended bend of
-    each (rad), for :meth:`HysteresisCompensator.command`."""
-    path = _approach_path(q_model)
+def knob_map_commands(knob_map: Any, q_model_path: Array) -> Array:
+    """Motor commands (n, 4) of a model path (n, 4) through a knob map, as the controller
+    sends them: ``model_to_motor`` of each state from the present state, clipped to the
+    knob limits, then ``observe`` of the command sent (a map with state, e.g.
+    :class:`~icenav.compensation.tendon_map.TendonKnobMap`, follows every command)."""
     lim = DEFAULT_GEOMETRY.knob_limit
-    if cal.tracker_bias is not None:
-        # aim where the tracker reads the intended tip (F is built bias-free)
-        path = cal.tracker_bias.shift_model_path(path)
-    # the distal twist play: turn the image frame ahead
+    observe = getattr(knob_map, "observe", None)
+    out = np.empty_like(q_model_path)
+    for i, q in enumerate(q_model_path):
+        cmd = np.asarray(knob_map.model_to_motor(q, check=False), dtype=np.float64).copy()
+        cmd[:2] = np.clip(cmd[:2], -lim, lim)
+        if observe is not None:
+            observe(cmd)
+        out[i] = cmd
+    return out
+
+
+def _effective_path(q_model: Array, cal: Calibrations) -> tuple[Array, Array]:
+    """The ablation dense + knob hysteresis before the play inverse: the wanted effective
+    joint states (APPROACH_STEPS + n, 4) (tracker-bias shift, twist pre-shaped, F,
+    Savitzky-Golay) and the intended bend of each (rad), for
+    :meth:`HysteresisCompensator.command`."""
+    path = cal.tracker_bias.shift_model_path(_approach_path(q_model))
+    lim = DEFAULT_GEOMETRY.knob_limit
     model = cal.compensator.preshape_model(path)
     model[:, :2] = np.clip(model[:, :2], -lim, lim)
     eff = cal.dense_effective.model_to_motor(model, check=False)
     eff[APPROACH_STEPS:] = savgol_smooth(eff[APPROACH_STEPS:], SAVGOL_WINDOW)
     eff[:APPROACH_STEPS] = np.linspace(np.zeros(4), eff[APPROACH_STEPS], APPROACH_STEPS + 1)[1:]
-    # the roll's play grows with the bend: the intended (model) bend of each sample
     bends = DEFAULT_GEOMETRY.knob_ratio * np.hypot(path[:, 0], path[:, 1])
     return eff, bends
 
 
-def _commands(condition: str, q_model: Array, cal: Calibrations | None) -> Array:
+def _fresh_map(cal: Calibrations, condition: str, knob_map: Any = None) -> Any:
+    """The knob map of a condition as the controller installs it after the calibration:
+    a stateful map relaxed at rest (a new one per spin), F as it is."""
+    if condition == "dense":
+        return cal.dense.knob_map
+    if condition == "simplified":
+        return cal.simplified.knob_map
+    if knob_map is not None:  # in situ: re-identified plays
+        return TendonKnobMap(knob_map.calibration)
+    return cal.catheter.knob_map()
+
+
+def _commands(
+    condition: str, q_model: Array, cal: Calibrations | None, knob_map: Any = None
+) -> Array:
     """Motor commands (APPROACH_STEPS + n, 4): the approach from rest, then the spin
     (open-loop conditions; the closed loop builds its own, :func:`run_spin_closed_loop`)."""
     path = _approach_path(q_model)
-    lim = DEFAULT_GEOMETRY.knob_limit
     if condition == "none":
         return path
     if cal is None:
         raise InvalidValueError(f"condition {condition!r} needs the calibrations")
-    if condition == OURS:
-        if cal.transmission is None:
-            raise InvalidValueError(f"condition {condition!r} needs the transmission calibration")
-        tc = cal.transmission
-        return transmission_commands(
-            q_model, tc.effective_map, tc.compensator, tracker_bias=cal.tracker_bias
-        )
     if condition == KNOB_HYSTERESIS:
         eff, bends = _effective_path(q_model, cal)
         comp = cal.compensator
         comp.reset(np.zeros(4))
         cmd = comp.command_path(eff, bends=bends)
-    else:
-        fmap = {"dense": cal.dense, "simplified": cal.simplified}[condition]
-        cmd = fmap.model_to_motor(path, check=False)
-        cmd[APPROACH_STEPS:] = savgol_smooth(cmd[APPROACH_STEPS:], SAVGOL_WINDOW)
-        cmd[:APPROACH_STEPS] = np.linspace(np.zeros(4), cmd[APPROACH_STEPS], APPROACH_STEPS + 1)[1:]
-    cmd[:, :2] = np.clip(cmd[:, :2], -lim, lim)
-    return cmd
+        lim = DEFAULT_GEOMETRY.knob_limit
+        cmd[:, :2] = np.clip(cmd[:, :2], -lim, lim)
+        return cmd
+    return knob_map_commands(_fresh_map(cal, condition, knob_map), path)
 
 
 def run_spin(
@@ -331,64 +368,48 @@ def run_spin_closed_loop(
     q_model: Array,
     cal: Calibrations,
     servo: TipPoseServo | None = None,
+    knob_map: Any = None,
 ) -> tuple[Array, Array, Array]:
-    """The spin of ``q_model`` (n, 4) with dense + knob-hysteresis compensation corrected online
-    from the EM tracker (:class:`icenav.control.servo.TipPoseServo`).
+    """The spin of ``q_model`` (n, 4) with our compensation (``dense+hysteresis``'s knob map)
+    corrected online from the EM tracker by the controller's servo
+    (:class:`icenav.control.servo.TipPoseServo`), as the controller's spin task does it:
+    the feed-forward is the knob map's commands of the whole spin from the state at its
+    start, the servo's correction is added to each motor command, every command sent is
+    observed by the map.
 
     From a relaxed start, the approach runs open loop; at the start pose the servo takes
-    ``SETTLE_UPDATES`` tracker updates; then at each sample the motor command is the play
-    inverse of the wanted effective state plus the servo's correction (so the play inverse
-    also pre-shapes the correction), the tip is measured once, and the servo updates
-    toward the intended pose of that sample. Returns the true and the EM-tracked poses
-    (n, 4, 4) (NaN where MISSING) and the motor commands (n, 4)."""
+    ``SETTLE_UPDATES`` tracker updates; then at each sample the tip is measured once and the
+    servo updates toward the intended pose of that sample. Returns the true and the
+    EM-tracked poses (n, 4, 4) (NaN where MISSING) and the motor commands (n, 4)."""
     servo = TipPoseServo() if servo is None else servo
     servo.reset()
-    eff, bends = _effective_path(q_model, cal)
     intended = forward(q_model, check=False)
-    comp = cal.compensator.with_reversal_threshold(math.radians(CLOSED_LOOP_REVERSAL_DEG))
-    comp.reset(np.zeros(4))
+    kmap = _fresh_map(cal, OURS, knob_map)
     lim = DEFAULT_GEOMETRY.knob_limit
     plant.reset()
+    approach = knob_map_commands(kmap, _approach_path(q_model)[:APPROACH_STEPS])
+    for q in approach:
+        plant.move(q)
+    feed_forward = np.asarray(kmap.model_to_motor(q_model, check=False), dtype=np.float64)
 
     def drive(k: int) -> tuple[Array, Array]:
-        q = comp.command(eff[k] + servo.correction, float(bends[k]))
+        q = feed_forward[k] + servo.correction
         q[:2] = np.clip(q[:2], -lim, lim)
+        kmap.observe(q)
         return plant.move(q), q
 
-    for k in range(APPROACH_STEPS):
-        drive(k)
     for _ in range(SETTLE_UPDATES):
-        drive(APPROACH_STEPS)
+        drive(0)
         servo.update(q_model[0], intended[0], tracker.measure_tip2base())
     true, em, cmds = [], [], []
     for k in range(q_model.shape[0]):
-        pose, q = drive(APPROACH_STEPS + k)
+        pose, q = drive(k)
         m = tracker.measure_tip2base()
         servo.update(q_model[k], intended[k], m)
         true.append(pose)
         em.append(np.full((4, 4), np.nan) if m is None else m)
         cmds.append(q)
     return np.array(true), np.array(em), np.array(cmds)
-
-
-def with_transmission(seed: int, cal: Calibrations) -> Calibrations:
-    """``cal`` with the per-tendon transmission calibration of ``dense+hysteresis`` (knob
-    circles in the straight vessel, from rest; about 740 moves and 10 s of fitting), made
-    once."""
-    if cal.transmission is not None:
-        return cal
-    plant, tracker = _make_plant(seed, "straight")
-    return replace(
-        cal,
-        transmission=calibrate_transmission(
-            plant.move,
-            tracker,
-            cal.dense_set,
-            raster_grid(),
-            cal.compensator,
-            tracker_bias=cal.tracker_bias,
-        ),
-    )
 
 
 def run_vessel(
@@ -406,28 +427,18 @@ def run_vessel(
     """The spins of one catheter in one vessel: a record per bend and condition.
 
     Every condition is calibrated in the straight vessel (``cal``; the paper's protocol;
-    None only with condition ``none``, which needs no calibration).
-    With ``in_situ`` and a vessel other than the straight one, the plays of
-    ``dense+hysteresis`` (tendons, roll, twist) are re-identified in the test vessel first
-    (:func:`icenav.compensation.transmission.reidentify_in_situ`, :func:`identify_in_situ`).
+    None only with condition ``none``, which needs no calibration). With ``in_situ`` and a
+    vessel other than the straight one, the plays of ``dense+hysteresis`` (tendons, roll,
+    twist) are re-identified in the test vessel first (:func:`identify_in_situ`).
     ``keep_commands`` / ``keep_tips`` receive, per (bend, condition), the motor commands
     (n, 4) and the true tip positions (n, 3) (mm, base frame) of the spin."""
-    if cal is None:
-        if any(c != "none" for c in conditions):
-            raise InvalidValueError(f"conditions {list(conditions)} need the calibrations")
-    elif OURS in conditions:
-        cal = with_transmission(seed, cal)
+    if cal is None and any(c != "none" for c in conditions):
+        raise InvalidValueError(f"conditions {list(conditions)} need the calibrations")
     in_situ = in_situ and vessel != "straight" and OURS in conditions
+    situ_map = None
     if in_situ:
-        assert cal is not None and cal.transmission is not None
-        plant, tracker = _make_plant(seed, vessel)  # the roll and the tendons together
-        roll = identify_in_situ(seed, vessel)
-        cal = replace(
-            cal,
-            transmission=reidentify_in_situ(
-                plant.move, tracker, cal.transmission, roll, tracker_bias=cal.tracker_bias
-            ),
-        )
+        assert cal is not None
+        situ_map = identify_in_situ(seed, vessel, cal)
     plant, tracker = _make_plant(seed, vessel)
     records = []
     for bend in bends_deg:
@@ -440,7 +451,7 @@ def run_vessel(
                 if keep_commands is not None:
                     keep_commands[(bend, cond)] = cmd
             else:
-                cmd = _commands(cond, sp.q_model, cal)
+                cmd = _commands(cond, sp.q_model, cal, situ_map if cond == OURS else None)
                 if keep_commands is not None:
                     keep_commands[(bend, cond)] = cmd[APPROACH_STEPS:]
                 true, em = run_spin(plant, tracker, cmd)
@@ -465,89 +476,6 @@ def run_vessel(
                 )
             )
     return records
-
-
-# --- calibration-size study ------------------------------------------------------------------
-
-
-def calibration_study(
-    seed: int, sizes: Sequence[int] = (5, 9, 13, 25, 49, 361), n_test: int = 150
-) -> list[dict[str, Any]]:
-    """Accuracy of F against the number of calibration points (beyond the paper).
-
-    Subsets of the dense raster (5 = the paper's five points taken from the grid, 9, 13,
-    25, 49, all 361) and the 5-point *search*; each F drives the plant from rest to random
-    model knob pairs within +-60 deg, and the true tip's distance from the model tip is
-    measured (RMS, mm). Also compares interpolants on the full set.
-    """
-    plant, tracker = _make_plant(seed, "straight")
-    dense = calibrate_dense(plant.move, tracker).calibration
-    plant.reset()
-    five = calibrate_five_point(plant.move, tracker).calibration
-    rng = np.random.default_rng(seed)
-    k = rng.uniform(-1.0, 1.0, (n_test, 2)) * math.radians(60.0)
-    q = np.zeros((n_test, 4))
-    q[:, :2] = k
-    target = forward(q)[:, :3, 3]
-
-    def accuracy(fn: Callable[[Array, Array], tuple[Array, Array]]) -> float:
-        a, b = fn(k[:, 0], k[:, 1])
-        err = []
-        for i in range(n_test):
-            plant.reset()
-            err.append(np.linalg.norm(plant.move([a[i], b[i], 0.0, 0.0])[:3, 3] - target[i]))
-        return float(np.sqrt(np.mean(np.square(err))))
-
-    rows: list[dict[str, Any]] = [
-        {"set": "none", "n_points": 0, "interpolant": "-", "rms_mm": accuracy(lambda a, b: (a, b))}
-    ]
-    for n in sizes:
-        sub = dense if n == dense.n_samples else dense.subset(grid_subset_indices(dense.q_motor, n))
-        m = ElasticityMap.build(sub)
-        rows.append(
-            {
-                "set": f"grid subset {n}",
-                "n_points": sub.n_samples,
-                "interpolant": m.report.interpolant,
-                "rms_mm": accuracy(m.model_to_motor_knobs),
-            }
-        )
-    m = ElasticityMap.build(five)
-    rows.append(
-        {
-            "set": "5-point search",
-            "n_points": 5,
-            "interpolant": m.report.interpolant,
-            "rms_mm": accuracy(m.model_to_motor_knobs),
-        }
-    )
-    m = ElasticityMap.build(five, relative_to_model=False)
-    rows.append(
-        {
-            "set": "5-point search, raw positions (paper)",
-            "n_points": 5,
-            "interpolant": "rbf",
-            "rms_mm": accuracy(m.model_to_motor_knobs),
-        }
-    )
-    for label, kw in (
-        ("spline s=0", {"interpolant": "spline", "smoothing": 0.0}),
-        ("spline s=n*(0.7 mm)^2 (default)", {"interpolant": "spline"}),
-        ("spline s=n*(1.4 mm)^2", {"interpolant": "spline", "smoothing": 1.96 * dense.n_samples}),
-        ("thin-plate rbf", {"interpolant": "rbf"}),
-        ("clough-tocher", {"interpolant": "clough-tocher"}),
-        ("spline, raw positions (paper)", {"interpolant": "spline", "relative_to_model": False}),
-    ):
-        m = ElasticityMap.build(dense, **kw)
-        rows.append(
-            {
-                "set": f"dense: {label}",
-                "n_points": dense.n_samples,
-                "interpolant": m.report.interpolant,
-                "rms_mm": accuracy(m.model_to_motor_knobs),
-            }
-        )
-    return rows
 
 
 # --- many catheters --------------------------------------------------------------------------
@@ -598,17 +526,17 @@ def _describe_calibration(seed: int, cal: Calibrations | None) -> list[str]:
         return [f"catheter {seed}: nothing to calibrate (condition none only)"]
     lines = [
         f"catheter {seed}: calibrated in the straight vessel in {cal.seconds:.1f} s "
-        f"(dense {cal.dense_set.n_samples} samples, 5-point, hysteresis sweeps"
-        + (", roll circles)" if cal.tracker_bias is not None else ")")
+        "(the console's dense, five_point and dense+hysteresis procedures)"
     ]
-    if cal.tracker_bias is not None:
-        tb = cal.tracker_bias
-        at = [tb.at(forward(np.array([math.radians(a), 0, 0, 0]))[:3, 3]) for a in BENDS_DEG]
-        lines.append(
-            "  tracker bias at the 20 / 40 / 60 deg spin points (mm, base x y): "
-            + ", ".join(f"{b[0]:.2f} {b[1]:.2f}" for b in at)
-            + f"; fit residual {tb.rms_residual_mm:.2f} mm over {tb.n_samples} stops"
-        )
+    for name, outcome in (("dense", cal.dense), ("5-point", cal.simplified), (OURS, cal.ours)):
+        lines.append(f"  {name}: {outcome.quality.describe()}")
+    tb = cal.tracker_bias
+    at = [tb.at(forward(np.array([math.radians(a), 0, 0, 0]))[:3, 3]) for a in BENDS_DEG]
+    lines.append(
+        "  tracker bias at the 20 / 40 / 60 deg spin points (mm, base x y): "
+        + ", ".join(f"{b[0]:.2f} {b[1]:.2f}" for b in at)
+        + f"; fit residual {tb.rms_residual_mm:.2f} mm over {tb.n_samples} stops"
+    )
     for name, m in (("phi1", 0), ("phi2", 1), ("phi3", 2)):
         jm = cal.compensator.joints[m]
         if jm is not None:
@@ -634,7 +562,6 @@ def evaluate_catheter(
     n_samples: int = 360,
     conditions: Sequence[str] = CONDITIONS,
     in_situ: bool = False,
-    separate_bias: bool = True,
     keep: bool = False,
 ) -> CatheterRun:
     """Calibrate catheter ``seed`` in the straight vessel once, then run the spins in each of
@@ -642,9 +569,7 @@ def evaluate_catheter(
     the plots). A module-level function, so ``--jobs`` can run catheters in processes."""
     t0 = time.perf_counter()
     needs_calibration = any(c != "none" for c in conditions)
-    cal = calibrate(seed, separate_bias=separate_bias) if needs_calibration else None
-    if cal is not None and OURS in conditions:
-        cal = with_transmission(seed, cal)
+    cal = calibrate(seed) if needs_calibration else None
     records: list[SpinRecord] = []
     commands: dict[tuple[str, int, str], Array] = {}
     tips: dict[tuple[str, int, str], Array] = {}
@@ -775,12 +700,6 @@ def _parser() -> argparse.ArgumentParser:
         "calibrated in the straight vessel only)",
     )
     p.add_argument(
-        "--no-bias-separation",
-        action="store_true",
-        help="skip the roll circles: our conditions keep the tracker's field bias in F, as "
-        "the paper's do (for comparison; docs/calibration.md section 4d)",
-    )
-    p.add_argument(
         "--study", action="store_true", help="also print the calibration-size / interpolant study"
     )
     return p
@@ -840,7 +759,6 @@ def main(argv: Sequence[str] | None = None) -> int:
         n_samples=args.samples,
         conditions=conds,
         in_situ=args.in_situ,
-        separate_bias=not args.no_bias_separation,
     )
     all_records = [r for run in runs for r in run.records]
     records = [r for r in all_records if r.vessel in vessels]
@@ -860,6 +778,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             "\ncalibration study (RMS distance of the true tip from the model tip, "
             "reaching 150 random targets within +-60 deg from rest):"
         )
+        from icenav.eval.spin_study import calibration_study
+
         for row in calibration_study(seeds[0]):
             print(
                 f"  {row['set']:<44s} {row['n_points']:>4d} pts  {row['interpolant']:<14s}"

@@ -39,6 +39,8 @@ from typing import Any, TypeVar
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from icenav.compensation.elasticity import CalibrationSet
+from icenav.devices.registration import Registration
 from icenav.errors import (
     FileFormatError,
     IcenavError,
@@ -477,6 +479,40 @@ class SessionStore:
             [(name, kind, json.dumps(data), float(created_s))],
         )
         self.commit()
+
+    def save_registration(self, registration: Registration, created_s: float) -> None:
+        """Store the tracker's registration in use (row ``registration`` of the calibrations
+        table, kind ``registration``; :meth:`Registration.to_dict`), committed at once."""
+        if not isinstance(registration, Registration):
+            raise StoreError(
+                f"registration must be a Registration, got {type(registration).__name__}"
+            )
+        self.save_calibration("registration", "registration", registration.to_dict(), created_s)
+
+    def registration(self) -> Registration | None:
+        """The stored registration (None when the session has none)."""
+        stored = self.calibrations().get("registration")
+        if stored is None:
+            return None
+        return Registration.from_dict(stored[1], source=f"{self.path}: registration")
+
+    def save_calibration_set(
+        self, name: str, kind: str, calibration: CalibrationSet, created_s: float
+    ) -> None:
+        """Store the tracked samples of a calibration in use (the calibration file's
+        document, :meth:`CalibrationSet.to_dict`), committed at once."""
+        if not isinstance(calibration, CalibrationSet):
+            raise StoreError(
+                f"calibration must be a CalibrationSet, got {type(calibration).__name__}"
+            )
+        self.save_calibration(name, kind, calibration.to_dict(), created_s)
+
+    def calibration_set(self, name: str) -> CalibrationSet | None:
+        """The tracked samples stored under ``name`` (None when there are none)."""
+        stored = self.calibrations().get(name)
+        if stored is None:
+            return None
+        return CalibrationSet.from_dict(stored[1], source=f"{self.path}: calibration {name!r}")
 
     def log_event(self, t: float, kind: str, data: dict[str, Any] | None = None) -> None:
         """Append an event (committed with the next batch; faults commit at once)."""

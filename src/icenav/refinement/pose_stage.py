@@ -22,17 +22,17 @@ import enum
 import math
 from collections.abc import Callable, Generator, Sequence
 from dataclasses import dataclass
-from typing import Protocol
 
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import ArrayLike
 
 from icenav._typing import Array
 from icenav._validation import check_finite, check_joint_state, check_positive
-from icenav.control.servo import body_pose_error
 from icenav.control.state import Mode
 from icenav.devices.robot import RobotBackend
+from icenav.devices.tracker import TrackerBackend
 from icenav.errors import ConfigurationError, ShapeError
+from icenav.geometry.se3 import body_pose_error
 from icenav.refinement.image_search import (
     _DEG,
     NeighbourhoodError,
@@ -54,13 +54,9 @@ __all__ = [
 ]
 
 
-class PoseSensor(Protocol):
-    """Source of the measured tip pose (an EM tracker at the tip)."""
-
-    def measure_tip2base(self, n_average: int = 1) -> NDArray[np.float64] | None:
-        """(4, 4) tip pose in the base frame (mm), averaged over ``n_average`` samples; None
-        when no sample was valid."""
-        ...
+PoseSensor = TrackerBackend
+"""Source of the measured tip pose: the one tracker protocol (only its
+``measure_tip2base(n_average)`` is used here)."""
 
 
 def pose_error(target: ArrayLike, measured: ArrayLike) -> Array:

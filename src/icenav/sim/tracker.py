@@ -28,8 +28,9 @@ import numpy as np
 from icenav._typing import Array
 from icenav._validation import check_transform
 from icenav.devices.registration import Registration
-from icenav.devices.tracker import ToolStatus, TrackerFrame
+from icenav.devices.tracker import ToolStatus, TrackerFrame, check_n_average, mean_sensor_pose
 from icenav.errors import ConfigurationError, TrackerError
+from icenav.geometry.se3 import rigid_inverse, rotvec_to_matrix
 from icenav.sim.plant import CatheterPlant
 
 __all__ = [
@@ -39,18 +40,8 @@ __all__ = [
     "ToolStatus",
     "TrackerConfig",
     "TrackerFrame",
-    "rotvec_to_matrix",
+    "rotvec_to_matrix",  # from icenav.geometry.se3 (kept for the twin's users)
 ]
-
-
-def rotvec_to_matrix(w: Array) -> Array:
-    """Rotation matrix (3, 3) of a rotation vector w (rad) (Rodrigues)."""
-    a = float(np.linalg.norm(w))
-    if a < 1e-12:
-        return np.eye(3)
-    k = w / a
-    kx = np.array([[0.0, -k[2], k[1]], [k[2], 0.0, -k[0]], [-k[1], k[0], 0.0]])
-    return np.eye(3) + math.sin(a) * kx + (1.0 - math.cos(a)) * (kx @ kx)
 
 
 def _make_transform(rotvec: tuple[float, float, float], trans: tuple[float, float, float]) -> Array:
@@ -61,14 +52,7 @@ def _make_transform(rotvec: tuple[float, float, float], trans: tuple[float, floa
     return t
 
 
-def _inv(t: Array) -> Array:
-    out = np.eye(4)
-    out[:3, :3] = t[:3, :3].T
-    out[:3, 3] = -t[:3, :3].T @ t[:3, 3]
-    return out
-
-
-DEFAULT_TRACKER2BASE = _inv(_make_transform((math.pi / 2, 0.0, 0.0), (20.0, -30.0, 280.0)))
+DEFAULT_TRACKER2BASE = rigid_inverse(_make_transform((math.pi / 2, 0.0, 0.0), (20.0, -30.0, 280.0)))
 """Default registration: the field generator about 28 cm from the base, turned 90 deg."""
 DEFAULT_TRACKER2BASE.setflags(write=False)
 DEFAULT_SENSOR2TIP = _make_transform((0.0, 0.0, 0.0), (-1.0, 0.0, -4.0))
@@ -196,7 +180,14 @@ class EMTracker:
         self._pos_field = _Field(field_rng, cfg.position_bias_rms_mm, cfg.distortion_wavelength_mm)
         self._rot_field = _Field(field_rng, cfg.rotation_bias_rms_rad, cfg.distortion_wavelength_mm)
         self._rng = np.random.default_rng([int(seed), 0xE2])
-        self._base2tracker = _inv(cfg.tracker2base)
+        self._base2tracker = rigid_inverse(cfg.tracker2base)
+        self.registration: Registration | None = Registration.given(
+            cfg.tracker2base, cfg.sensor2tip
+        )
+        """What :meth:`measure_tip2base` maps through: by default the twin's true
+        ``tracker2base`` and ``sensor2tip``; set it to an estimated registration (the
+        ``registration`` calibration procedure) to run the twin as a lab would, or to None
+        (unregistered: no ``tip2base``)."""
         self._running = False
         self._t0 = 0.0
         self._last_index = -1
@@ -221,19 +212,6 @@ class EMTracker:
     def running(self) -> bool:
         """True between start() and stop()."""
         return self._running
-
-    @property
-    def registration(self) -> Registration:
-        """The registration the tip poses of :meth:`measure_tip2base` use: the twin's true
-        ``tracker2base`` and ``sensor2tip`` (a lab estimates them with
-        :func:`icenav.devices.registration.register_tracker`)."""
-        return Registration(
-            tracker2base=self.config.tracker2base,
-            rms_residual_mm=0.0,
-            max_residual_mm=0.0,
-            n_points=0,
-            sensor2tip=self.config.sensor2tip,
-        )
 
     # --- measurement ---------------------------------------------------------------------
 
@@ -291,25 +269,21 @@ class EMTracker:
             self._last_frame = self._sample(self._t0 + index / cfg.rate_hz)
         return self._last_frame
 
-    def measure_tip2base(self, n_average: int = 1) -> Array | None:
-        """Tracked tip pose in the base frame, averaged over ``n_average`` fresh samples.
+    def measure_sensor2tracker(self, n_average: int = 1) -> Array | None:
+        """Sensor pose (4, 4) in the tracker frame (mm), averaged over ``n_average`` fresh
+        samples at the plant's current pose (on hardware this blocks for
+        ``n_average / rate_hz`` s; here the samples are drawn at once): mean position,
+        chordal mean rotation of the VALID ones; None when none was VALID. Does not need
+        start()."""
+        n = check_n_average(n_average)
+        return mean_sensor_pose([self._sample(float(self.clock())) for _ in range(n)])
 
-        Acquires ``n_average`` samples at the plant's current pose (on hardware this blocks
-        for ``n_average / rate_hz`` s), averages the VALID ones (mean position, chordal mean
-        rotation) and maps the sensor pose into the base frame:
-        ``tip2base = tracker2base @ sensor2tracker @ inv(sensor2tip)``. None when no sample
-        was VALID. Does not need start().
-        """
-        if isinstance(n_average, bool) or int(n_average) != n_average or n_average < 1:
-            raise ConfigurationError(f"n_average must be an integer >= 1, got {n_average!r}")
-        frames = [self._sample(float(self.clock())) for _ in range(int(n_average))]
-        poses = [f.sensor2tracker for f in frames if f.sensor2tracker is not None]
-        if not poses:
+    def measure_tip2base(self, n_average: int = 1) -> Array | None:
+        """Tracked tip pose (4, 4) in the base frame (mm) of :meth:`measure_sensor2tracker`
+        through :attr:`registration`: ``tracker2base @ sensor2tracker @ inv(sensor2tip)``.
+        None when no sample was VALID or the tracker is not registered (no sample drawn)."""
+        n = check_n_average(n_average)
+        if self.registration is None:
             return None
-        stack = np.stack(poses)
-        mean = np.eye(4)
-        mean[:3, 3] = stack[:, :3, 3].mean(axis=0)
-        u, _, vt = np.linalg.svd(stack[:, :3, :3].sum(axis=0))
-        d = np.sign(np.linalg.det(u @ vt))
-        mean[:3, :3] = u @ np.diag([1.0, 1.0, d]) @ vt
-        return self.config.tracker2base @ mean @ _inv(self.config.sensor2tip)
+        sensor = self.measure_sensor2tracker(n)
+        return None if sensor is None else self.registration.tip2base(sensor)

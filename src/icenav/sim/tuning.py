@@ -22,8 +22,8 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from icenav._typing import Array
-from icenav.eval.metrics import rotation_angle
 from icenav.geometry.kinematics import DEFAULT_GEOMETRY, CatheterGeometry, forward
+from icenav.geometry.se3 import rotation_angle
 from icenav.sim.params import PlantParams
 from icenav.sim.plant import CatheterPlant
 from icenav.sim.tracker import EMTracker

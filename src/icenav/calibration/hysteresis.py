@@ -1,0 +1,392 @@
+"""Identification of the per-joint dead-zone / backlash models
+(:mod:`icenav.compensation.hysteresis`) from sweeps, and the sweeps as a motion plan.
+
+:func:`identify` fits one joint from a short up/down sweep (:func:`sweep_path`): a grid
+search over (r, d, c) with, for each, a linear least-squares fit of a static odd cubic from
+``z`` to the observed output (the tip's bend measured by the tracker, which also carries the
+elastic nonlinearity), then a local refinement. :func:`hysteresis_plan` is the sweeps of every
+joint (the knobs straight and with the other knob bent, the roll straight and bent) as a
+:class:`~icenav.calibration.plans.MotionPlan`; :func:`fit_hysteresis` turns its recording
+into a :class:`~icenav.compensation.hysteresis.HysteresisCompensator` with the growth of the
+plays with the bend.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike
+from scipy.optimize import least_squares
+
+from icenav._typing import Array
+from icenav._validation import check_finite
+from icenav.calibration.plans import MotionPlan, Recording, _check_counts
+from icenav.compensation.hysteresis import HysteresisCompensator, JointHysteresis, _play
+from icenav.errors import ConfigurationError
+from icenav.geometry.kinematics import DEFAULT_GEOMETRY, CatheterGeometry
+from icenav.geometry.kinematics import inverse as kin_inverse
+
+__all__ = [
+    "HysteresisFit",
+    "HysteresisIdentification",
+    "HysteresisPlan",
+    "fit_hysteresis",
+    "hysteresis_plan",
+    "identify",
+    "sweep_path",
+]
+
+
+def sweep_path(amplitude: float, step: float = math.radians(1.0), cycles: int = 1) -> Array:
+    """A short up/down sweep 0 -> +A -> -A -> +A ... -> 0 (rad), for :func:`identify`."""
+    if not (0.0 < amplitude <= math.pi) or not (0.0 < step < amplitude):
+        raise ConfigurationError(
+            f"need 0 < step < amplitude <= pi rad, got amplitude={amplitude}, step={step}"
+        )
+    n = max(2, int(math.ceil(amplitude / step)))
+    up = np.linspace(0.0, amplitude, n + 1)
+    down = np.linspace(amplitude, -amplitude, 2 * n + 1)[1:]
+    parts = [up]
+    for _ in range(cycles):
+        parts += [down, -down]
+    parts.append(np.linspace(amplitude, 0.0, n + 1)[1:])
+    return np.concatenate(parts)
+
+
+@dataclass(frozen=True)
+class HysteresisFit:
+    """Result of :func:`identify`."""
+
+    model: JointHysteresis
+    """The identified transmission model."""
+    gain: tuple[float, float, float]
+    """(offset, linear, cubic) of the static map z -> observed output."""
+    rms: float
+    """RMS residual of the fit, in the unit of the observed output."""
+
+
+def _static_fit(z: Array, y: Array, cubic: bool) -> tuple[Array, float]:
+    cols = [np.ones_like(z), z, z**3] if cubic else [np.ones_like(z), z]
+    a = np.stack(cols, axis=-1)
+    coef, *_ = np.linalg.lstsq(a, y, rcond=None)
+    r = a @ coef - y
+    if not cubic:
+        coef = np.append(coef, 0.0)
+    return np.asarray(coef, dtype=np.float64), float(np.sqrt(np.mean(r * r)))
+
+
+def _batched_static_fit(z: Array, y: Array, cubic: bool) -> tuple[Array, Array]:
+    """Least-squares fits of y ~ a + b z (+ c z^3) for many z rows (m, n): coefs, rms.
+
+    Normal equations from power sums (one pass per power over z), solved in a batch.
+    """
+    n = z.shape[-1]
+    z2 = z * z
+    z3 = z2 * z
+    s1, s2, s3 = z.sum(-1), z2.sum(-1), z3.sum(-1)
+    sy, szy, syy = float(y.sum()), z @ y, float(y @ y)
+    if cubic:
+        s4, s6 = (z2 * z2).sum(-1), (z3 * z3).sum(-1)
+        sz3y = z3 @ y
+        ata = np.stack(
+            [
+                np.stack([np.full_like(s1, n), s1, s3], -1),
+                np.stack([s1, s2, s4], -1),
+                np.stack([s3, s4, s6], -1),
+            ],
+            -2,
+        )
+        aty = np.stack([np.full_like(s1, sy), szy, sz3y], -1)
+    else:
+        ata = np.stack([np.stack([np.full_like(s1, n), s1], -1), np.stack([s1, s2], -1)], -2)
+        aty = np.stack([np.full_like(s1, sy), szy], -1)
+    k = ata.shape[-1]
+    coef = np.linalg.solve(ata + 1e-12 * np.eye(k), aty[..., None])[..., 0]
+    # residual sum of squares = y.y - 2 c.A^T y + c.A^T A c
+    rss = syy - 2.0 * np.sum(coef * aty, -1) + np.einsum("mi,mij,mj->m", coef, ata, coef)
+    return coef, np.sqrt(np.maximum(rss, 0.0) / n)
+
+
+def identify(
+    x: ArrayLike,
+    y: ArrayLike,
+    *,
+    max_width: float = math.radians(10.0),
+    resolution: float = math.radians(0.5),
+    max_slope: float = 0.2,
+    cubic: bool = True,
+    with_dead_zone: bool = True,
+) -> HysteresisFit:
+    """Identify a joint's backlash + dead-zone from a sweep.
+
+    Parameters
+    ----------
+    x : array-like, shape (n,)
+        Commanded motor angles of the sweep (rad), starting from a relaxed state
+        (e.g. :func:`sweep_path`).
+    y : array-like, shape (n,)
+        Observed output at each sample (e.g. the tip's bend in the knob's plane, rad).
+        NaN marks a missing sample (skipped).
+    max_width : float
+        Largest backlash and dead-zone half-width searched (rad).
+    max_slope : float
+        Largest growth of the play with |x| searched (rad/rad); 0 for a constant play.
+    cubic : bool
+        Fit an odd cubic static map (for the elastic nonlinearity of the bend) or a line.
+    with_dead_zone : bool
+        Search a dead-zone (False: backlash only, e.g. for the roll joint).
+    """
+    xs = check_finite(x, "x", "rad").ravel()
+    ys = np.asarray(y, dtype=np.float64).ravel()
+    if xs.shape != ys.shape or xs.size < 10:
+        raise ConfigurationError(
+            f"x and y must have the same shape with >= 10 samples, got {xs.shape}, {ys.shape}"
+        )
+    ok = np.isfinite(ys)
+    if ok.sum() < 10:
+        raise ConfigurationError(f"only {int(ok.sum())} valid samples; need >= 10")
+    yv = ys[ok]
+    widths = np.arange(0.0, max_width + 0.5 * resolution, resolution)
+    slopes = np.linspace(0.0, max_slope, 9) if max_slope > 0 else np.array([0.0])
+    dzs = widths if with_dead_zone else np.array([0.0])
+    centres = np.arange(-4, 5) * resolution if with_dead_zone else np.array([0.0])
+    best = (math.inf, 0.0, 0.0, 0.0, 0.0)
+    x0 = float(xs[0])
+    for r in widths:
+        for r1 in slopes:
+            p = _play(xs, float(r), x0, float(r1))[ok]
+            u = p[None, :] - centres[:, None]  # (nc, n)
+            z = np.sign(u)[None] * np.maximum(np.abs(u)[None] - dzs[:, None, None], 0.0)
+            _, rms = _batched_static_fit(z.reshape(-1, p.size), yv, cubic)
+            k = int(np.argmin(rms))
+            if rms[k] < best[0]:
+                di, ci = divmod(k, centres.size)
+                best = (float(rms[k]), float(r), float(r1), float(dzs[di]), float(centres[ci]))
+
+    def resid(theta: Array) -> Array:
+        r, r1, d, c = (float(v) for v in theta)
+        p = _play(xs, max(r, 0.0), x0, max(r1, 0.0))[ok] - c
+        z = np.sign(p) * np.maximum(np.abs(p) - max(d, 0.0), 0.0)
+        coef, _ = _static_fit(z, yv, cubic)
+        return np.asarray((coef[0] + coef[1] * z + coef[2] * z**3) - yv)
+
+    theta0 = np.array(best[1:])
+    lo = [0.0, 0.0, 0.0, -math.radians(10)]
+    hi = [
+        max_width,
+        max(max_slope, 1e-9),
+        max_width if with_dead_zone else 1e-9,
+        math.radians(10) if with_dead_zone else 1e-9,
+    ]
+    theta0 = np.clip(theta0, lo, [h - 1e-12 for h in hi])
+    sol = least_squares(resid, theta0, bounds=(lo, hi), diff_step=1e-3)
+    theta = sol.x if float(np.sqrt(np.mean(sol.fun**2))) < best[0] else theta0
+    r, r1, d, c = (float(v) for v in theta)
+    if not with_dead_zone:
+        d, c = 0.0, 0.0
+    model = JointHysteresis(
+        backlash=max(r, 0.0), backlash_slope=max(r1, 0.0), dead_zone=max(d, 0.0), centre=c
+    )
+    p = _play(xs, model.backlash, x0, model.backlash_slope)[ok]
+    coef, fit_rms = _static_fit(model.dead_zone_out(p), yv, cubic)
+    return HysteresisFit(
+        model=model, gain=(float(coef[0]), float(coef[1]), float(coef[2])), rms=fit_rms
+    )
+
+
+@dataclass(frozen=True)
+class HysteresisIdentification:
+    """Result of :func:`fit_hysteresis`."""
+
+    compensator: HysteresisCompensator
+    """Compensator with the identified models (phi1, phi2, phi3; d4 passes through)."""
+    fits: tuple[HysteresisFit, ...]
+    """The fits of phi1, phi2 and phi3."""
+    n_moves: int
+    """Robot moves made."""
+
+
+def _observe_sweep(
+    x: Array, poses: Array, joint: int, base: Array, geometry: CatheterGeometry
+) -> tuple[Array, Array]:
+    """Observed output of a sweep of ``joint`` (values ``x`` (m,), tracked poses (m, 4, 4),
+    NaN where missing) from ``base``: the bend in the knob's plane (knobs); for the roll,
+    the azimuth of the tip about the base z axis when bent, else phi3 of the model inverse
+    kinematics (rad). Also returns the image frame's roll (phi3 of the model inverse
+    kinematics; NaN for the knobs)."""
+    y = np.full(x.size, np.nan)
+    y_frame = np.full(x.size, np.nan)
+    valid = np.flatnonzero(np.all(np.isfinite(poses.reshape(x.size, -1)), axis=1))
+    if valid.size == 0:
+        return y, y_frame
+    t = poses[valid]
+    qm = kin_inverse(t, geometry, check=False)
+    if joint == 2:
+        y_frame[valid] = np.unwrap(qm[:, 2])  # the roll of the model for the image frame
+        if math.hypot(base[0], base[1]) > 0.1:
+            # bent: the azimuth of the tip about the base axis turns with the base roll only
+            y[valid] = np.unwrap(np.arctan2(t[:, 1, 3], t[:, 0, 3]))
+        else:
+            y = y_frame.copy()
+        return y, y_frame
+    k2 = qm[:, :2]
+    # principal direction of the tip's bend during the sweep
+    _, _, vt = np.linalg.svd(k2 - k2.mean(axis=0), full_matrices=False)
+    d = vt[0]
+    if d[joint] < 0:
+        d = -d
+    y[valid] = k2 @ d
+    return y, y_frame
+
+
+@dataclass(frozen=True, eq=False)
+class HysteresisPlan:
+    """The sweeps of :func:`hysteresis_plan` as a :class:`MotionPlan`, with what the fit
+    needs to read them."""
+
+    plan: MotionPlan
+    """Segments ``sweep phi1``, ``sweep phi1, phi2 bent``, ``sweep phi2``, ``sweep phi3``,
+    ``sweep phi3, phi1 bent``, ``bend check`` (those of the joints asked for), the moves
+    between them unread."""
+    sweep: Array
+    """(m,) joint values of one sweep (rad): 0 -> +A -> -A -> +A -> 0 of the knobs."""
+    roll_sweep: Array
+    """(m',) the same for the roll."""
+    joints: tuple[int, ...]
+    """Joints swept (0, 1, 2: phi1, phi2, phi3)."""
+    bend: float
+    """Knob angle of the bent sweeps (rad; 0: none)."""
+
+
+def hysteresis_plan(
+    *,
+    amplitude: float = math.radians(60.0),
+    step: float = math.radians(1.5),
+    roll_amplitude: float = math.radians(60.0),
+    roll_bend: float = math.radians(50.0),
+    joints: Sequence[int] = (0, 1, 2),
+    retries: int = 10,
+) -> HysteresisPlan:
+    """The sweeps: each joint of ``joints`` 0 -> +A -> -A -> +A -> 0 with the others at 0,
+    one tracker sample per step; phi1 again with phi2 at ``roll_bend``, phi3 again with phi1
+    at ``roll_bend`` and then a 5-sample reading of the bend there (0: no bent sweeps). The
+    robot starts and ends at zeros (unread moves)."""
+    _check_counts(retries, 1)
+    js = tuple(int(j) for j in joints)
+    for j in js:
+        if j not in (0, 1, 2):
+            raise ConfigurationError(f"joints must be among 0, 1, 2 (phi1..phi3), got {j}")
+    sweep = sweep_path(amplitude, step)
+    roll_sweep = sweep_path(roll_amplitude, step)
+    zero = np.zeros((1, 4))
+    parts: list[MotionPlan] = []
+
+    def swept(path: Array, joint: int, base: Array, phase: str) -> MotionPlan:
+        q = np.tile(base, (path.size, 1))
+        q[:, joint] = path
+        return MotionPlan.make(q, phase, n_average=1, retries=retries)
+
+    def unread(q: Array, phase: str) -> MotionPlan:
+        return MotionPlan.make(np.atleast_2d(q), phase, n_average=0, retries=0)
+
+    for j in js:
+        path = roll_sweep if j == 2 else sweep
+        parts += [unread(zero, "to zero"), swept(path, j, np.zeros(4), f"sweep phi{j + 1}")]
+        if j == 0 and roll_bend > 0.0:
+            base = np.array([0.0, roll_bend, 0.0, 0.0])
+            parts += [unread(base, "to zero"), swept(path, 0, base, "sweep phi1, phi2 bent")]
+        if j == 2 and roll_bend > 0.0:
+            base = np.array([roll_bend, 0.0, 0.0, 0.0])
+            parts += [
+                unread(base, "to zero"),
+                swept(path, 2, base, "sweep phi3, phi1 bent"),
+                MotionPlan.make(base[None, :], "bend check", n_average=5, retries=retries),
+            ]
+    parts.append(unread(zero, "to zero"))
+    return HysteresisPlan(
+        plan=MotionPlan.concat(parts),
+        sweep=sweep,
+        roll_sweep=roll_sweep,
+        joints=js,
+        bend=float(roll_bend),
+    )
+
+
+def fit_hysteresis(
+    hplan: HysteresisPlan,
+    recording: Recording,
+    geometry: CatheterGeometry = DEFAULT_GEOMETRY,
+) -> HysteresisIdentification:
+    """Fit the per-joint models to the recorded sweeps of ``hplan``.
+
+    Each joint's sweep is fitted by :func:`identify` (knobs: the bend in the knob's plane from
+    the model inverse kinematics, odd-cubic static map; roll: the tip roll, linear map, no
+    dead-zone). The roll's second sweep with the AP knob bent gives ``roll_play_per_bend``
+    (the growth of its play per rad of tracked bend) and, from the extra lag of the image
+    frame over the base, ``twist_play_per_bend``; the AP knob's second sweep with the RL knob
+    bent gives ``knob_play_per_bend``."""
+    if recording.plan is not hplan.plan and recording.plan.segments != hplan.plan.segments:
+        raise ConfigurationError("the recording is not of this hysteresis plan")
+    models: list[Any] = [None, None, None, None]
+    fits: list[HysteresisFit] = []
+    per_bend = 0.0
+    knob_per_bend = 0.0
+    twist_per_bend = 0.0
+    bend = hplan.bend
+
+    def observed(phase: str, joint: int) -> tuple[Array, Array, Array]:
+        q, poses = recording.part(phase)
+        x = q[:, joint].copy()
+        y, y_frame = _observe_sweep(x, poses, joint, q[0], geometry)
+        return x, y, y_frame
+
+    for j in hplan.joints:
+        roll = j == 2
+        x, y, _ = observed(f"sweep phi{j + 1}", j)
+        fit = identify(
+            x, y, cubic=not roll, with_dead_zone=not roll, max_slope=0.0 if roll else 0.2
+        )
+        models[j] = fit.model
+        fits.append(fit)
+        if j == 0 and bend > 0.0:
+            # the same sweep with the other knob bent: the play grows with the other bend
+            x, y, _ = observed("sweep phi1, phi2 bent", 0)
+            bent_fit = identify(x, y, cubic=True, with_dead_zone=True)
+            mean_abs = float(np.mean(np.abs(x)))
+            w_bent = bent_fit.model.backlash + bent_fit.model.backlash_slope * mean_abs
+            w_straight = fit.model.backlash + fit.model.backlash_slope * mean_abs
+            knob_per_bend = min(max(0.0, (w_bent - w_straight) / bend), 0.5)
+        if roll and bend > 0.0:
+            x, y, y_frame = observed("sweep phi3, phi1 bent", 2)
+            wide = math.radians(30.0)
+            bent = identify(x, y, cubic=False, with_dead_zone=False, max_slope=0.0, max_width=wide)
+            frame = identify(
+                x, y_frame, cubic=False, with_dead_zone=False, max_slope=0.0, max_width=wide
+            )
+            # the true bend during that sweep, from the tracked poses
+            _, check = recording.part("bend check")
+            pose = check[0]
+            true_bend = (
+                bend
+                if not np.all(np.isfinite(pose))
+                else math.acos(max(-1.0, min(1.0, float(pose[2, 2]))))
+            )
+            per_bend = min(max(0.0, (bent.model.backlash - fit.model.backlash) / true_bend), 0.5)
+            # the image frame lags further than the base: the distal twist play
+            twist_per_bend = min(
+                max(0.0, (frame.model.backlash - bent.model.backlash) / true_bend), 0.5
+            )
+    return HysteresisIdentification(
+        compensator=HysteresisCompensator(
+            models,
+            roll_play_per_bend=per_bend,
+            knob_play_per_bend=knob_per_bend,
+            twist_play_per_bend=twist_per_bend,
+        ),
+        fits=tuple(fits),
+        n_moves=hplan.plan.n,
+    )

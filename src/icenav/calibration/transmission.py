@@ -1,0 +1,457 @@
+"""Identification of the per-tendon transmission (:mod:`icenav.compensation.transmission`)
+from two-knob motions, and F on its effective knobs (beyond the paper).
+
+Identification (:func:`identify_transmission`) uses only motor commands and the EM-tracked tip:
+the model is simulated along the commanded calibration paths (the dense raster, knob circles
+of a few radii in both directions, :func:`circle_path`), the tracked tip is turned into model
+knob angles (:func:`observed_knobs`, position only), and a static map ``G`` (a bivariate
+polynomial, fitted by linear least squares for each parameter vector: variable projection)
+from ``z`` to them closes the residual that :func:`scipy.optimize.least_squares` minimises.
+
+Calibration: knob circles at 25 / 50 / 75 deg, both ways (:func:`circle_plan`, ~740 moves),
+with the dense raster; F_eff is a smoothed thin-plate RBF over the raster and circle samples
+relabelled with the identified model's effective knobs (:func:`build_transmission`). Before a
+procedure in a curved vessel, :func:`reidentify_in_situ` refits the plays from circles
+recorded there alone (F and G kept).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike
+from scipy.optimize import least_squares
+
+from icenav._typing import Array
+from icenav._validation import check_finite
+from icenav.calibration.plans import MotionPlan, Recording
+from icenav.compensation.elasticity import CalibrationSet, ElasticityMap
+from icenav.compensation.hysteresis import HysteresisCompensator
+from icenav.compensation.tracker_bias import TrackerBias
+from icenav.compensation.transmission import (
+    _MAX_PLAY,
+    PairTransmission,
+    TendonCompensator,
+    TendonTransmission,
+    TransmissionCalibration,
+    TransmissionFit,
+)
+from icenav.errors import ConfigurationError, ShapeError
+from icenav.geometry.kinematics import DEFAULT_GEOMETRY, CatheterGeometry
+
+__all__ = [
+    "CalibrationMotion",
+    "F_SMOOTHING",
+    "KNOB_CIRCLES",
+    "build_transmission",
+    "circle_path",
+    "circle_plan",
+    "identify_transmission",
+    "motion_from",
+    "observed_knobs",
+    "reidentify_in_situ",
+]
+
+
+def observed_knobs(tip2base: ArrayLike, geometry: CatheterGeometry = DEFAULT_GEOMETRY) -> Array:
+    """Model knob pairs (n, 2) (rad) whose model tip *position* is the tracked one.
+
+    Position only (the roll and the image frame's twist do not enter): the bending plane is
+    ``theta = atan2(y, x)`` and the bend alpha solves, by Gauss-Newton, the radial distance
+    and height of the constant-curvature tip with the ultrasound offset (Eq. (2))::
+
+        rho(alpha) = L (1 - cos alpha) / alpha + off sin alpha,  z(alpha) = L sin alpha / alpha
+        + off cos alpha
+
+    ``tip2base`` (n, 4, 4) in the base frame (mm), roll 0, d4 0; NaN poses give NaN rows.
+    """
+    t = np.asarray(tip2base, dtype=np.float64)
+    if t.ndim != 3 or t.shape[1:] != (4, 4):
+        raise ShapeError(f"tip2base must have shape (n, 4, 4), got {t.shape}")
+    p = t[:, :3, 3]
+    big_l, off = geometry.bending_length, geometry.us_offset
+    theta = np.arctan2(p[:, 1], p[:, 0])
+    rho = np.hypot(p[:, 0], p[:, 1])
+    pz = p[:, 2]
+    a = np.clip(rho / (0.5 * big_l + off), 1e-6, math.pi)  # small-angle start
+    for _ in range(30):
+        sa, ca = np.sin(a), np.cos(a)
+        r1 = big_l * (1.0 - ca) / a + off * sa - rho
+        r2 = big_l * sa / a + off * ca - pz
+        j1 = big_l * (sa * a - (1.0 - ca)) / a**2 + off * ca
+        j2 = big_l * (ca * a - sa) / a**2 - off * sa
+        da = (j1 * r1 + j2 * r2) / (j1 * j1 + j2 * j2)
+        a = np.clip(a - da, 1e-9, math.pi)
+    k = geometry.knob_ratio
+    return np.stack([a * np.cos(theta) / k, a * np.sin(theta) / k], axis=-1)
+
+
+def circle_path(
+    radii: Sequence[float] = (math.radians(25.0), math.radians(50.0), math.radians(75.0)),
+    step: float = math.radians(3.0),
+) -> Array:
+    """Knob circles for identification: motor joint states (n, 4) (rad).
+
+    From rest, for each radius r: a ray to (r, 0), one turn counter-clockwise, one turn
+    clockwise, back to (0, 0); ``step`` (rad) is the largest knob change per sample.
+    """
+    rr = [float(r) for r in radii]
+    if not rr or any(not (0.0 < r <= math.pi / 2) for r in rr):
+        raise ConfigurationError(f"radii must be in (0, pi/2] rad, got {radii!r}")
+    if not (0.0 < step <= math.radians(10.0)):
+        raise ConfigurationError(f"step must be in (0, {math.radians(10):.4f}] rad, got {step}")
+    rows: list[Array] = []
+    for r in rr:
+        n_ray = max(1, math.ceil(r / step))
+        ray = np.linspace(0.0, r, n_ray + 1)[1:]
+        n_turn = max(8, math.ceil(2.0 * math.pi * r / step))
+        t = np.linspace(0.0, 2.0 * math.pi, n_turn + 1)[1:]
+        ccw = np.stack([r * np.cos(t), r * np.sin(t)], axis=-1)
+        cw = np.stack([r * np.cos(-t), r * np.sin(-t)], axis=-1)
+        rows += [np.stack([ray, 0 * ray], -1), ccw, cw, np.stack([ray[::-1] - ray[0], 0 * ray], -1)]
+    k2 = np.concatenate(rows)
+    out = np.zeros((k2.shape[0], 4))
+    out[:, :2] = k2
+    return out
+
+
+@dataclass(frozen=True)
+class CalibrationMotion:
+    """One continuous commanded motion and what the tracker saw (from a relaxed start)."""
+
+    q_motor: Array
+    """(n, 4) motor joint states commanded in order (rad, rad, rad, mm)."""
+    observed: Array
+    """(n, 2) model knob angles of the tracked tip after each command (rad); NaN = MISSING."""
+    q_start: Array = field(default_factory=lambda: np.zeros(4))
+    """(4,) motor joint state at which the transmission was relaxed before the motion."""
+    tip2base: Array | None = None
+    """(n, 4, 4) the tracked tip poses (mm, base frame; NaN = MISSING), if kept: they can
+    join the samples of the elasticity map (:func:`build_transmission`)."""
+
+    def __post_init__(self) -> None:
+        q = check_finite(self.q_motor, "q_motor")
+        y = np.asarray(self.observed, dtype=np.float64)
+        if q.ndim != 2 or q.shape[1] != 4 or q.shape[0] < 1:
+            raise ShapeError(f"q_motor must have shape (n, 4), got {q.shape}")
+        if y.shape != (q.shape[0], 2):
+            raise ShapeError(f"observed must have shape ({q.shape[0]}, 2), got {y.shape}")
+        if np.any(np.isinf(y)):
+            raise ConfigurationError("observed must be finite or NaN (missing), got inf")
+        s = check_finite(self.q_start, "q_start").ravel()
+        if s.size != 4:
+            raise ShapeError(f"q_start must have 4 values, got {s.size}")
+        object.__setattr__(self, "q_motor", q)
+        object.__setattr__(self, "observed", y)
+        object.__setattr__(self, "q_start", s)
+        if self.tip2base is not None:
+            t = np.asarray(self.tip2base, dtype=np.float64)
+            if t.shape != (q.shape[0], 4, 4):
+                raise ShapeError(f"tip2base must have shape ({q.shape[0]}, 4, 4), got {t.shape}")
+            object.__setattr__(self, "tip2base", t)
+
+
+KNOB_CIRCLES = "knob circles"
+"""Segment name of the knob circles in a :class:`icenav.calibration.plans.MotionPlan`."""
+
+
+def circle_plan(
+    radii: Sequence[float] = (math.radians(25.0), math.radians(50.0), math.radians(75.0)),
+    step: float = math.radians(3.0),
+) -> MotionPlan:
+    """The knob circles (:func:`circle_path`) as a plan from rest: one tracker sample per
+    move, no retry (a MISSING sample is a gap), then back to rest at zeros."""
+    return MotionPlan.concat(
+        [
+            MotionPlan.make(circle_path(radii, step), KNOB_CIRCLES, n_average=1, retries=0),
+            MotionPlan.make(np.zeros((1, 4)), "to zero", n_average=0, retries=0),
+        ]
+    )
+
+
+def motion_from(
+    recording: Recording,
+    phase: str = KNOB_CIRCLES,
+    tracker_bias: TrackerBias | None = None,
+    geometry: CatheterGeometry = DEFAULT_GEOMETRY,
+) -> CalibrationMotion:
+    """The recorded segment ``phase`` as a :class:`CalibrationMotion` (observed knobs from the
+    tracked tips; NaN where MISSING), with ``tracker_bias`` removed from the tips if given."""
+    q, poses = recording.part(phase)
+    poses = np.array(poses)
+    ok = np.all(np.isfinite(poses.reshape(q.shape[0], -1)), axis=1)
+    if tracker_bias is not None and np.any(ok):
+        poses[ok] = tracker_bias.correct_poses(poses[ok])
+    obs = np.full((q.shape[0], 2), np.nan)
+    if np.any(ok):
+        obs[ok] = observed_knobs(poses[ok], geometry)
+    return CalibrationMotion(q_motor=np.array(q), observed=obs, tip2base=poses)
+
+
+def _least_squares_fit(a: Array, y: Array) -> Array:
+    """argmin_c |a c - y| for a small tall system (n, m), by the normal equations with the
+    columns scaled to unit norm (a hot loop: LAPACK's lstsq costs ~20 ms per call with two
+    BLAS threads on two cores, this ~0.2 ms)."""
+    scale = np.sqrt(np.einsum("ij,ij->j", a, a))
+    scale[scale == 0.0] = 1.0
+    an = a / scale
+    ata = an.T @ an
+    ata[np.diag_indices_from(ata)] += 1e-12
+    return np.asarray(np.linalg.solve(ata, an.T @ y) / scale[:, None], dtype=np.float64)
+
+
+def _poly_basis(z: Array, degree: int) -> Array:
+    """Bivariate monomials z1^a z2^b, a + b <= degree: (n, m)."""
+    cols = [z[:, 0] ** a * z[:, 1] ** (n - a) for n in range(degree + 1) for a in range(n + 1)]
+    return np.stack(cols, axis=-1)
+
+
+def _design(motions: Sequence[CalibrationMotion], weight_limit: float) -> tuple[list, Array, Array]:
+    ys, masks = [], []
+    for m in motions:
+        ok = np.all(np.isfinite(m.observed), axis=1)
+        ok &= np.max(np.abs(m.q_motor[:, :2]), axis=1) <= weight_limit + 1e-9
+        masks.append(ok)
+        ys.append(m.observed[ok])
+    return masks, np.concatenate(ys), np.concatenate([np.flatnonzero(k) for k in masks])
+
+
+def identify_transmission(
+    motions: Sequence[CalibrationMotion],
+    *,
+    initial: TendonTransmission | None = None,
+    degree: int = 7,
+    fit_limit: float = math.radians(70.0),
+    max_gain: float = 1.0,
+    max_nfev: int = 60,
+    static_coefficients: ArrayLike | None = None,
+) -> TransmissionFit:
+    """Identify a :class:`TendonTransmission` from commanded motions and the tracked tip.
+
+    For a parameter vector the model is simulated along every motion (each from its relaxed
+    start), a bivariate polynomial ``G`` of total ``degree`` from the effective knobs to the
+    observed model knobs is fitted by linear least squares, and the residuals
+    ``G(z_k) - y_k`` (rad) of all valid samples are minimised over the 10 parameters with
+    :func:`scipy.optimize.least_squares` (trust-region reflective, bounds). Samples whose
+    commanded knobs exceed ``fit_limit`` (rad) are left out of the residual (the workspace
+    corners saturate) but still simulated.
+
+    Parameters
+    ----------
+    motions : sequence of CalibrationMotion
+        E.g. the dense raster (serpentine) and :func:`circle_path` recorded with
+        :func:`motion_from` of a recording; at least 50 valid samples in all, with two-knob motion.
+    initial : TendonTransmission, optional
+        Start of the search (default: 1 deg slack and play, kappa 0.05, wrap 0.5, mu 0.5).
+    degree, fit_limit : int, float
+        Degree of ``G`` and the largest commanded knob angle (rad) of a sample in the fit.
+    max_gain : float
+        Bound of |kappa| and |gamma| (rad/rad).
+    static_coefficients : array-like, shape (m, 2), optional
+        Keep ``G`` fixed (e.g. a straight-vessel fit's ``static_coefficients``) instead of
+        refitting it: for re-identifying the plays in situ (in a curved vessel) from knob
+        circles alone, with the bending section's elasticity as calibrated.
+    """
+    if not motions or not all(isinstance(m, CalibrationMotion) for m in motions):
+        raise ConfigurationError("motions must be a non-empty sequence of CalibrationMotion")
+    if not (1 <= int(degree) <= 9):
+        raise ConfigurationError(f"degree must be in [1, 9], got {degree}")
+    if not (0.0 < float(max_gain) <= 2.0):
+        raise ConfigurationError(f"max_gain must be in (0, 2] rad/rad, got {max_gain}")
+    masks, y, _ = _design(motions, float(fit_limit))
+    n_valid = y.shape[0]
+    if n_valid < 50:
+        raise ConfigurationError(f"only {n_valid} valid samples within fit_limit; need >= 50")
+    one = math.radians(1.0)
+    init = (
+        TendonTransmission(
+            ap=PairTransmission(one, one, 0.05, 0.0),
+            rl=PairTransmission(one, one, 0.05, 0.0),
+            wrap=0.5,
+            friction=0.5,
+        )
+        if initial is None
+        else initial
+    )
+    b = float(max_gain)
+    lo = np.array([0, 0, 0, -b, 0, 0, 0, -b, 0, 0])
+    hi = np.array([_MAX_PLAY, _MAX_PLAY, b, b, _MAX_PLAY, _MAX_PLAY, b, b, 5.0, 3.0])
+    x0 = np.clip(init.to_vector(), lo, hi - 1e-9)
+    step = init.max_substep
+    count = [0]
+
+    def effective(theta: Array) -> Array:
+        model = TendonTransmission.from_vector(np.clip(theta, lo, hi), max_substep=step)
+        count[0] += 1
+        zs = [
+            model.simulate(m.q_motor, m.q_start[:2])[k] for m, k in zip(motions, masks, strict=True)
+        ]
+        return np.concatenate(zs)
+
+    fixed = None
+    if static_coefficients is not None:
+        fixed = check_finite(static_coefficients, "static_coefficients")
+        m_terms = (int(degree) + 1) * (int(degree) + 2) // 2
+        if fixed.shape != (m_terms, 2):
+            raise ShapeError(
+                f"static_coefficients must have shape ({m_terms}, 2) for degree {degree}, "
+                f"got {fixed.shape}"
+            )
+
+    def resid_for(z: Array) -> tuple[Array, Array]:
+        a = _poly_basis(z, int(degree))
+        if fixed is not None:
+            return np.asarray(a @ fixed - y, dtype=np.float64).ravel(), fixed
+        coef = _least_squares_fit(a, y)
+        return np.asarray(a @ coef - y, dtype=np.float64).ravel(), coef
+
+    def resid(theta: Array) -> Array:
+        return resid_for(effective(theta))[0]
+
+    sol = least_squares(
+        resid, x0, bounds=(lo, hi), x_scale="jac", diff_step=1e-3, max_nfev=max_nfev
+    )
+    model = TendonTransmission.from_vector(sol.x, max_substep=step)
+    r, coef = resid_for(effective(sol.x))
+    x_cmd = np.concatenate([m.q_motor[k, :2] for m, k in zip(motions, masks, strict=True)])
+    r0, _ = resid_for(x_cmd)
+    return TransmissionFit(
+        model=model,
+        rms=float(np.sqrt(np.mean(r**2) * 2.0)),
+        rms_without_play=float(np.sqrt(np.mean(r0**2) * 2.0)),
+        static_coefficients=coef,
+        n_samples=n_valid,
+        n_evaluations=count[0],
+        degree=int(degree),
+    )
+
+
+F_SMOOTHING = 0.3
+"""Smoothing of the thin-plate RBF of F on effective knobs (RBFInterpolator's ``smoothing``).
+The relabelled samples are no longer a grid and include exact duplicates (saturated corners);
+an exact interpolant (0) oscillates between them. Chosen on development catheters 50-52
+(docs/calibration.md, section 4c): 0.3 keeps a margin from the exact fit."""
+
+
+def build_transmission(
+    dense: CalibrationSet,
+    raster: ArrayLike,
+    circles: CalibrationMotion | None = None,
+    roll: HysteresisCompensator | None = None,
+    *,
+    smoothing: float = F_SMOOTHING,
+    circles_in_map: bool = True,
+    geometry: CatheterGeometry = DEFAULT_GEOMETRY,
+    **identify_kwargs: Any,
+) -> TransmissionCalibration:
+    """Identify the tendon transmission and build F on its effective knobs.
+
+    Parameters
+    ----------
+    dense : CalibrationSet
+        The dense raster as measured (skipped samples missing).
+    raster : array-like, shape (n, 4)
+        The raster's full command path in the order driven, from rest at zeros
+        (:func:`icenav.calibration.plans.raster_grid`); each sample of ``dense`` is matched to it.
+    circles : CalibrationMotion, optional
+        Knob circles (:func:`circle_plan` recorded, :func:`motion_from`): the two-knob
+        motions that identify the coupling. With ``circles_in_map`` and poses kept, their
+        relabelled samples also join F.
+    roll : HysteresisCompensator, optional
+        The per-joint model whose roll and twist plays the compensator keeps.
+    smoothing : float
+        RBF smoothing of F (see :data:`F_SMOOTHING`).
+    identify_kwargs
+        Passed to :func:`identify_transmission` (degree, fit_limit, max_gain, max_nfev).
+    """
+    if not isinstance(dense, CalibrationSet):
+        raise ConfigurationError(f"dense must be a CalibrationSet, got {type(dense).__name__}")
+    path = check_finite(raster, "raster", "rad")
+    if path.ndim != 2 or path.shape[1] != 4:
+        raise ShapeError(f"raster must have shape (n, 4), got {path.shape}")
+    gap = np.max(np.abs(path[None, :, :3] - dense.q_motor[:, None, :3]), axis=-1)
+    keep = np.argmin(gap, axis=1)
+    if float(np.max(gap[np.arange(keep.size), keep])) > 1e-6:
+        raise ConfigurationError("the dense calibration's samples are not on the raster path")
+    obs = np.full((path.shape[0], 2), np.nan)
+    obs[keep] = observed_knobs(dense.tip2base, geometry)
+    motions = [CalibrationMotion(q_motor=path, observed=obs)]
+    if circles is not None:
+        motions.append(circles)
+    fit = identify_transmission(motions, **identify_kwargs)
+    eff = fit.model.simulate(path, x_start=[0.0, 0.0])
+    q_eff = np.zeros((keep.size, 4))
+    q_eff[:, :2] = eff[keep]
+    poses = [dense.tip2base]
+    if circles is not None and circles_in_map and circles.tip2base is not None:
+        zc = fit.model.simulate(circles.q_motor, x_start=circles.q_start[:2])
+        ok = np.all(np.isfinite(circles.tip2base.reshape(zc.shape[0], -1)), axis=1)
+        qc = np.zeros((int(ok.sum()), 4))
+        qc[:, :2] = zc[ok]
+        q_eff = np.vstack([q_eff, qc])
+        poses.append(circles.tip2base[ok])
+    lim = geometry.knob_limit
+    q_eff[:, :2] = np.clip(q_eff[:, :2], -lim, lim)
+    samples = CalibrationSet(
+        q_motor=q_eff,
+        tip2base=np.concatenate(poses),
+        catheter_id=dense.catheter_id,
+        vessel=dense.vessel,
+        method="tendon-effective",
+    )
+    fmap = ElasticityMap.build(samples, geometry, interpolant="rbf", smoothing=float(smoothing))
+    return TransmissionCalibration(
+        fit=fit,
+        effective_map=fmap,
+        compensator=TendonCompensator(fit.model, roll, knob_limit=lim),
+        n_moves=0,
+    )
+
+
+def reidentify_in_situ(
+    calibration: TransmissionCalibration,
+    circles: CalibrationMotion,
+    roll: HysteresisCompensator | None = None,
+    *,
+    max_nfev: int = 60,
+) -> TransmissionCalibration:
+    """Re-identify the plays in the vessel of use (e.g. a curved one) from knob circles
+    recorded there alone (:func:`circle_plan`, ~800 moves, no raster), before a procedure.
+
+    The shaft's path through the vessel widens every tendon's friction band (capstan wrap);
+    the bending section's elasticity -- the static map G and F -- stays as calibrated. So the
+    10 parameters are refitted with G fixed to the calibration's (``static_coefficients``),
+    starting from the calibrated model, and F is kept. ``circles``: :func:`motion_from` of
+    the recorded circles (with the calibration's tracker bias removed: the bias belongs to
+    the tracker's field, not to the vessel). ``roll``: the per-joint model for the roll and
+    twist in that vessel (:func:`icenav.calibration.hysteresis.fit_hysteresis` of sweeps
+    there); default: the calibration's.
+    """
+    if not isinstance(calibration, TransmissionCalibration):
+        raise ConfigurationError(
+            f"calibration must be a TransmissionCalibration, got {type(calibration).__name__}"
+        )
+    fit = identify_transmission(
+        [circles],
+        initial=calibration.fit.model,
+        degree=calibration.fit.degree,
+        static_coefficients=calibration.fit.static_coefficients,
+        max_nfev=max_nfev,
+    )
+    old = calibration.compensator
+    comp = TendonCompensator(
+        fit.model,
+        old.roll if roll is None else roll,
+        knob_limit=old.knob_limit,
+        dead_zone_ramp=old.dead_zone_ramp,
+    )
+    return TransmissionCalibration(
+        fit=fit,
+        effective_map=calibration.effective_map,
+        compensator=comp,
+        n_moves=circles.q_motor.shape[0] + 1,
+    )

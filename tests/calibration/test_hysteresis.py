@@ -1,0 +1,112 @@
+"""Tests of icenav.calibration.hysteresis: identification of the per-joint play models, on
+data of the model's own form and of another form (a distributed, Preisach-like play)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from icenav.calibration.hysteresis import fit_hysteresis, hysteresis_plan, identify, sweep_path
+from icenav.calibration.procedure import run_visits
+from icenav.calibration.procedures import plan_visits
+from icenav.compensation.hysteresis import JointHysteresis
+from icenav.errors import ConfigurationError
+from tests.support.calibration import SyntheticCatheter, Tracker
+
+DEG = math.pi / 180
+
+
+@pytest.mark.parametrize(
+    ("r_deg", "slope", "d_deg", "c_deg"),
+    [(3.0, 0.0, 2.0, 0.5), (1.0, 0.0, 4.0, -0.5), (0.5, 0.06, 1.5, 0.3), (2.0, 0.12, 0.5, 0.0)],
+)
+def test_identify_recovers_a_known_transmission(
+    r_deg: float, slope: float, d_deg: float, c_deg: float
+) -> None:
+    m = JointHysteresis(
+        backlash=r_deg * DEG, backlash_slope=slope, dead_zone=d_deg * DEG, centre=c_deg * DEG
+    )
+    x = sweep_path(60 * DEG, 1.5 * DEG)
+    z = m.simulate(x, p0=0.0)
+    rng = np.random.default_rng(int(10 * r_deg + d_deg))
+    y = 0.02 + 0.9 * z - 0.05 * z**3 + rng.normal(0, 0.1 * DEG, z.shape)
+    y[::17] = np.nan  # missing samples are skipped
+    fit = identify(x, y)
+    assert fit.model.backlash == pytest.approx(r_deg * DEG, abs=0.25 * DEG)
+    assert fit.model.backlash_slope == pytest.approx(slope, abs=0.01)
+    assert fit.model.dead_zone == pytest.approx(d_deg * DEG, abs=0.25 * DEG)
+    assert fit.model.centre == pytest.approx(c_deg * DEG, abs=0.25 * DEG)
+    assert fit.gain[1] == pytest.approx(0.9, abs=0.05)
+    assert fit.rms < 0.2 * DEG
+
+
+def test_identify_backlash_only() -> None:
+    m = JointHysteresis(backlash=2 * DEG)
+    x = sweep_path(60 * DEG, 1.5 * DEG)
+    y = 1.0 * m.simulate(x, p0=0.0) + 0.3
+    fit = identify(x, y, cubic=False, with_dead_zone=False)
+    assert fit.model.backlash == pytest.approx(2 * DEG, abs=0.13 * DEG)
+    assert fit.model.dead_zone == 0.0
+
+
+def _distributed_play(x: np.ndarray, widths: np.ndarray, weights: np.ndarray) -> np.ndarray:
+    """A Prandtl-Ishlinskii plant: a weighted sum of play operators of graded widths (rounded
+    loops), not the model's single play with a dead-zone."""
+    out = np.zeros_like(x)
+    for r, w in zip(widths, weights, strict=True):
+        p, ys = 0.0, []
+        for xi in x:
+            p = min(max(p, xi - r), xi + r)
+            ys.append(p)
+        out += w * np.array(ys)
+    return out
+
+
+def test_identify_on_a_distributed_play_matches_its_loop() -> None:
+    """On a plant of another form the single play cannot be exact, but the identified model
+    must reproduce the loop's width at its centre (what the compensation inverts) and leave a
+    residual well below the loop it explains."""
+    x = sweep_path(60 * DEG, 1.5 * DEG)
+    widths = np.linspace(0.5, 6.0, 12) * DEG
+    weights = np.full(12, 1.0 / 12)
+    y = 0.9 * _distributed_play(x, widths, weights)
+    fit = identify(x, y)
+    z = fit.model.simulate(x, p0=0.0)
+    # loop width of plant and model at x = 0 (the two passes of the sweep through zero)
+    zero = np.flatnonzero(np.abs(x) < 1e-9)[1:3]
+    plant_width = abs(float(np.diff(y[zero])[0]))
+    g0, g1, g3 = fit.gain
+    model_out = g0 + g1 * z + g3 * z**3
+    model_width = abs(float(np.diff(model_out[zero])[0]))
+    assert plant_width > 2.0 * DEG  # there is a loop to explain
+    assert model_width == pytest.approx(plant_width, rel=0.35)
+    assert fit.rms < 0.25 * plant_width
+
+
+def test_identify_rejects_bad_input() -> None:
+    with pytest.raises(ConfigurationError, match="need 0 < step < amplitude"):
+        sweep_path(0.1, 0.2)
+    with pytest.raises(ConfigurationError, match=">= 10 samples"):
+        identify([0.0, 1.0], [0.0, 1.0])
+
+
+def test_the_sweeps_identify_the_synthetic_catheters_plays() -> None:
+    """The sweeps' plan recorded through the runner and fitted: each joint's play and
+    dead-zone, and the roll's play growing with the bend."""
+    cath = SyntheticCatheter(r=(3 * DEG, 2 * DEG, 1.5 * DEG), d=2 * DEG, roll_per_bend=0.06)
+    hplan = hysteresis_plan()
+    ident = fit_hysteresis(hplan, run_visits(plan_visits(hplan.plan), cath.move, Tracker(cath)))
+    assert cath.moves == hplan.plan.n == ident.n_moves
+    # the roll's play grows with the bend (per rad of the tracked bend), the knobs' does not
+    assert ident.compensator.roll_play_per_bend == pytest.approx(0.06, abs=0.015)
+    assert ident.compensator.knob_play_per_bend < 0.01
+    assert ident.compensator.twist_play_per_bend < 0.015  # no distal twist here
+    m1, m2, m3, m4 = ident.compensator.joints
+    assert m1 is not None and m2 is not None and m3 is not None and m4 is None
+    assert m1.backlash == pytest.approx(3 * DEG, abs=0.3 * DEG)
+    assert m2.backlash == pytest.approx(2 * DEG, abs=0.3 * DEG)
+    assert m1.dead_zone == pytest.approx(2 * DEG, abs=0.3 * DEG)
+    assert m3.backlash == pytest.approx(1.5 * DEG, abs=0.3 * DEG)
+    assert m3.dead_zone == 0.0

@@ -1,0 +1,75 @@
+"""Shared helpers of the transmission tests: a known per-tendon model, synthetic catheters
+that follow it, and a spin-like two-knob path."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from icenav.calibration.transmission import CalibrationMotion
+from icenav.compensation.transmission import PairTransmission, TendonTransmission
+from icenav.geometry.kinematics import forward
+
+DEG = math.pi / 180
+
+
+def spin_like(a: float, n: int = 200) -> np.ndarray:
+    t = np.linspace(0.0, 2.0 * math.pi, n)
+    path = np.zeros((n + 20, 4))
+    path[:20, 0] = np.linspace(0.0, a, 21)[1:]
+    path[20:, 0] = a * np.cos(t)
+    path[20:, 1] = a * np.sin(t)
+    path[20:, 2] = -t
+    return path
+
+
+def synthetic_catheter(
+    model: TendonTransmission, rng: np.random.Generator, path: np.ndarray, noise: float
+) -> CalibrationMotion:
+    """Tracked model knobs of a synthetic catheter: a known static map of the effective
+    knobs (gain, cross-coupling, a cubic), plus tracker noise."""
+    z = model.simulate(path, x_start=[0.0, 0.0])
+    y = np.stack(
+        [
+            0.9 * z[:, 0] + 0.08 * z[:, 1] - 0.1 * z[:, 0] ** 3,
+            -0.05 * z[:, 0] + 1.1 * z[:, 1] + 0.06 * z[:, 0] * z[:, 1],
+        ],
+        axis=-1,
+    )
+    y += rng.normal(0.0, noise, y.shape)
+    y[rng.uniform(size=y.shape[0]) < 0.03] = np.nan  # MISSING samples
+    return CalibrationMotion(q_motor=path, observed=y)
+
+
+TRUTH = TendonTransmission(
+    ap=PairTransmission(slack=1.5 * DEG, seal_play=0.8 * DEG, tension_play=0.3, coupling=-0.4),
+    rl=PairTransmission(slack=2.5 * DEG, seal_play=0.5 * DEG, tension_play=0.5, coupling=0.3),
+    wrap=0.4,
+    friction=0.6,
+)
+
+
+class SyntheticCatheter:
+    """A catheter whose knobs reach the bending section through a known TendonTransmission
+    and whose section bends by a known static map of the effective knobs; tracked exactly."""
+
+    def __init__(self, model: TendonTransmission) -> None:
+        self.model = model
+        self.reset()
+
+    def reset(self) -> None:
+        self.x = [0.0, 0.0]
+        self.d = self.model.relaxed_state([0.0, 0.0]).tolist()
+        self.pose = forward(np.zeros(4))
+
+    def move(self, q: np.ndarray) -> np.ndarray:
+        self.d = self.model.step(self.d, self.x, [float(q[0]), float(q[1])])
+        self.x = [float(q[0]), float(q[1])]
+        z1, z2 = self.model.effective(self.d)
+        bend = [0.9 * z1 + 0.06 * z2 - 0.08 * z1**3, -0.04 * z1 + 1.08 * z2, q[2], q[3]]
+        self.pose = forward(np.array(bend), check=False)
+        return self.pose
+
+    def measure_tip2base(self, n_average: int = 1) -> np.ndarray:
+        return self.pose.copy()
