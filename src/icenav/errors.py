@@ -39,11 +39,6 @@ unit and the allowed range (as canopen's ``SdoAbortedError`` carries the abort c
 from __future__ import annotations
 
 __all__ = [
-    "NeighbourhoodError",
-    "ViewNotFoundError",
-    "ViewExistsError",
-    "RoadmapFullError",
-    "IgtlError",
     "CommandStepError",
     "ConfigurationError",
     "DriveFaultError",
@@ -54,11 +49,14 @@ __all__ = [
     "HardwareError",
     "HeartbeatLostError",
     "IcenavError",
+    "IgtlError",
     "InvalidValueError",
     "JointLimitError",
     "MotionAborted",
+    "NeighbourhoodError",
     "NonFiniteError",
     "PlanningError",
+    "RoadmapFullError",
     "ShapeError",
     "StoreError",
     "TrackerError",
@@ -66,6 +64,8 @@ __all__ = [
     "UnreachablePoseError",
     "UnsafeExportPathError",
     "UnsupportedVersionError",
+    "ViewExistsError",
+    "ViewNotFoundError",
 ]
 
 
