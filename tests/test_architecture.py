@@ -109,14 +109,10 @@ KNOWN: set[str] = {
     # is empty, and a new wrong-way arrow fails at once)
     "icenav.compensation.tracker_bias imports icenav.calibration.plans",
     "icenav.compensation.transmission imports icenav.calibration.plans",
-    "icenav.control.controller imports icenav.devices.gamepad",
     "icenav.refinement.gating imports icenav.eval.metrics",
-    "icenav.refinement.image_search imports icenav.control.state",
     "icenav.refinement.image_search imports icenav.eval.metrics",
     "icenav.refinement.image_search imports icenav.sim.anatomy",
     "icenav.refinement.pose_stage imports icenav.control.servo",
-    "icenav.refinement.pose_stage imports icenav.control.state",
-    "icenav.refinement.task imports icenav.control.state",
     "icenav.sim.tuning imports icenav.eval.metrics",
 }
 

@@ -6,27 +6,33 @@ Threads
   only drops the state into a :class:`~icenav.console.panels.LatestSlot` (never blocks).
 - One refresh thread wakes at ``refresh_hz``, takes the newest state (older ones are
   coalesced away), updates the scene and panels, and sends a new ICE image when there is one.
-- viser's thread pool runs the GUI callbacks, which only send requests to the controller
-  (each returns at once; the controller executes them at its next cycle). The one that
-  does work itself, Export DICOM, writes one small file into :attr:`Console.export_dir`.
+- viser's thread pool runs the GUI callbacks, which only submit commands
+  (:mod:`icenav.control.commands`, source ``Source("console", "browser-<id>")``) to the
+  controller; each returns at once, the controller decides them at its next cycle, and what
+  it decided comes back to the browser that asked (a refusal or a failure is shown in that
+  browser's panel, with the reason). Export DICOM writes its file on the refresh thread once
+  the controller accepted the export.
 
 Several browsers may connect. The E-STOP and Stop buttons, the status, the image, the plot
 and the 3-D scene are shared by all of them; each browser has its own driving controls,
-enabled only while it holds control (``controller.acquire_control(client)``, with the client
-named ``browser-<id>``). The gamepad always wins; the controller enforces that.
+enabled only while it holds control. Who may do what is the controller's decision
+(:mod:`icenav.control.authorization`), not the console's: a browser that does not hold
+control is refused by the controller even if its page was tampered with. Delete view and
+Calibrate ask for confirmation first (a calibration says what it will do and how long).
 
 With a control token (``Console(..., control_token=...)``, as ``icenav demo`` sets when the
-console is exposed) a browser's requests other than Stop and E-STOP are dropped on the
-server until it entered the token (reliability: part 4, security).
+console is exposed) a browser is view only (Stop and E-STOP only) until it entered the
+token; the token is compared in constant time and wrong guesses are rate-limited per
+browser and overall, with a logged alarm (:class:`icenav.control.authorization.TokenGate`).
 """
 
 from __future__ import annotations
 
 import contextlib
 import datetime as dt
-import hmac
 import threading
-from collections.abc import Sequence
+from collections import deque
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -60,6 +66,23 @@ from icenav.console.scene import (
     subsample,
     view_marker_positions,
 )
+from icenav.control.authorization import TokenGate
+from icenav.control.commands import (
+    Calibrate,
+    Command,
+    CommandResult,
+    DeleteView,
+    Export,
+    GoToView,
+    Jog,
+    Outcome,
+    Reset,
+    SaveView,
+    SetCompensation,
+    SetMode,
+    Source,
+    Spin,
+)
 from icenav.control.state import (
     CalibrationKind,
     ControllerCommands,
@@ -67,7 +90,7 @@ from icenav.control.state import (
     ImageFrame,
     Mode,
 )
-from icenav.devices.gamepad import JoystickMapping
+from icenav.control.teleop import JoystickMapping
 from icenav.errors import ConfigurationError, ExportError, IcenavError
 from icenav.geometry.kinematics import DEFAULT_GEOMETRY, CatheterGeometry, forward
 from icenav.persistence.dicom import ExportDirectory, ViewClip
@@ -118,7 +141,20 @@ class _ClientPanel:
         self.view_options: tuple[str, ...] = ()
         gui = client.gui
         c = console
+        self.source = Source("console", self.name)
+        """The source of this browser's commands."""
         self.note = gui.add_markdown("", order=1.0)
+        self.feedback = gui.add_markdown("", order=1.01)
+        """What the controller decided about this browser's latest refused or failed
+        command (set on the refresh thread from :attr:`feedback_text`)."""
+        self.feedback_text = ""
+        self.feedback_shown = ""
+        self.confirm: Confirmation | None = None
+        """The confirmation dialog open in this browser (Delete view, Calibrate), if any."""
+        self.exports: deque[str] = deque(maxlen=8)
+        """Views whose export the controller accepted, to write on the refresh thread."""
+        self.export_text = ""
+        self.export_shown = ""
         self.authorised = console.control_token is None
         self.token = None
         if console.control_token is not None:  # reliability: part 4 (security)
@@ -172,6 +208,15 @@ class _ClientPanel:
             *([self.export] if self.export is not None else []),
             *(b for b, _, _ in self.jog_buttons),
         ]
+
+
+@dataclass(eq=False)
+class Confirmation:
+    """A confirmation dialog of one browser: its modal and its two buttons."""
+
+    modal: Any
+    yes: Any
+    no: Any
 
 
 class Console:
@@ -246,6 +291,9 @@ class Console:
         self.control_token = control_token
         """When set, a browser controls (moves, saves, ...) only after entering it; viewing,
         Stop and E-STOP need no token."""
+        self._token_gate = (
+            None if control_token is None else TokenGate(control_token, on_alarm=self._token_alarm)
+        )
         if export_dir is not None and not isinstance(export_dir, ExportDirectory):
             export_dir = ExportDirectory(Path(export_dir))
         self.export_dir: ExportDirectory | None = export_dir
@@ -345,9 +393,9 @@ class Console:
         with self._lock:
             panels = list(self._panels.values())
             self._panels.clear()
-        for p in panels:
+        for p in panels:  # the browsers are gone: what they started stops and holds
             with contextlib.suppress(Exception):
-                self.controller.release_control(p.name)
+                self.controller.disconnect(p.name)
         if self._server is not None:
             self._server.stop()
             self._server = None
@@ -358,6 +406,10 @@ class Console:
 
     def __exit__(self, *exc: object) -> None:
         self.stop()
+
+    def _token_alarm(self, text: str) -> None:
+        """A token alarm (TokenGate logs it): also into the session's event log."""
+        self.controller.note(f"security alarm: {text}")
 
     def _on_state(self, state: ControllerState) -> None:
         if self._running:
@@ -478,61 +530,70 @@ class Console:
 
     def _on_connect(self, client: Any) -> None:
         panel = _ClientPanel(self, client)
-        c: Any = self.controller if panel.authorised else _TokenGate(self.controller, panel)
+        ctl = self.controller
         name = panel.name
+        if not panel.authorised:  # the controller refuses everything but Stop / E-STOP
+            ctl.set_view_only(name, True)
 
         def ok(ev: Any) -> bool:
             return ev.client is not None
 
         @panel.take.on_click
         def _(ev: Any) -> None:
-            if not panel.authorised and panel.token is not None and self.control_token:
-                given = str(panel.token.value).strip().encode()
-                panel.authorised = hmac.compare_digest(given, self.control_token.encode())
-                if not panel.authorised:
-                    panel.note.content = "**Wrong control token**: viewing only."
+            if not panel.authorised and panel.token is not None and self._token_gate:
+                verdict = self._token_gate.check(name, str(panel.token.value).strip())
+                if not verdict.ok:
+                    panel.note.content = f"**{verdict.reason}**"
+                    panel.note_text = ""
                     return
-            c.acquire_control(name)
+                panel.authorised = True
+                ctl.set_view_only(name, False)
+            if not ctl.acquire_control(name):
+                panel.feedback_text = "**Take control refused**: another client holds control."
 
         @panel.release.on_click
         def _(ev: Any) -> None:
-            c.release_control(name)
+            ctl.release_control(name)
 
         @panel.mode.on_update
         def _(ev: Any) -> None:
             if ok(ev):
-                c.request_mode(mode_from_choice(panel.mode.value), client=name)
+                self.send(panel, SetMode(mode_from_choice(panel.mode.value), source=panel.source))
 
         @panel.compensation.on_update
         def _(ev: Any) -> None:
             if ok(ev):
-                c.set_compensation(bool(panel.compensation.value), client=name)
+                enabled = bool(panel.compensation.value)
+                self.send(panel, SetCompensation(enabled, source=panel.source))
 
-        panel.reset.on_click(lambda ev: c.reset_fault(client=name))
-        panel.spin.on_click(lambda ev: c.start_spin(client=name))
+        panel.reset.on_click(lambda ev: self.send(panel, Reset(source=panel.source)))
+        panel.spin.on_click(lambda ev: self.send(panel, Spin(source=panel.source)))
 
         @panel.calibrate.on_click
         def _(ev: Any) -> None:
-            kind = CALIBRATIONS[panel.calib_kind.value]
-            c.start_calibration(kind, client=name)
+            self._confirm_calibration(panel, CALIBRATIONS[panel.calib_kind.value])
 
         @panel.save.on_click
         def _(ev: Any) -> None:
             view = panel.view_name.value.strip()
-            if view:
-                c.save_view(view, client=name)
-                if panel.authorised:  # a refused save keeps the name
+            if not view:
+                return
+
+            def saved(result: CommandResult) -> None:  # a refused save keeps the name
+                if result.outcome is Outcome.ACCEPTED and panel.view_name.value == view:
                     panel.view_name.value = _next_name(view)
+
+            self.send(panel, SaveView(view, source=panel.source), on_decided=saved)
 
         @panel.goto.on_click
         def _(ev: Any) -> None:
             if panel.views.value != NO_VIEWS:
-                c.goto_view(panel.views.value, client=name)
+                self.send(panel, GoToView(panel.views.value, source=panel.source))
 
         @panel.delete.on_click
         def _(ev: Any) -> None:
             if panel.views.value != NO_VIEWS:
-                c.delete_view(panel.views.value, client=name)
+                self._confirm_delete(panel, str(panel.views.value))
 
         @panel.views.on_update
         def _(ev: Any) -> None:
@@ -550,29 +611,106 @@ class Console:
             if state is not None:
                 self._update_panel(panel, state)
         if panel.authorised and (state is None or state.control_owner is None):
-            c.acquire_control(name)
+            ctl.acquire_control(name)
+
+    def send(
+        self,
+        panel: _ClientPanel,
+        command: Command,
+        on_decided: Callable[[CommandResult], None] | None = None,
+    ) -> None:
+        """Submit ``command`` for ``panel``'s browser; a refusal or failure is shown in its
+        panel (with the controller's reason), a success clears the note."""
+
+        def show(result: CommandResult) -> None:
+            what = command.describe()
+            if result.outcome is Outcome.REFUSED:
+                panel.feedback_text = f"**Refused** ({what}): {result.reason}"
+            elif result.outcome is Outcome.FAILED:
+                panel.feedback_text = f"**Failed** ({what}): {result.reason}"
+            elif not isinstance(command, Jog):
+                panel.feedback_text = ""
+
+        ticket = self.controller.submit(command)
+        if on_decided is not None:
+            ticket.add_callback(on_decided, when="decided")
+        ticket.add_callback(show, when="final")
+
+    def _ask(
+        self, panel: _ClientPanel, title: str, text: str, yes: str, on_yes: Callable[[], None]
+    ) -> None:
+        """A confirmation dialog in ``panel``'s browser: ``on_yes`` runs only on ``yes``."""
+        if panel.confirm is not None:
+            with contextlib.suppress(Exception):
+                panel.confirm.modal.close()
+        gui = panel.client.gui
+        with gui.add_modal(title) as modal:
+            gui.add_markdown(text)
+            yes_button = gui.add_button(yes, color="red")
+            no_button = gui.add_button("Cancel")
+        confirm = Confirmation(modal, yes_button, no_button)
+        panel.confirm = confirm
+
+        def close() -> None:
+            if panel.confirm is confirm:
+                panel.confirm = None
+            modal.close()
+
+        @yes_button.on_click
+        def _(ev: Any) -> None:
+            close()
+            on_yes()
+
+        no_button.on_click(lambda ev: close())
+
+    def _confirm_delete(self, panel: _ClientPanel, view: str) -> None:
+        self._ask(
+            panel,
+            "Delete view?",
+            f"Delete the saved view **{view}** from this session? Its image goes with it; "
+            "the recorded roadmap stays.",
+            "Delete",
+            lambda: self.send(panel, DeleteView(view, source=panel.source)),
+        )
+
+    def _confirm_calibration(self, panel: _ClientPanel, kind: CalibrationKind) -> None:
+        try:
+            text = self.controller.preview_calibration(kind).describe()
+        except IcenavError as exc:
+            panel.feedback_text = f"**Cannot calibrate**: {exc}"
+            return
+        self._ask(
+            panel,
+            "Start the calibration?",
+            text,
+            "Start calibration",
+            lambda: self.send(panel, Calibrate(kind, source=panel.source)),
+        )
 
     def _on_disconnect(self, client: Any) -> None:
         with self._lock:
             panel = self._panels.pop(client.client_id, None)
-            state = self._last_state
-        if panel is not None and state is not None and state.control_owner == panel.name:
-            self.controller.release_control(panel.name)
+        if panel is not None:  # its control is released; what it started stops and holds
+            self.controller.disconnect(panel.name)
 
     def _export_clicked(self, panel: _ClientPanel) -> None:
-        """The Export DICOM button: the selected view into the export directory, if this
-        browser entered the token and holds control; the outcome shown under the button."""
-        state = self.controller.snapshot()
-        if not panel.authorised:
-            text = "**Export refused**: enter the control token and take control first."
-        elif state.control_owner != panel.name:
-            text = "**Export refused**: take control first."
-        elif panel.views.value == NO_VIEWS:
-            text = "**Nothing to export**: save a view first."
-        else:
-            text = self.export_view(str(panel.views.value), state)
-        if panel.export_note is not None:
-            panel.export_note.content = text
+        """The Export DICOM button: the controller decides (the holder only, the view saved
+        with an image); once it accepted, the refresh thread writes the file and the outcome
+        is shown under the button."""
+        if panel.export_note is None:
+            return
+        if panel.views.value == NO_VIEWS:
+            panel.export_note.content = "**Nothing to export**: save a view first."
+            return
+        view = str(panel.views.value)
+
+        def decided(result: CommandResult) -> None:
+            if result.outcome is Outcome.REFUSED:
+                panel.export_text = f"**Export refused**: {result.reason}"
+            else:
+                panel.exports.append(view)
+
+        self.send(panel, Export(view, source=panel.source), on_decided=decided)
 
     def export_view(self, name: str, state: ControllerState | None = None) -> str:
         """Write the image saved with view ``name`` into :attr:`export_dir` as a DICOM file
@@ -646,7 +784,7 @@ class Console:
             # knob mode on it, and it aborts an automatic motion (as gamepad input does).
             mode = Mode.TIP if state.mode == Mode.TIP else Mode.KNOB
             vel, frame = jog_command(mode, axis, sign, self.mapping)
-            self.controller.jog(vel, frame, client=panel.name)
+            self.send(panel, Jog(vel, frame, source=panel.source))
 
         return cb
 
@@ -664,7 +802,24 @@ class Console:
             self._draw_image(frame, state or self._last_state)
             self._last_image_t = frame.timestamp
             self._images_sent += 1
+        self._serve_panels()
         return drew
+
+    def _serve_panels(self) -> None:
+        """Show each browser what the controller decided about its commands, and write the
+        exports it accepted (on this, the refresh thread: no file I/O on the control thread
+        or in viser's callbacks)."""
+        with self._lock:
+            panels = list(self._panels.values())
+        for p in panels:
+            if p.feedback_text != p.feedback_shown:
+                p.feedback.content = p.feedback_text
+                p.feedback_shown = p.feedback_text
+            while p.exports:
+                p.export_text = self.export_view(p.exports.popleft())
+            if p.export_note is not None and p.export_text != p.export_shown:
+                p.export_note.content = p.export_text
+                p.export_shown = p.export_text
 
     def _draw_state(self, state: ControllerState) -> None:
         with self._lock:
@@ -831,30 +986,6 @@ class Console:
         p.thumb.image = gray_to_rgb(frame.pixels, max_width=200)
         p.thumb.visible = True
         p.thumb_note.visible = False
-
-
-class _TokenGate:
-    """The controller as a browser without the control token sees it: every request that
-    moves or changes something is dropped until the browser entered the token; Stop and
-    E-STOP always pass (reliability: part 4, security)."""
-
-    _ANYONE = frozenset({"stop", "estop", "snapshot", "latest_image", "view_image"})
-
-    def __init__(self, controller: ControllerCommands, panel: _ClientPanel):
-        self._controller = controller
-        self._panel = panel
-
-    def __getattr__(self, name: str) -> Any:
-        target = getattr(self._controller, name)
-        if name in self._ANYONE or not callable(target):
-            return target
-
-        def gated(*args: Any, **kwargs: Any) -> Any:
-            if self._panel.authorised:
-                return target(*args, **kwargs)
-            return False
-
-        return gated
 
 
 def _next_name(name: str) -> str:

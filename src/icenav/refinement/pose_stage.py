@@ -30,7 +30,6 @@ from numpy.typing import ArrayLike, NDArray
 from icenav._typing import Array
 from icenav._validation import check_finite, check_joint_state, check_positive
 from icenav.control.servo import body_pose_error
-from icenav.control.state import Mode
 from icenav.devices.robot import RobotBackend
 from icenav.errors import ConfigurationError, ShapeError
 from icenav.refinement.image_search import (
@@ -302,7 +301,6 @@ class PoseStageTask:
         Polled every cycle; True ends the stage at once (status ABORTED).
     """
 
-    mode = Mode.GOTO_VIEW
     label = "pose stage (EM)"
 
     def __init__(
