@@ -389,6 +389,11 @@ class Controller:
         return self._time
 
     @property
+    def cycle(self) -> int:
+        """Cycles run so far."""
+        return self._cycle
+
+    @property
     def q_command(self) -> Array:
         """The latest motor set-point (4,) (rad, rad, rad, mm); a copy."""
         return self._q_cmd.copy()
