@@ -98,15 +98,24 @@ class Source:
         (the console), "igtl*" (OpenIGTLink), anything else a script."""
         if isinstance(client, Source):
             return client
+        known = _SOURCES.get(client)
+        if known is not None:
+            return known
         if client == "gamepad":
-            return GAMEPAD
-        if client.startswith("browser"):
-            return cls("console", client)
-        if client.startswith("igtl"):
-            return cls("igtl", client)
-        return cls("script", client)
+            source = GAMEPAD
+        elif client.startswith("browser"):
+            source = cls("console", client)
+        elif client.startswith("igtl"):
+            source = cls("igtl", client)
+        else:
+            source = cls("script", client)
+        if len(_SOURCES) < 1024:
+            _SOURCES[client] = source
+        return source
 
 
+_SOURCES: dict[str, Source] = {}
+"""Sources made by :meth:`Source.of`, by client name (a jog per cycle builds none)."""
 SCRIPT = Source("script", "script")
 """The default source of a Python call."""
 GAMEPAD = Source("gamepad", "gamepad")
@@ -394,21 +403,27 @@ class CommandResult:
         return self.outcome in (Outcome.ACCEPTED, Outcome.DONE)
 
 
+_TICKETS = threading.Condition()
+"""One condition for every ticket (a jog makes one per cycle: no lock of its own to build;
+the few waiters re-check their own ticket when woken)."""
+
+
 class Ticket:
     """The receipt of a submitted command: wait for its decision or its end, or register a
     callback. Callbacks run on the thread that decided (the control loop, or the caller of
     ``estop`` / ``acquire_control``): they must be quick and must not block on the loop."""
+
+    __slots__ = ("_decision", "_final", "_on_decided", "_on_final", "command", "seq")
 
     def __init__(self, seq: int, command: Command) -> None:
         self.seq = seq
         """Sequence number (submission order)."""
         self.command = command
         """The command."""
-        self._cond = threading.Condition()
         self._decision: CommandResult | None = None
         self._final: CommandResult | None = None
-        self._on_decided: list[Callable[[CommandResult], None]] = []
-        self._on_final: list[Callable[[CommandResult], None]] = []
+        self._on_decided: list[Callable[[CommandResult], None]] | None = None
+        self._on_final: list[Callable[[CommandResult], None]] | None = None
 
     def __repr__(self) -> str:
         final = self._final or self._decision
@@ -440,8 +455,8 @@ class Ticket:
     def _wait(
         self, get: Callable[[], CommandResult | None], timeout: float | None, what: str
     ) -> CommandResult:
-        with self._cond:
-            if not self._cond.wait_for(lambda: get() is not None, timeout):
+        with _TICKETS:
+            if not _TICKETS.wait_for(lambda: get() is not None, timeout):
                 raise CommandTimeoutError(
                     f"command #{self.seq} ({self.command.describe()}) was not {what} within "
                     f"{timeout} s"
@@ -455,10 +470,13 @@ class Ticket:
     ) -> None:
         """Call ``fn(result)`` when the command is decided or when it ends (at once if it
         already is)."""
-        with self._cond:
+        with _TICKETS:
             done = self._decision if when == "decided" else self._final
             if done is None:
-                (self._on_decided if when == "decided" else self._on_final).append(fn)
+                if when == "decided":
+                    self._on_decided = [*(self._on_decided or ()), fn]
+                else:
+                    self._on_final = [*(self._on_final or ()), fn]
                 return
         fn(done)
 
@@ -466,7 +484,7 @@ class Ticket:
         """Record an outcome: the controller's side (an adapter never calls it); returns
         False if the ticket had ended already."""
         calls: list[tuple[Callable[[CommandResult], None], CommandResult]] = []
-        with self._cond:
+        with _TICKETS:
             if self._final is not None:
                 return False
             if self._decision is None:
@@ -476,13 +494,15 @@ class Ticket:
                         result.seq, result.command, Outcome.ACCEPTED, "", result.time
                     )
                 self._decision = decision
-                calls += [(fn, decision) for fn in self._on_decided]
-                self._on_decided = []
+                if self._on_decided:
+                    calls += [(fn, decision) for fn in self._on_decided]
+                    self._on_decided = None
             if result.outcome is not Outcome.ACCEPTED:
                 self._final = result
-                calls += [(fn, result) for fn in self._on_final]
-                self._on_final = []
-            self._cond.notify_all()
+                if self._on_final:
+                    calls += [(fn, result) for fn in self._on_final]
+                    self._on_final = None
+            _TICKETS.notify_all()
         for fn, r in calls:
             fn(r)
         return True

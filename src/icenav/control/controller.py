@@ -167,6 +167,7 @@ class Controller:
         self.jobs = Jobs()
         """Background work (plans, fits, tracker readings), applied on the loop."""
         self._seq = itertools.count()
+        self._dt = self.config.dt
         self._queue: deque[tuple[Ticket, float]] = deque()
         self._queue_lock = threading.Lock()
         self._pad = (
@@ -288,7 +289,7 @@ class Controller:
     def jog(
         self, velocity: ArrayLike, frame: Literal["knob", "tip"], client: str | Source = "script"
     ) -> Ticket:
-        return self.submit(Jog(np.asarray(velocity), frame, source=Source.of(client)))
+        return self.submit(Jog(velocity, frame, source=Source.of(client)))  # type: ignore[arg-type]
 
     def save_view(self, name: str, client: str | Source = "script") -> Ticket:
         return self.submit(SaveView(name, source=Source.of(client)))
@@ -406,7 +407,7 @@ class Controller:
     def step(self) -> ControllerState:
         """Run one control cycle (see the module docstring) and return the new state."""
         t_start = time.perf_counter()
-        dt = self.config.dt
+        dt = self._dt
         self._time += dt
         self._cycle += 1
         try:

@@ -85,6 +85,9 @@ class Handlers:
             Export: self._export,
         }
         self._calibrations: dict[int, _CalibrationRun] = {}
+        lim = ctrl.config.geometry.joint_limits
+        self._lo, self._hi = lim[:, 0].copy(), lim[:, 1].copy()
+        self._vmax = np.asarray(ctrl.config.max_velocity, dtype=np.float64)
 
     def run(self, ticket: Ticket, at: float) -> None:
         """Run the handler of ``ticket``'s command (submitted at controller-clock ``at``)."""
@@ -205,12 +208,10 @@ class Handlers:
     def send(self, q_next: Array, dt: float) -> None:
         """Limit the command in speed and to the joint limits, then command the robot."""
         ctrl = self._ctrl
-        cfg = ctrl.config
         q_cmd = ctrl._q_cmd  # noqa: SLF001
-        vmax = np.asarray(cfg.max_velocity) * dt
+        vmax = self._vmax * dt
         q = q_cmd + np.clip(q_next - q_cmd, -vmax, vmax)
-        lim = cfg.geometry.joint_limits
-        clipped = np.clip(q, lim[:, 0], lim[:, 1])
+        clipped = np.clip(q, self._lo, self._hi)
         if np.any(clipped != q):
             names = [
                 n

@@ -52,6 +52,8 @@ class Publisher:
         """A view saved in memory only: shown in front until a later view is on disk."""
         self._next_image_t = 0.0
         self._image_error = ""
+        lim = ctrl.config.geometry.joint_limits
+        self._lo, self._hi = lim[:, 0].copy(), lim[:, 1].copy()
 
     def operator_message(self) -> str:
         """The latest message; in FAULT / ESTOP the cause stays in front until reset, and a
@@ -77,7 +79,7 @@ class Publisher:
         q_model = ctrl.handlers.to_model(q)
         tip_model = forward(q_model, g, check=False)
         bb_model = backbone(
-            np.clip(q_model, g.joint_limits[:, 0], g.joint_limits[:, 1]), g, cfg.backbone_points
+            np.clip(q_model, self._lo, self._hi), g, cfg.backbone_points
         ).points_in_base
         tip_true = bb_true = None
         if self._truth is not None:
