@@ -544,7 +544,6 @@ class Console:
                 verdict = self._token_gate.check(name, str(panel.token.value).strip())
                 if not verdict.ok:
                     panel.note.content = f"**{verdict.reason}**"
-                    panel.note_text = ""
                     return
                 panel.authorised = True
                 ctl.set_view_only(name, False)
