@@ -1,7 +1,10 @@
-"""The soak, shortened to 10 simulated minutes (issue 9; the full 4 h is `make soak`).
+"""The soak, shortened to 10 simulated minutes (the full 4 h is `make soak`).
 
-Baseline, in the same run: the controller's cycle without a session store (the same
-operator for 30 simulated seconds), to show what recording costs per cycle.
+Baselines, in the same run: the controller's cycle without a session store (the same
+operator for 30 simulated seconds), to show what recording costs per cycle; and the soak's
+operator on the twin driven by the rebuilt controller and by the controller before the
+rebuild (``benchmarks/_baseline_controller.py``), interleaved, to show the rebuild is no
+slower.
 """
 
 from __future__ import annotations
@@ -34,10 +37,47 @@ def _cycle_without_store(seconds: float = 30.0) -> float:
     return float(np.percentile(times, 99)) * 1e3
 
 
+def _old_and_new(seconds: float = 20.0) -> tuple[float, float]:
+    """Median cycle (ms) of the soak's operator on the twin (seed 100, no store, no image)
+    under the old and the new controller, in alternating 2 s blocks."""
+    from benchmarks._baseline_controller import Controller as OldController
+    from icenav.control.controller import Controller, ControllerConfig
+    from icenav.devices.sim_robot import SimulatedRobot
+    from icenav.sim import CatheterPlant
+
+    ctrls = []
+    for cls in (OldController, Controller):
+        robot = SimulatedRobot(CatheterPlant(seed=100), on_excess="clip")
+        robot.record_commands = False
+        ctrls.append(cls(robot, ControllerConfig()))
+    rng = np.random.default_rng(0)
+    times: list[list[float]] = [[], []]
+    v = np.zeros(4)
+    for _ in range(int(seconds / 2.0)):
+        for k, ctrl in enumerate(ctrls):
+            for _ in range(200):
+                v = np.clip(0.98 * v + 0.05 * rng.normal(0, 1, 4), -1, 1)
+                ctrl.jog(v * [0.4, 0.4, 0.6, 4.0], "knob")
+                t0 = time.perf_counter()
+                ctrl.step()
+                times[k].append(time.perf_counter() - t0)
+    return float(np.median(times[0])) * 1e3, float(np.median(times[1])) * 1e3
+
+
 def main() -> list[Result]:
     r = run_soak(SoakConfig(duration_s=600.0, view_every_s=60.0, return_every_s=90.0))
     base = _cycle_without_store()
+    old_ms, new_ms = _old_and_new()
     return [
+        Result(
+            "soak operator on the twin, median cycle (rebuilt controller)",
+            new_ms,
+            "ms",
+            old_ms,
+            "the controller before the rebuild, same run",
+            "ratio >= 1 (no slower)",
+            new_ms <= old_ms * 1.05,
+        ),
         Result(
             "soak 10 min: cycle p99 (no plan)",
             r.cycle_p99_no_plan_ms,

@@ -18,8 +18,8 @@ import atheris  # noqa: E402
 
 with atheris.instrument_imports():
     import icenav.compensation.elasticity  # noqa: F401, E402
+    import icenav.control.teleop  # noqa: F401, E402
     import icenav.devices.canopen.config  # noqa: F401, E402
-    import icenav.devices.gamepad  # noqa: F401, E402
     import icenav.io.igtl  # noqa: F401, E402
     import icenav.persistence.store  # noqa: F401, E402
     from fuzz.targets import TARGETS, seed_inputs  # noqa: E402

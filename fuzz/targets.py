@@ -170,7 +170,7 @@ def target_robot_config(data: bytes) -> None:
 
 def target_joystick_mapping(data: bytes) -> None:
     """A gamepad mapping TOML file (io.joystick.load_mapping)."""
-    from icenav.devices.gamepad import load_mapping
+    from icenav.control.teleop import load_mapping
 
     path = _tmp(data, ".toml")
     try:

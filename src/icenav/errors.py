@@ -28,6 +28,8 @@ unit and the allowed range (as canopen's ``SdoAbortedError`` carries the abort c
     ├── StoreError                            the session store failed (disk full, read-only, ...)
     ├── ExportError                           writing an export failed (disk full, permission)
     ├── MotionAborted                         an automatic motion was aborted or stopped
+    ├── CommandTimeoutError (TimeoutError)    a command's outcome did not come in time
+    ├── CommandRefusedError                   a command was refused (authorization, mode, ...)
     ├── HardwareError                         a robot backend reports a problem
     │   ├── DriveFaultError                   a motor drive is in FAULT (code and text)
     │   ├── HeartbeatLostError                a drive stopped sending heartbeats
@@ -39,7 +41,9 @@ unit and the allowed range (as canopen's ``SdoAbortedError`` carries the abort c
 from __future__ import annotations
 
 __all__ = [
+    "CommandRefusedError",
     "CommandStepError",
+    "CommandTimeoutError",
     "ConfigurationError",
     "DriveFaultError",
     "EmergencyStopError",
@@ -151,6 +155,15 @@ class StoreError(IcenavError):
 
 class MotionAborted(IcenavError):
     """An automatic motion was aborted (operator input, stop or e-stop)."""
+
+
+class CommandTimeoutError(IcenavError, TimeoutError):
+    """Waiting for a command's outcome (``Ticket.result`` / ``Ticket.final``) timed out."""
+
+
+class CommandRefusedError(IcenavError):
+    """A command was refused: not authorized, in FAULT / ESTOP, no such view, ... (the text
+    says why; the controller reports it through the command's ticket)."""
 
 
 class HardwareError(IcenavError):

@@ -1,199 +1,28 @@
 """Tests of the console server without a browser, against a recording test double.
 
-``RecordingController`` is a test double of the ControllerCommands protocol: it records the
-requests it gets and publishes the states a test gives it. It does no control; the browser
-test drives the real ``icenav.control.controller.Controller``.
+``RecordingController`` (tests/support/console.py) is a test double of the
+ControllerCommands protocol: it records the commands it gets, decides them with the
+controller's own authorization, and publishes the states a test gives it. It does no
+control; the browser test drives the real ``icenav.control.controller.Controller``.
 """
 
 from __future__ import annotations
 
-import contextlib
-import dataclasses
-import threading
 import urllib.request
-from collections.abc import Callable
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any
 
 import numpy as np
 import pydicom
 import pytest
 
 from icenav.console import Console
-from icenav.control.state import (
-    CalibrationKind,
-    ControllerCommands,
-    ControllerState,
-    ImageFrame,
-    Mode,
-    ViewSummary,
-)
-from icenav.devices.robot import RobotStatus
+from icenav.control.commands import Source
+from icenav.control.state import ControllerCommands, ImageFrame, Mode, ViewSummary
 from icenav.errors import ConfigurationError
-from icenav.geometry.kinematics import backbone, forward
+from icenav.geometry.kinematics import forward
 from icenav.persistence.dicom import PRIVATE_CREATOR, read_view_clip
-
-
-def make_state(q: np.ndarray | None = None, **kw: Any) -> ControllerState:
-    """A plausible snapshot at joint state q (model = motor, truth = model)."""
-    q = np.zeros(4) if q is None else np.asarray(q, dtype=np.float64)
-    tip = forward(q)
-    bb = backbone(q, n=20).points_in_base
-    base: dict[str, Any] = dict(
-        time=0.0,
-        cycle=0,
-        mode=Mode.IDLE,
-        robot_status=RobotStatus.ENABLED,
-        q_motor=q,
-        q_model=q,
-        tip2base_model=tip,
-        tip2base_true=tip,
-        backbone_model=bb,
-        backbone_true=bb,
-        sensor2base=tip,
-        tracker_status="VALID",
-    )
-    base.update(kw)
-    return ControllerState(**base)
-
-
-class RecordingController:
-    """Test double of ControllerCommands: records requests, publishes given states."""
-
-    def __init__(self) -> None:
-        self.calls: list[tuple[str, tuple[Any, ...], str]] = []
-        self.call_event = threading.Condition()
-        self.owner: str | None = None
-        self.image: ImageFrame | None = None
-        self.view_images: dict[str, ImageFrame] = {}
-        self._state = make_state()
-        self._listeners: list[Callable[[ControllerState], None]] = []
-
-    def _rec(self, name: str, args: tuple[Any, ...], client: str) -> None:
-        with self.call_event:
-            self.calls.append((name, args, client))
-            self.call_event.notify_all()
-
-    def wait_for_call(self, name: str, timeout: float = 10.0) -> tuple[Any, ...]:
-        """Block until a request ``name`` was recorded; return (args, client)."""
-        with self.call_event:
-            ok = self.call_event.wait_for(
-                lambda: any(c[0] == name for c in self.calls), timeout=timeout
-            )
-        assert ok, f"no {name} request within {timeout} s; got {[c[0] for c in self.calls]}"
-        return next((c[1], c[2]) for c in self.calls if c[0] == name)
-
-    def publish(self, state: ControllerState) -> None:
-        """Hand ``state`` (with this double's control owner) to the listeners."""
-        state = dataclasses.replace(state, control_owner=self.owner)
-        self._state = state
-        for cb in list(self._listeners):
-            cb(state)
-
-    # requests
-    def request_mode(self, mode: Mode, client: str = "script") -> None:
-        self._rec("request_mode", (mode,), client)
-
-    def jog(self, velocity: Any, frame: Literal["knob", "tip"], client: str = "script") -> None:
-        self._rec("jog", (np.asarray(velocity), frame), client)
-
-    def save_view(self, name: str, client: str = "script") -> None:
-        self._rec("save_view", (name,), client)
-
-    def goto_view(self, name: str, client: str = "script") -> None:
-        self._rec("goto_view", (name,), client)
-
-    def delete_view(self, name: str, client: str = "script") -> None:
-        self._rec("delete_view", (name,), client)
-
-    def start_spin(self, client: str = "script") -> None:
-        self._rec("start_spin", (), client)
-
-    def start_calibration(self, kind: CalibrationKind, client: str = "script") -> None:
-        self._rec("start_calibration", (kind,), client)
-
-    def set_compensation(self, enabled: bool, client: str = "script") -> None:
-        self._rec("set_compensation", (enabled,), client)
-
-    def stop(self, client: str = "script") -> None:
-        self._rec("stop", (), client)
-
-    def estop(self, client: str = "script") -> None:
-        self._rec("estop", (), client)
-
-    def reset_fault(self, client: str = "script") -> None:
-        self._rec("reset_fault", (), client)
-
-    def acquire_control(self, client: str) -> bool:
-        self._rec("acquire_control", (), client)
-        if self.owner in (None, client) or client == "gamepad":
-            self.owner = client
-            return True
-        return False
-
-    def release_control(self, client: str) -> None:
-        self._rec("release_control", (), client)
-        if self.owner == client:
-            self.owner = None
-
-    # reads
-    def snapshot(self) -> ControllerState:
-        return self._state
-
-    def latest_image(self) -> ImageFrame | None:
-        return self.image
-
-    def view_image(self, name: str) -> ImageFrame | None:
-        return self.view_images.get(name)
-
-    def add_listener(self, callback: Callable[[ControllerState], None]) -> None:
-        self._listeners.append(callback)
-
-
-class FakeHandle:
-    """Stands in for a viser GUI handle: keeps its value and the callbacks given to it."""
-
-    def __init__(self, *args: object, **kwargs: object) -> None:
-        self.value = kwargs.get("initial_value", "")
-        self.content = args[0] if args else ""
-        self.callbacks: list[Callable[[Any], None]] = []
-
-    def on_click(self, fn: Callable[[Any], None]) -> Callable[[Any], None]:
-        self.callbacks.append(fn)
-        return fn
-
-    on_update = on_click
-
-    def on_hold(self, fn: Callable[[Any], None], callback_hz: float = 0.0) -> object:
-        return self.on_click(fn)
-
-    def click(self) -> None:
-        """What viser does when a browser clicks the button."""
-
-        class Ev:
-            client = object()
-            client_id = 1
-
-        for fn in self.callbacks:
-            fn(Ev())
-
-    def add_tab(self, *args: object, **kwargs: object) -> contextlib.nullcontext[None]:
-        return contextlib.nullcontext()
-
-
-class FakeGui:
-    """A viser client's ``gui``: every ``add_*`` makes a :class:`FakeHandle`."""
-
-    def __getattr__(self, name: str) -> object:
-        return FakeHandle
-
-
-class FakeClient:
-    """A browser connection as the console's connection handler sees it (no server)."""
-
-    def __init__(self, client_id: int) -> None:
-        self.client_id = client_id
-        self.gui = FakeGui()
+from tests.support.console import FakeClient, RecordingController, make_state
 
 
 def test_recording_controller_satisfies_the_protocol() -> None:
@@ -260,7 +89,9 @@ def test_jog_button_sends_the_mode_s_jog_only_with_control(console: Console) -> 
     from types import SimpleNamespace
 
     ctl: RecordingController = console.controller  # type: ignore[assignment]
-    panel = SimpleNamespace(name="browser-7", can_control=False)
+    panel = SimpleNamespace(
+        name="browser-7", can_control=False, source=Source("console", "browser-7")
+    )
     hold = console._jog_callback(panel, 2, -1)  # type: ignore[arg-type]
     ctl.publish(make_state(mode=Mode.TIP))
     console.refresh_once()
@@ -432,6 +263,7 @@ def test_export_button_writes_the_selected_view_into_the_export_directory(
     frame = _view_with_image(ctl, name, q)
     panel.views.value = name
     panel.export.click()
+    console._serve_panels()  # the refresh thread writes accepted exports
     note = panel.export_note.content
     (path,) = _files(tmp_path)
     assert path.parent == exports and path.name.startswith("tmp_evil_apex_")
@@ -458,6 +290,7 @@ def test_export_is_refused_without_the_token_or_control(tmp_path: Path) -> None:
     _view_with_image(ctl, "apex", np.zeros(4))
     panel.views.value = "apex"
     panel.export.click()
+    console._serve_panels()  # the refresh thread writes accepted exports
     assert "Export refused" in panel.export_note.content and "token" in panel.export_note.content
     assert _files(tmp_path) == []
     # the token entered, but another client holds control: still refused
@@ -466,7 +299,8 @@ def test_export_is_refused_without_the_token_or_control(tmp_path: Path) -> None:
     panel.take.click()
     ctl.publish(ctl.snapshot())
     panel.export.click()
-    assert "take control first" in panel.export_note.content and _files(tmp_path) == []
+    console._serve_panels()  # the refresh thread writes accepted exports
+    assert "gamepad holds control" in panel.export_note.content and _files(tmp_path) == []
     # in control: a name that is not a saved view, and a view without an image, are refused
     ctl.owner = None
     panel.take.click()
@@ -478,15 +312,18 @@ def test_export_is_refused_without_the_token_or_control(tmp_path: Path) -> None:
     ]:
         panel.views.value = value  # what a tampered browser could send
         panel.export.click()
+        console._serve_panels()  # the refresh thread writes accepted exports
         assert why in panel.export_note.content, panel.export_note.content
     views = (*ctl.snapshot().views, ViewSummary("blind", np.zeros(4), 0.0, False))
     ctl.publish(make_state(views=views))
     panel.views.value = "blind"
     panel.export.click()
+    console._serve_panels()  # the refresh thread writes accepted exports
     assert "has no saved image" in panel.export_note.content
     assert _files(tmp_path) == []
     panel.views.value = "apex"
     panel.export.click()
+    console._serve_panels()  # the refresh thread writes accepted exports
     assert len(_files(exports)) == 1 and "Exported view **apex**" in panel.export_note.content
 
 

@@ -282,6 +282,17 @@ def test_console_on_the_real_controller(browser: Any, tmp_path: Path) -> None:
             expect(page2.get_by_role("button", name="Save view", exact=True)).to_be_enabled()
             expect(page.get_by_text("browser-1", exact=True)).to_be_visible()
             expect(page.get_by_role("button", name="Spin 360", exact=True)).to_be_disabled()
+
+            # Delete asks for confirmation: Cancel keeps the view, Delete removes it
+            delete = page2.get_by_role("button", name="Delete view", exact=True)
+            delete.click()
+            expect(page2.get_by_text("Delete the saved view", exact=False)).to_be_visible()
+            page2.get_by_role("button", name="Cancel", exact=True).click()
+            later = waiter.next_states(10)
+            assert [v.name for v in later[-1].views] == ["home"]
+            delete.click()
+            page2.get_by_role("button", name="Delete", exact=True).click()
+            waiter.until(lambda s: s.views == (), "view deleted after confirmation")
             page2.close()
             page.close()
             assert console.last_error == ""
@@ -315,6 +326,8 @@ def test_control_token_in_the_browser(browser: Any, tmp_path: Path) -> None:
             waiter.next_states(5)
         ctl.stop()
         away = waiter.until(lambda s: s.mode is Mode.IDLE, "stopped away from home")
+        ctl.release_control("script")  # the script's commands took control: give it back
+        waiter.until(lambda s: s.control_owner is None, "control free")
         # 5 Hz refresh: less for software WebGL to draw (the other test covers 25 Hz)
         with Console(
             ctl, port=0, control_token=token, export_dir=exports, refresh_hz=5.0, status_hz=5.0
@@ -344,6 +357,8 @@ def test_control_token_in_the_browser(browser: Any, tmp_path: Path) -> None:
             export.click()
             done.wait(3, "save, go to and export")
             expect(page.get_by_text("Export refused", exact=False)).to_be_visible()
+            # the controller refused them and the browser is told why
+            expect(page.get_by_text("is view only", exact=False).first).to_be_visible()
             page.get_by_role("tab", name="Jog").click()
             page.get_by_role("button", name="AP knob (phi1) +", exact=True).hover()
             page.mouse.down()
@@ -380,6 +395,7 @@ def test_control_token_in_the_browser(browser: Any, tmp_path: Path) -> None:
             expect(page.get_by_text("EMERGENCY STOP", exact=False).first).to_be_visible()
             ctl.reset_fault()
             waiter.until(lambda s: s.mode is Mode.IDLE, "reset by the script")
+            ctl.release_control("script")
 
             # a wrong token: still view only
             page.get_by_role("tab", name="Views").click()

@@ -27,7 +27,7 @@ from icenav.console.panels import (
     views_markdown,
 )
 from icenav.control.state import ControllerState, Mode, ViewSummary
-from icenav.devices.gamepad import JoystickMapping
+from icenav.control.teleop import JoystickMapping
 from icenav.devices.robot import RobotStatus
 from icenav.errors import ConfigurationError, ShapeError
 from icenav.geometry.kinematics import forward

@@ -8,17 +8,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from icenav.devices.gamepad import (
+from icenav.control.teleop import (
     JoystickMapping,
-    JoystickSample,
-    Keyframe,
-    ScriptedInput,
-    Sdl2Gamepad,
     apply_deadzone,
     knob_velocity,
     load_mapping,
     tip_twist,
 )
+from icenav.devices.gamepad import JoystickSample, Keyframe, ScriptedInput, Sdl2Gamepad
 from icenav.errors import ConfigurationError, FileFormatError
 
 M = JoystickMapping()

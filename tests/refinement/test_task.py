@@ -7,7 +7,6 @@ import math
 import numpy as np
 from numpy.typing import NDArray
 
-from icenav.control.state import Mode
 from icenav.refinement.image_search import RefinementConfig, RefinementStatus
 from icenav.refinement.pose_stage import PoseStageConfig, PoseStageStatus
 from icenav.refinement.task import ViewRefinementTask
@@ -40,7 +39,7 @@ def test_view_refinement_task_runs_the_pose_stage_then_the_image_stage() -> None
     task = ViewRefinementTask(q_view, saved, tracker, [ref, ref], imager,
                               arrival_direction=(1, 1, 1, 1),
                               start_direction=(1, 1, -1, -1))  # fmt: skip
-    assert task.mode == Mode.GOTO_VIEW and task.progress == 0.0
+    assert task.progress == 0.0
     sent, progress = [], []
     while True:
         cmd = task.next_command(np.asarray(robot.read_state().q), 0.01)

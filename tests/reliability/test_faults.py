@@ -21,7 +21,8 @@ import pytest
 from icenav.apps.wiring import make_sim_controller
 from icenav.control.controller import Controller, ControllerConfig
 from icenav.control.state import Mode
-from icenav.devices.gamepad import JoystickMapping, JoystickSample
+from icenav.control.teleop import JoystickMapping
+from icenav.devices.gamepad import JoystickSample
 from icenav.devices.robot import RobotStatus
 from icenav.devices.sim_robot import IdealPlant, SimulatedRobot
 from icenav.persistence.store import SessionStore
@@ -112,6 +113,7 @@ def test_drive_fault_mid_move_stops_and_needs_a_reset() -> None:
     assert still(after)
     # a reset holds position; the held stick moves only after a fresh dead-man press cycle
     rig.pad.release()
+    rig.run(1)  # the dead-man button let go: the gamepad gives control back
     rig.ctrl.reset_fault("operator")
     held = rig.run(20)
     assert rig.ctrl.mode is Mode.IDLE and still(held)
@@ -131,7 +133,7 @@ def test_fault_during_go_to_view_drops_the_motion_for_good() -> None:
     rig.robot.inject_fault("following error on phi2")
     frozen = rig.run(30)
     assert rig.ctrl.mode is Mode.FAULT and still(frozen)
-    rig.ctrl.reset_fault("operator")
+    rig.ctrl.reset_fault()  # the script started the return: it holds control
     resumed = rig.run(100)
     assert rig.ctrl.mode is Mode.IDLE and still(resumed)  # the return is not resumed
     assert rig.ctrl.snapshot().progress is None
@@ -250,7 +252,7 @@ def test_two_clients_commanding_at_once_only_the_owner_moves() -> None:
         t.join()
     qs = np.asarray(rig.run(10))
     assert np.all(np.diff(qs[:, 3]) >= 0.0) and qs[-1, 3] > 0  # only browser-a's direction
-    assert "browser-b asked for motion but browser-a holds control" in rig.ctrl.snapshot().message
+    assert "browser-b asked to jog but browser-a holds control" in rig.ctrl.snapshot().message
     # the gamepad always wins, and a browser cannot take it back while the dead-man is held
     rig.pad.hold((0.0, 0.0, 0.0, 0.0, 0.0))
     rig.run(1)

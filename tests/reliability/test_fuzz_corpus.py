@@ -62,7 +62,7 @@ def test_mutated_inputs_are_accepted_or_rejected_cleanly(name: str) -> None:
 
 
 def _load_mapping_text(tmp_path: Path, data: bytes) -> None:
-    from icenav.devices.gamepad import load_mapping
+    from icenav.control.teleop import load_mapping
 
     p = tmp_path / "m.toml"
     p.write_bytes(data)

@@ -10,7 +10,7 @@ import pytest
 
 from icenav.errors import InvalidValueError
 from icenav.io.igtl import IgtlBridge, IgtlCommand, IgtlConfig, IgtlRequest
-from tests.console.test_app import FakeClient
+from tests.support.console import FakeClient
 
 TOKEN = "s3cret-token-0123456789"
 
@@ -74,7 +74,7 @@ def test_view_names_from_igtl_are_passed_as_data() -> None:
 
 
 def test_console_browser_needs_the_token_to_control_but_not_to_stop() -> None:
-    from icenav.console.app import Console, _TokenGate
+    from icenav.console.app import Console
     from icenav.control.controller import Controller, ControllerConfig
     from icenav.control.state import Mode
     from icenav.devices.sim_robot import IdealPlant, SimulatedRobot
@@ -91,7 +91,7 @@ def test_console_browser_needs_the_token_to_control_but_not_to_stop() -> None:
     assert panel.token is not None
     panel.token.value = "guess"
     panel.take.click()
-    assert ctrl.step().control_owner is None and "Wrong control token" in panel.note.content
+    assert ctrl.step().control_owner is None and "wrong control token" in panel.note.content
     panel.token.value = TOKEN
     panel.take.click()
     state = ctrl.step()
@@ -102,9 +102,11 @@ def test_console_browser_needs_the_token_to_control_but_not_to_stop() -> None:
     console._on_connect(FakeClient(2))  # noqa: SLF001
     other = console._panels[2]  # noqa: SLF001
     assert not other.authorised
-    gate = _TokenGate(ctrl, other)
-    assert gate.acquire_control(other.name) is False
-    gate.estop(client=other.name)
+    assert ctrl.acquire_control(other.name) is False  # view only: the controller refuses
+    other.reset.click()  # a view-only reset is refused by the controller, and told why
+    ctrl.step()
+    assert "view only" in other.feedback_text
+    ctrl.estop(client=other.name)
     assert ctrl.step().mode is Mode.ESTOP
 
 
@@ -179,6 +181,8 @@ def test_console_export_of_a_saved_view_stays_in_the_export_directory(tmp_path: 
         assert view.name == "../../outside" and view.has_image
         panel.views.value = view.name
         panel.export.click()
+        ctrl.step()  # the controller decides the export
+        console._serve_panels()  # noqa: SLF001 - the refresh thread writes it
         written = [p for p in tmp_path.rglob("*") if p.is_file()]
         assert len(written) == 1 and written[0].parent == exports
         assert str(written[0]) in panel.export_note.content

@@ -121,7 +121,8 @@ def run_headless(args: argparse.Namespace) -> int:
     """A scripted operator: drive, save two views, wander, return to each, spin; check it."""
     from icenav.apps.wiring import make_sim_controller
     from icenav.control.state import ControllerState, Mode
-    from icenav.devices.gamepad import JoystickMapping, Keyframe, ScriptedInput
+    from icenav.control.teleop import JoystickMapping
+    from icenav.devices.gamepad import Keyframe, ScriptedInput
 
     sim_t = [0.0]
 

@@ -388,7 +388,7 @@ def run_soak(config: SoakConfig, session: str | Path | None = None) -> SoakRepor
             state = timed_step(i)
             if state.mode in (Mode.FAULT, Mode.ESTOP):
                 faults += 1
-                ctrl.reset_fault("soak")
+                ctrl.reset_fault()
             i += 1
         wall = time.perf_counter() - wall0
         heap_end = tracemalloc.get_traced_memory()[0] / 2**20 if config.trace_memory else 0.0

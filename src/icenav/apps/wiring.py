@@ -19,113 +19,13 @@ from numpy.typing import NDArray
 
 from icenav._typing import Array
 from icenav.control.controller import Controller, ControllerConfig
-from icenav.devices.gamepad import InputSource
+from icenav.control.teleop import InputSource
 from icenav.errors import ConfigurationError
-from icenav.persistence.store import SessionStore, StoreWriter
+from icenav.persistence.recorder import StoreRecorder
+from icenav.persistence.store import SessionStore
 from icenav.recovery.roadmap import Roadmap, RoadmapConfig
-from icenav.recovery.views import View
 
 __all__ = ["SimSession", "StoreRecorder", "anatomy_meshes", "make_sim_controller"]
-
-
-class StoreRecorder:
-    """Records a controller's roadmap, views and events into a :class:`SessionStore`.
-
-    The roadmap is synced incrementally (new vertices, edges and trace since the last sync)
-    and committed in batches by the store; a saved view is committed at once, so a view is
-    never lost to a crash.
-
-    With ``threaded=True`` every write runs on a :class:`StoreWriter` thread: a control
-    cycle only takes the roadmap's counts (``Roadmap.counts()``, O(1)) and queues a job, so
-    no insert, commit or fsync runs on the control thread. A saved view whose payload has
-    an ``"on_durable"`` callback returns ``"pending"``, and the callback gets ``None`` once
-    the view is committed (or the error), on the writer thread: the controller tells the
-    operator "saved" only then. Without the callback the call waits for the commit. A
-    failed batch is raised by the next call on the control thread (the controller reports
-    it), and the store rewrites the lost rows at the next sync.
-
-    Parameters
-    ----------
-    store : SessionStore
-        The session file.
-    roadmap : Roadmap
-        The controller's roadmap.
-    sync_every : int
-        Sync the roadmap every this many "state" events (control cycles).
-    threaded : bool
-        Write on a thread of its own (see above); False: on the caller's thread.
-    """
-
-    def __init__(
-        self, store: SessionStore, roadmap: Roadmap, sync_every: int = 10, threaded: bool = False
-    ):
-        self.store = store
-        self.roadmap = roadmap
-        self.sync_every = max(1, int(sync_every))
-        self._n = 0
-        self.writer: StoreWriter | None = StoreWriter(store) if threaded else None
-        """The writer thread (None when not threaded)."""
-
-    def _run(self, fn: Callable[[SessionStore], object], wait: bool = False) -> None:
-        if self.writer is None:
-            fn(self.store)
-        else:
-            self.writer.submit(fn)
-            if wait:
-                self.writer.flush()
-
-    def __call__(self, event: str, payload: dict[str, Any]) -> object:
-        roadmap = self.roadmap
-        if self.writer is not None and event != "view_saved":
-            # a failed write reaches the controller here (a view reports its own outcome,
-            # and is tried even after an earlier batch failed)
-            self.writer.raise_pending()
-        if event == "state":
-            self._n += 1
-            if self._n % self.sync_every == 0:
-                upto = roadmap.counts()
-                self._run(lambda st: st.sync_roadmap(roadmap, upto))
-        elif event == "view_saved":
-            view: View = payload["view"]
-            upto = roadmap.counts()
-            on_durable = payload.get("on_durable")
-            if self.writer is not None and on_durable is not None:
-                self.writer.submit(lambda st: st.add_view(view, roadmap, upto), on_durable)
-                return "pending"
-            self._run(lambda st: st.add_view(view, roadmap, upto), wait=True)
-        elif event == "view_deleted":
-            name = str(payload["name"])
-            self._run(lambda st: st.delete_view(name))
-        else:
-            t = time.time()
-            data = {k: str(v) for k, v in payload.items()}
-            self._run(lambda st: st.log_event(t, event, data))
-        return None
-
-    def drain(self) -> None:
-        """Wait until the writer has run every job queued so far (no-op when not threaded);
-        errors stay pending for the next call or :meth:`flush`."""
-        if self.writer is not None:
-            self.writer.drain()
-
-    def flush(self) -> None:
-        """Sync and commit everything pending (waits for the writer); raises a pending
-        write error."""
-        roadmap = self.roadmap
-
-        def sync(st: SessionStore) -> None:
-            st.sync_roadmap(roadmap)
-            st.commit()
-
-        self._run(sync, wait=True)
-
-    def close(self) -> None:
-        """Flush and stop the writer thread (the store stays open)."""
-        try:
-            self.flush()
-        finally:
-            if self.writer is not None:
-                self.writer.close()
 
 
 @dataclass

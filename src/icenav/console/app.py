@@ -6,26 +6,24 @@ Threads
   only drops the state into a :class:`~icenav.console.panels.LatestSlot` (never blocks).
 - One refresh thread wakes at ``refresh_hz``, takes the newest state (older ones are
   coalesced away), updates the scene and panels, and sends a new ICE image when there is one.
-- viser's thread pool runs the GUI callbacks, which only send requests to the controller
-  (each returns at once; the controller executes them at its next cycle). The one that
-  does work itself, Export DICOM, writes one small file into :attr:`Console.export_dir`.
+- viser's thread pool runs the GUI callbacks, which only submit commands to the controller
+  (:mod:`icenav.console.commands`); what the controller decided is shown in the panel of the
+  browser that asked. Export DICOM writes its file on the refresh thread once accepted.
 
 Several browsers may connect. The E-STOP and Stop buttons, the status, the image, the plot
-and the 3-D scene are shared by all of them; each browser has its own driving controls,
-enabled only while it holds control (``controller.acquire_control(client)``, with the client
-named ``browser-<id>``). The gamepad always wins; the controller enforces that.
-
-With a control token (``Console(..., control_token=...)``, as ``icenav demo`` sets when the
-console is exposed) a browser's requests other than Stop and E-STOP are dropped on the
-server until it entered the token (reliability: part 4, security).
+and the 3-D scene are shared; each browser has its own driving controls, enabled only while
+it holds control. Who may do what is the controller's decision
+(:mod:`icenav.control.authorization`), not the console's. Delete view and Calibrate ask for
+confirmation. With a control token (``Console(..., control_token=...)``, as ``icenav demo``
+sets when exposed) a browser is view only until it entered the token (constant-time
+comparison, rate-limited guesses with a logged alarm: ``TokenGate``).
 """
 
 from __future__ import annotations
 
 import contextlib
-import datetime as dt
-import hmac
 import threading
+from collections import deque
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -33,6 +31,7 @@ from typing import Any
 
 import numpy as np
 
+from icenav.console.commands import NO_VIEWS, Confirmation, ConsoleCommands, next_name
 from icenav.console.panels import (
     JOG_AXES,
     MODE_CHOICES,
@@ -60,6 +59,19 @@ from icenav.console.scene import (
     subsample,
     view_marker_positions,
 )
+from icenav.control.authorization import TokenGate
+from icenav.control.commands import (
+    CommandResult,
+    GoToView,
+    Jog,
+    Outcome,
+    Reset,
+    SaveView,
+    SetCompensation,
+    SetMode,
+    Source,
+    Spin,
+)
 from icenav.control.state import (
     CalibrationKind,
     ControllerCommands,
@@ -67,14 +79,13 @@ from icenav.control.state import (
     ImageFrame,
     Mode,
 )
-from icenav.devices.gamepad import JoystickMapping
-from icenav.errors import ConfigurationError, ExportError, IcenavError
-from icenav.geometry.kinematics import DEFAULT_GEOMETRY, CatheterGeometry, forward
-from icenav.persistence.dicom import ExportDirectory, ViewClip
+from icenav.control.teleop import JoystickMapping
+from icenav.errors import ConfigurationError
+from icenav.geometry.kinematics import DEFAULT_GEOMETRY, CatheterGeometry
+from icenav.persistence.dicom import ExportDirectory
 
 __all__ = ["Console", "ConsoleStats"]
 
-NO_VIEWS = "(no saved views)"
 CALIBRATIONS: dict[str, CalibrationKind] = {
     "Dense raster": "dense",
     "5-point": "five_point",
@@ -88,8 +99,6 @@ IMAGE_MAX_WIDTH = 640
 """Widest ICE image sent (pixels); wider ones are decimated."""
 IMAGE_MIN_WIDTH = 300
 """Narrower ICE images are enlarged towards this width (the panel is about 320 px wide)."""
-SINGLE_FRAME_TIME_S = 0.05
-"""Frame Time written for a one-frame export (s; DICOM requires one for a multi-frame image)."""
 
 
 @dataclass(frozen=True)
@@ -118,7 +127,20 @@ class _ClientPanel:
         self.view_options: tuple[str, ...] = ()
         gui = client.gui
         c = console
+        self.source = Source("console", self.name)
+        """The source of this browser's commands."""
         self.note = gui.add_markdown("", order=1.0)
+        self.feedback = gui.add_markdown("", order=1.01)
+        """What the controller decided about this browser's latest refused or failed
+        command (set on the refresh thread from :attr:`feedback_text`)."""
+        self.feedback_text = ""
+        self.feedback_shown = ""
+        self.confirm: Confirmation | None = None
+        """The confirmation dialog open in this browser (Delete view, Calibrate), if any."""
+        self.exports: deque[str] = deque(maxlen=8)
+        """Views whose export the controller accepted, to write on the refresh thread."""
+        self.export_text = ""
+        self.export_shown = ""
         self.authorised = console.control_token is None
         self.token = None
         if console.control_token is not None:  # reliability: part 4 (security)
@@ -174,7 +196,7 @@ class _ClientPanel:
         ]
 
 
-class Console:
+class Console(ConsoleCommands):
     """The browser console of one controller.
 
     Parameters
@@ -246,6 +268,9 @@ class Console:
         self.control_token = control_token
         """When set, a browser controls (moves, saves, ...) only after entering it; viewing,
         Stop and E-STOP need no token."""
+        self._token_gate = (
+            None if control_token is None else TokenGate(control_token, on_alarm=self._token_alarm)
+        )
         if export_dir is not None and not isinstance(export_dir, ExportDirectory):
             export_dir = ExportDirectory(Path(export_dir))
         self.export_dir: ExportDirectory | None = export_dir
@@ -345,9 +370,9 @@ class Console:
         with self._lock:
             panels = list(self._panels.values())
             self._panels.clear()
-        for p in panels:
+        for p in panels:  # the browsers are gone: what they started stops and holds
             with contextlib.suppress(Exception):
-                self.controller.release_control(p.name)
+                self.controller.disconnect(p.name)
         if self._server is not None:
             self._server.stop()
             self._server = None
@@ -358,6 +383,10 @@ class Console:
 
     def __exit__(self, *exc: object) -> None:
         self.stop()
+
+    def _token_alarm(self, text: str) -> None:
+        """A token alarm (TokenGate logs it): also into the session's event log."""
+        self.controller.note(f"security alarm: {text}")
 
     def _on_state(self, state: ControllerState) -> None:
         if self._running:
@@ -478,61 +507,69 @@ class Console:
 
     def _on_connect(self, client: Any) -> None:
         panel = _ClientPanel(self, client)
-        c: Any = self.controller if panel.authorised else _TokenGate(self.controller, panel)
+        ctl = self.controller
         name = panel.name
+        if not panel.authorised:  # the controller refuses everything but Stop / E-STOP
+            ctl.set_view_only(name, True)
 
         def ok(ev: Any) -> bool:
             return ev.client is not None
 
         @panel.take.on_click
         def _(ev: Any) -> None:
-            if not panel.authorised and panel.token is not None and self.control_token:
-                given = str(panel.token.value).strip().encode()
-                panel.authorised = hmac.compare_digest(given, self.control_token.encode())
-                if not panel.authorised:
-                    panel.note.content = "**Wrong control token**: viewing only."
+            if not panel.authorised and panel.token is not None and self._token_gate:
+                verdict = self._token_gate.check(name, str(panel.token.value).strip())
+                if not verdict.ok:
+                    panel.note.content = f"**{verdict.reason}**"
                     return
-            c.acquire_control(name)
+                panel.authorised = True
+                ctl.set_view_only(name, False)
+            if not ctl.acquire_control(name):
+                panel.feedback_text = "**Take control refused**: another client holds control."
 
         @panel.release.on_click
         def _(ev: Any) -> None:
-            c.release_control(name)
+            ctl.release_control(name)
 
         @panel.mode.on_update
         def _(ev: Any) -> None:
             if ok(ev):
-                c.request_mode(mode_from_choice(panel.mode.value), client=name)
+                self.send(panel, SetMode(mode_from_choice(panel.mode.value), source=panel.source))
 
         @panel.compensation.on_update
         def _(ev: Any) -> None:
             if ok(ev):
-                c.set_compensation(bool(panel.compensation.value), client=name)
+                enabled = bool(panel.compensation.value)
+                self.send(panel, SetCompensation(enabled, source=panel.source))
 
-        panel.reset.on_click(lambda ev: c.reset_fault(client=name))
-        panel.spin.on_click(lambda ev: c.start_spin(client=name))
+        panel.reset.on_click(lambda ev: self.send(panel, Reset(source=panel.source)))
+        panel.spin.on_click(lambda ev: self.send(panel, Spin(source=panel.source)))
 
         @panel.calibrate.on_click
         def _(ev: Any) -> None:
-            kind = CALIBRATIONS[panel.calib_kind.value]
-            c.start_calibration(kind, client=name)
+            self._confirm_calibration(panel, CALIBRATIONS[panel.calib_kind.value])
 
         @panel.save.on_click
         def _(ev: Any) -> None:
             view = panel.view_name.value.strip()
-            if view:
-                c.save_view(view, client=name)
-                if panel.authorised:  # a refused save keeps the name
-                    panel.view_name.value = _next_name(view)
+            if not view:
+                return
+
+            def saved(result: CommandResult) -> None:  # a refused save keeps the name
+                if result.outcome is Outcome.ACCEPTED and panel.view_name.value == view:
+                    panel.view_name.value = next_name(view)
+
+            self.send(panel, SaveView(view, source=panel.source), on_decided=saved)
 
         @panel.goto.on_click
         def _(ev: Any) -> None:
             if panel.views.value != NO_VIEWS:
-                c.goto_view(panel.views.value, client=name)
+                self.send(panel, GoToView(panel.views.value, source=panel.source))
 
         @panel.delete.on_click
         def _(ev: Any) -> None:
             if panel.views.value != NO_VIEWS:
-                c.delete_view(panel.views.value, client=name)
+                self._confirm_delete(panel, str(panel.views.value))
 
         @panel.views.on_update
         def _(ev: Any) -> None:
@@ -550,89 +587,13 @@ class Console:
             if state is not None:
                 self._update_panel(panel, state)
         if panel.authorised and (state is None or state.control_owner is None):
-            c.acquire_control(name)
+            ctl.acquire_control(name)
 
     def _on_disconnect(self, client: Any) -> None:
         with self._lock:
             panel = self._panels.pop(client.client_id, None)
-            state = self._last_state
-        if panel is not None and state is not None and state.control_owner == panel.name:
-            self.controller.release_control(panel.name)
-
-    def _export_clicked(self, panel: _ClientPanel) -> None:
-        """The Export DICOM button: the selected view into the export directory, if this
-        browser entered the token and holds control; the outcome shown under the button."""
-        state = self.controller.snapshot()
-        if not panel.authorised:
-            text = "**Export refused**: enter the control token and take control first."
-        elif state.control_owner != panel.name:
-            text = "**Export refused**: take control first."
-        elif panel.views.value == NO_VIEWS:
-            text = "**Nothing to export**: save a view first."
-        else:
-            text = self.export_view(str(panel.views.value), state)
-        if panel.export_note is not None:
-            panel.export_note.content = text
-
-    def export_view(self, name: str, state: ControllerState | None = None) -> str:
-        """Write the image saved with view ``name`` into :attr:`export_dir` as a DICOM file
-        (one frame, with the view's joint state and pose); returns the operator's message
-        (markdown), naming the file written or why nothing was written.
-
-        ``name`` is looked up among the saved views; it never becomes a path (the file name
-        is :meth:`ExportDirectory.path_for`'s).
-        """
-        if self.export_dir is None:
-            return "**Export is off**: no export directory is configured."
-        try:
-            path = self.export_dir.write_clip(self.view_clip(name, state))
-        except IcenavError as exc:
-            return f"**Export failed**: {exc}"
-        return f"Exported view **{name}** to `{path}`"
-
-    def view_clip(self, name: str, state: ControllerState | None = None) -> ViewClip:
-        """The image saved with view ``name`` as a one-frame clip with its state.
-
-        The pose is the one the controller saved with the view when the controller exposes
-        its view library (``controller.views``, as :class:`icenav.control.controller.Controller`
-        does); otherwise the model pose of the view's motor state.
-
-        Raises
-        ------
-        ExportError
-            No view of that name, or no image saved with it.
-        """
-        state = state or self.controller.snapshot()
-        summary = next((v for v in state.views if v.name == name), None)
-        if summary is None:
-            raise ExportError(f"no saved view named {name!r}")
-        frame = self.controller.view_image(name)
-        if frame is None:
-            raise ExportError(f"view {name!r} has no saved image: nothing to export")
-        q = np.asarray(summary.q_motor, dtype=np.float64)
-        tip2base = None
-        get = getattr(getattr(self.controller, "views", None), "get", None)
-        if callable(get):
-            with contextlib.suppress(KeyError, IcenavError):
-                tip2base = get(name).tip2base
-        if tip2base is None:
-            tip2base = forward(q, self.geometry)
-        ijk2tip = np.asarray(frame.ijk2tip, dtype=np.float64)
-        pixel_mm = None  # identity: the imager did not say how large its pixels are
-        if not np.array_equal(ijk2tip, np.eye(4)):
-            pixel_mm = float(np.linalg.norm(ijk2tip[:3, 0]))  # one column step (mm)
-        pixels = np.asarray(frame.pixels, dtype=np.uint8)
-        if pixels.ndim == 3:  # RGB: grey for MONOCHROME2
-            pixels = pixels.mean(axis=2).round().astype(np.uint8)
-        return ViewClip(
-            frames=pixels[np.newaxis],
-            frame_time_s=SINGLE_FRAME_TIME_S,
-            acquired_at=dt.datetime.fromtimestamp(summary.created_s, dt.UTC),
-            q_motor=q,
-            tip2base=np.asarray(tip2base, dtype=np.float64),
-            view_name=name,
-            pixel_mm=pixel_mm,
-        )
+        if panel is not None:  # its control is released; what it started stops and holds
+            self.controller.disconnect(panel.name)
 
     def _client_of(self, ev: Any) -> str:
         return "browser" if ev.client_id is None else client_name(ev.client_id)
@@ -646,7 +607,7 @@ class Console:
             # knob mode on it, and it aborts an automatic motion (as gamepad input does).
             mode = Mode.TIP if state.mode == Mode.TIP else Mode.KNOB
             vel, frame = jog_command(mode, axis, sign, self.mapping)
-            self.controller.jog(vel, frame, client=panel.name)
+            self.send(panel, Jog(vel, frame, source=panel.source))
 
         return cb
 
@@ -664,6 +625,7 @@ class Console:
             self._draw_image(frame, state or self._last_state)
             self._last_image_t = frame.timestamp
             self._images_sent += 1
+        self._serve_panels()
         return drew
 
     def _draw_state(self, state: ControllerState) -> None:
@@ -831,35 +793,3 @@ class Console:
         p.thumb.image = gray_to_rgb(frame.pixels, max_width=200)
         p.thumb.visible = True
         p.thumb_note.visible = False
-
-
-class _TokenGate:
-    """The controller as a browser without the control token sees it: every request that
-    moves or changes something is dropped until the browser entered the token; Stop and
-    E-STOP always pass (reliability: part 4, security)."""
-
-    _ANYONE = frozenset({"stop", "estop", "snapshot", "latest_image", "view_image"})
-
-    def __init__(self, controller: ControllerCommands, panel: _ClientPanel):
-        self._controller = controller
-        self._panel = panel
-
-    def __getattr__(self, name: str) -> Any:
-        target = getattr(self._controller, name)
-        if name in self._ANYONE or not callable(target):
-            return target
-
-        def gated(*args: Any, **kwargs: Any) -> Any:
-            if self._panel.authorised:
-                return target(*args, **kwargs)
-            return False
-
-        return gated
-
-
-def _next_name(name: str) -> str:
-    """view-1 -> view-2; apex -> apex-2 (a suggestion for the next view's name)."""
-    head, sep, tail = name.rpartition("-")
-    if sep and tail.isdigit():
-        return f"{head}-{int(tail) + 1}"
-    return f"{name}-2"

@@ -18,7 +18,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from icenav._typing import Array
 from icenav.control.state import ControllerState, Mode, ViewSummary
-from icenav.devices.gamepad import JoystickMapping
+from icenav.control.teleop import JoystickMapping
 from icenav.errors import ConfigurationError, ShapeError
 
 __all__ = [

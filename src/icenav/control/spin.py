@@ -7,7 +7,7 @@ axis while the tip stays put) one set-point per control cycle:
 
 - the model path is :func:`icenav.geometry.trajectories.spin_trajectory` (inverse kinematics, so the
   model tip is fixed), the path parameter ``s`` runs at bounded joint speed with a
-  trapezoidal rate (as :class:`icenav.control.controller.PathTask`);
+  trapezoidal rate (as :class:`icenav.control.tasks.PathTask`);
 - ``F`` is the controller's compensation (identity without one);
 - ``c`` is the correction of a :class:`icenav.control.servo.TipPoseServo`, updated once per *new*
   tracker frame (never twice on the same sample, held on MISSING) toward the intended pose
@@ -34,8 +34,8 @@ from numpy.typing import ArrayLike
 from icenav._typing import Array
 from icenav._validation import check_finite
 from icenav.compensation.hysteresis import HysteresisCompensator
+from icenav.control.modes import Mode
 from icenav.control.servo import TipPoseServo
-from icenav.control.state import Mode
 from icenav.errors import InvalidValueError
 from icenav.geometry.kinematics import DEFAULT_GEOMETRY, CatheterGeometry, forward
 from icenav.geometry.se3 import pose_mean as _average_poses
@@ -48,16 +48,15 @@ def tracked_tip2base(tracker: Any) -> tuple[float, Array | None]:
     """The newest tracker frame as ``(timestamp s, tip2base (4, 4) mm or None)``.
 
     ``tip2base = tracker2base @ sensor2tracker @ inv(sensor2tip)`` with the tracker's
-    configured registration and sensor mount; None when the frame has no pose (MISSING,
-    OUT_OF_VOLUME). Non-blocking: it reads ``get_frame()``, never waits for a sample.
+    registration (``tracker.registration``, an :class:`icenav.devices.registration.Registration`);
+    None when the frame has no pose (MISSING, OUT_OF_VOLUME) or the tracker is not
+    registered. Non-blocking: it reads ``get_frame()``, never waits for a sample.
     """
     frame = tracker.get_frame()
-    if frame.sensor2tracker is None:
+    registration = tracker.registration
+    if frame.sensor2tracker is None or registration is None:
         return float(frame.timestamp), None
-    cfg = tracker.config
-    tip2sensor = _rigid_inverse(np.asarray(cfg.sensor2tip, dtype=np.float64))
-    pose = np.asarray(cfg.tracker2base) @ frame.sensor2tracker @ tip2sensor
-    return float(frame.timestamp), pose
+    return float(frame.timestamp), registration.tip2base(frame.sensor2tracker)
 
 
 class SpinTask:
@@ -83,7 +82,7 @@ class SpinTask:
         Play inverse applied to each command (its state is reset at the start, with the
         current command as relaxed state).
     speed_scale, ramp_s : float
-        As :class:`icenav.control.controller.PathTask`.
+        As :class:`icenav.control.tasks.PathTask`.
     hold_measured : bool
         With a pose source: hold the tip where the tracker *measures* it at the start (the
         intended poses become ``L @ forward(q_m)`` with ``L = measured_0 @ forward(q_m0)^-1``,

@@ -1,58 +1,41 @@
 """What the controller publishes and what it accepts: the contract between the control loop
-and its adapters (console, OpenIGTLink bridge, scripts).
+and its adapters (console, OpenIGTLink server, scripts).
 
 The controller (:mod:`icenav.control.controller`) owns time and state. Each cycle it may publish a
 :class:`ControllerState` snapshot (immutable, safe to hand to another thread) to its
-listeners; adapters send requests through the :class:`ControllerCommands` protocol, which
-the controller executes at the start of its next cycle (so requests from several threads
-never race with the loop).
+listeners; adapters send commands (:mod:`icenav.control.commands`) through the
+:class:`ControllerCommands` protocol, which the controller decides at the start of its next
+cycle (so requests from several threads never race with the loop); E-STOP acts at once.
 """
 
 from __future__ import annotations
 
-import enum
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Literal, Protocol
+from typing import TYPE_CHECKING, Literal, Protocol
 
 import numpy as np
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 
 from icenav._typing import Array
+from icenav.control.commands import Command, Ticket
+from icenav.control.modes import Mode
 from icenav.devices.robot import RobotStatus
+
+if TYPE_CHECKING:
+    from icenav.control.calibration_runner import CalibrationPreview
 
 __all__ = [
     "CalibrationKind",
     "ControllerCommands",
     "ControllerState",
     "ImageFrame",
+    "KnobMap",
     "Mode",
     "ViewSummary",
 ]
 
 CalibrationKind = Literal["dense", "five_point", "dense+hysteresis"]
-
-
-class Mode(enum.Enum):
-    """Operating mode of the controller (transitions in
-    ``icenav.control.controller.TRANSITIONS``)."""
-
-    IDLE = "idle"
-    """Holding position; no motion commanded."""
-    KNOB = "knob"
-    """Teleoperation: gamepad axes drive the knobs, roll and translation."""
-    TIP = "tip"
-    """Teleoperation: gamepad axes drive the tip in its own frame (tip_jog)."""
-    GOTO_VIEW = "goto_view"
-    """Automatic return to a saved view along the roadmap."""
-    SPINNING = "spinning"
-    """Automatic 360 deg image spin about the catheter axis."""
-    CALIBRATING = "calibrating"
-    """Automatic calibration raster (dense or 5-point)."""
-    FAULT = "fault"
-    """A fault stopped the robot; needs an explicit reset."""
-    ESTOP = "estop"
-    """Emergency stop; needs an explicit reset."""
 
 
 @dataclass(frozen=True)
@@ -127,56 +110,88 @@ class ControllerState:
     """Id of the client that holds control (None: free; "gamepad" wins over browsers)."""
 
 
-class ControllerCommands(Protocol):
-    """Requests an adapter may send; each returns at once and is executed by the loop.
+class KnobMap(Protocol):
+    """A compensation between model and motor joint states (the paper's F on the knobs; roll
+    and translation pass through). :class:`icenav.compensation.elasticity.ElasticityMap` is
+    one. A map with state (``icenav.compensation.tendon_map.TendonKnobMap``) also has
+    ``observe(q_motor)``: the controller calls it with every command it sends."""
 
-    ``client`` identifies the requester (a browser session id, "gamepad", "igtl",
-    "script"); motion requests from a client that does not hold control are refused with a
-    message in the next state. Stop and e-stop are accepted from anyone.
+    def model_to_motor(self, q_model: ArrayLike, *, check: bool = True) -> Array:
+        """Motor joint state(s) (..., 4) that realise the model joint state(s) (F)."""
+        ...
+
+    def motor_to_model(self, q_motor: ArrayLike, *, check: bool = True) -> Array:
+        """Model joint state(s) (..., 4) that the motor joint state(s) realise (F^-1)."""
+        ...
+
+
+class ControllerCommands(Protocol):
+    """What an adapter may ask of a controller.
+
+    :meth:`submit` takes any command of :mod:`icenav.control.commands` and returns its
+    :class:`~icenav.control.commands.Ticket`; the other request methods are thin calls that
+    build a command from ``client`` (a browser session id, "gamepad", "igtl...", "script")
+    and submit it. Authorization is the controller's (``icenav.control.authorization``):
+    state-changing commands only from the client that holds control; Stop and E-STOP from
+    anyone.
     """
 
-    def request_mode(self, mode: Mode, client: str = "script") -> None:
+    def submit(self, command: Command) -> Ticket:
+        """Submit a command; its outcome comes through the ticket."""
+        ...
+
+    def request_mode(self, mode: Mode, client: str = "script") -> Ticket:
         """Switch between IDLE, KNOB and TIP (automatic modes start through their own calls)."""
         ...
 
-    def jog(self, velocity: Array, frame: Literal["knob", "tip"], client: str = "script") -> None:
+    def jog(
+        self, velocity: ArrayLike, frame: Literal["knob", "tip"], client: str = "script"
+    ) -> Ticket:
         """Hold a velocity for one watchdog period: (4,) joint velocity (rad/s, mm/s) in knob
         frame or (6,) tip twist (mm/s, rad/s); repeat to keep moving."""
         ...
 
-    def save_view(self, name: str, client: str = "script") -> None:
+    def save_view(self, name: str, client: str = "script") -> Ticket:
         """Save the current state (and image) as a view."""
         ...
 
-    def goto_view(self, name: str, client: str = "script") -> None:
+    def goto_view(self, name: str, client: str = "script") -> Ticket:
         """Return to a saved view along the roadmap."""
         ...
 
-    def delete_view(self, name: str, client: str = "script") -> None:
+    def rename_view(self, name: str, new_name: str, client: str = "script") -> Ticket:
+        """Rename a view."""
+        ...
+
+    def delete_view(self, name: str, client: str = "script") -> Ticket:
         """Delete a view."""
         ...
 
-    def start_spin(self, client: str = "script") -> None:
+    def start_spin(self, client: str = "script") -> Ticket:
         """Spin the image plane 360 deg about the catheter axis, tip held still."""
         ...
 
-    def start_calibration(self, kind: CalibrationKind, client: str = "script") -> None:
-        """Run a calibration raster and install the resulting compensation."""
+    def start_calibration(self, kind: CalibrationKind, client: str = "script") -> Ticket:
+        """Run a calibration procedure and install the resulting compensation."""
         ...
 
-    def set_compensation(self, enabled: bool, client: str = "script") -> None:
+    def preview_calibration(self, kind: CalibrationKind) -> CalibrationPreview:
+        """What a calibration would do and about how long it takes (for a confirmation)."""
+        ...
+
+    def set_compensation(self, enabled: bool, client: str = "script") -> Ticket:
         """Apply (or not) the compensation to teleoperation and automatic motions."""
         ...
 
-    def stop(self, client: str = "script") -> None:
+    def stop(self, client: str = "script") -> Ticket:
         """Stop any automatic motion and hold position."""
         ...
 
-    def estop(self, client: str = "script") -> None:
-        """Emergency stop, from any mode."""
+    def estop(self, client: str = "script") -> Ticket:
+        """Emergency stop, from any mode (acts at once)."""
         ...
 
-    def reset_fault(self, client: str = "script") -> None:
+    def reset_fault(self, client: str = "script") -> Ticket:
         """Leave FAULT / ESTOP after the cause is cleared (-> IDLE, robot re-enabled)."""
         ...
 
@@ -186,6 +201,18 @@ class ControllerCommands(Protocol):
 
     def release_control(self, client: str) -> None:
         """Give control back."""
+        ...
+
+    def disconnect(self, client: str) -> None:
+        """``client`` is gone: release its control; what it started stops and holds."""
+        ...
+
+    def set_view_only(self, client: str, view_only: bool) -> None:
+        """Mark ``client`` view only (Stop and E-STOP only), or lift it."""
+        ...
+
+    def note(self, text: str) -> None:
+        """An event for the session's log (an adapter's alarm, ...)."""
         ...
 
     def snapshot(self) -> ControllerState:

@@ -71,7 +71,6 @@ from numpy.typing import ArrayLike, NDArray
 
 from icenav._typing import Array
 from icenav._validation import check_finite, check_joint_state, check_positive
-from icenav.control.state import Mode
 from icenav.devices.robot import RobotBackend
 from icenav.errors import ConfigurationError, NeighbourhoodError, ShapeError
 from icenav.eval.metrics import match_by_phase
@@ -546,7 +545,6 @@ class RefinementTask:
         Polled every cycle; True ends the refinement at once (status ABORTED).
     """
 
-    mode = Mode.GOTO_VIEW
     label = "refine view"
 
     def __init__(

@@ -28,7 +28,6 @@ from numpy.typing import ArrayLike
 
 from icenav._typing import Array
 from icenav._validation import check_finite, check_joint_state, check_positive
-from icenav.control.state import Mode
 from icenav.devices.robot import RobotBackend
 from icenav.devices.tracker import TrackerBackend
 from icenav.errors import ConfigurationError, ShapeError
@@ -298,7 +297,6 @@ class PoseStageTask:
         Polled every cycle; True ends the stage at once (status ABORTED).
     """
 
-    mode = Mode.GOTO_VIEW
     label = "pose stage (EM)"
 
     def __init__(

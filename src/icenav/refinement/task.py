@@ -10,7 +10,6 @@ from collections.abc import Callable, Sequence
 from numpy.typing import ArrayLike
 
 from icenav._typing import Array
-from icenav.control.state import Mode
 from icenav.refinement.image_search import (
     BeatClip,
     BeatImager,
@@ -46,7 +45,6 @@ class ViewRefinementTask:
         Polled every cycle by both stages; True ends the task at once.
     """
 
-    mode = Mode.GOTO_VIEW
     label = "refine view (EM pose, then image)"
 
     def __init__(

@@ -1,0 +1,324 @@
+"""Automatic motions behind one protocol: each cycle a task returns a status *value*.
+
+:class:`Task` ``.step(q_measured, dt)`` returns :class:`Running` (the next motor set-point),
+:class:`Done` or :class:`Failed` (with the reason); the controller never guesses an outcome
+from ``None`` or from attributes a task may or may not have. Here:
+
+- :class:`PathTask`: follow a motor-space polyline at bounded speed (a go to view);
+- :class:`PlanningTask`: a go to view on a large roadmap: hold while a worker computes the
+  shortest-path tree, then plan and follow the path;
+- :class:`MotionAdapter`: any motion generator with ``next_command(q, dt) -> q | None`` (the
+  spin of :mod:`icenav.control.spin`, the refinement stages of :mod:`icenav.refinement`) as a
+  task, with the rule that says whether its end was a success;
+- :func:`refinement_task`: the closed-loop refinement of a returned view as a go-to-view task.
+
+The calibration procedure's task is :class:`icenav.control.calibration_runner.CalibrationRunner`.
+"""
+
+from __future__ import annotations
+
+import enum
+import math
+from collections.abc import Callable
+from concurrent.futures import Future
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any, Protocol
+
+import numpy as np
+
+from icenav._typing import Array
+from icenav.control.modes import Mode
+from icenav.errors import IcenavError, InvalidValueError
+from icenav.recovery.roadmap import Roadmap
+from icenav.recovery.views import View
+
+if TYPE_CHECKING:  # imported on use: the refinement loads scipy.ndimage and the imaging
+    from icenav.refinement.image_search import RefinementTask
+    from icenav.refinement.pose_stage import PoseStageTask
+    from icenav.refinement.task import ViewRefinementTask
+
+__all__ = [
+    "Done",
+    "Failed",
+    "MotionAdapter",
+    "MotionGenerator",
+    "PathTask",
+    "PlanningTask",
+    "Running",
+    "Task",
+    "TaskStatus",
+    "refinement_task",
+]
+
+
+@dataclass(frozen=True, eq=False)
+class Running:
+    """The task goes on: command ``q``."""
+
+    q: Array
+    """(4,) next motor set-point (rad, rad, rad, mm)."""
+
+
+@dataclass(frozen=True)
+class Done:
+    """The task finished as asked."""
+
+    message: str = ""
+    """What the operator reads ("" : "<label>: done")."""
+
+
+@dataclass(frozen=True)
+class Failed:
+    """The task ended without doing what it was asked; the robot holds."""
+
+    reason: str
+    """Why, for the operator."""
+
+
+TaskStatus = Running | Done | Failed
+"""What :meth:`Task.step` returns."""
+
+
+class Task(Protocol):
+    """An automatic motion, stepped by the controller once per cycle."""
+
+    @property
+    def mode(self) -> Mode:
+        """The mode the controller is in while it runs (GOTO_VIEW, SPINNING, CALIBRATING)."""
+        ...
+
+    @property
+    def label(self) -> str:
+        """What it is, for the operator ("go to view 'aortic'", "spin 360", ...)."""
+        ...
+
+    @property
+    def progress(self) -> float:
+        """Fraction done, in [0, 1]."""
+        ...
+
+    def step(self, q_measured: Array, dt: float) -> TaskStatus:
+        """One cycle: the next set-point, or the end."""
+        ...
+
+
+@dataclass(eq=False)
+class PathTask:
+    """Follow a motor-space path exactly through its vertices at bounded joint speed.
+
+    Each segment's duration is the slowest joint's ``|dq| / (speed_scale * v_max)``; the
+    path time is run with a trapezoidal rate (ramping up over ``ramp_s`` and down to a stop
+    at the end), so accelerations stay bounded. The commanded state never leaves the
+    travelled polyline, which is what view recovery promises.
+    """
+
+    path: Array
+    """(n, 4) motor states to pass through (rad, rad, rad, mm); path[0] ~ the current state."""
+    max_velocity: Array
+    """(4,) speed limit (rad/s, rad/s, rad/s, mm/s)."""
+    mode: Mode = Mode.GOTO_VIEW
+    label: str = "path"
+    speed_scale: float = 0.5
+    """Fraction of the speed limit used."""
+    ramp_s: float = 0.3
+    """Time to reach full speed from rest, and to stop (s): bounds the acceleration to
+    about speed / ramp_s (a trapezoidal profile in path time)."""
+    _cum_time: Array = field(init=False, repr=False)
+    _t: float = field(default=0.0, init=False, repr=False)
+    _elapsed: float = field(default=0.0, init=False, repr=False)
+
+    def __post_init__(self) -> None:
+        p = np.asarray(self.path, dtype=np.float64)
+        if p.ndim != 2 or p.shape[1] != 4 or len(p) < 1:
+            raise InvalidValueError(f"path must have shape (n >= 1, 4), got {p.shape}")
+        if not np.all(np.isfinite(p)):
+            raise InvalidValueError("path must be finite (rad, rad, rad, mm)")
+        self.path = p
+        v = np.asarray(self.max_velocity, dtype=np.float64) * self.speed_scale
+        if v.shape != (4,) or not np.all(v > 0):
+            raise InvalidValueError(
+                f"max_velocity * speed_scale must be 4 values > 0 (rad/s, mm/s), got {v}"
+            )
+        seg = np.abs(np.diff(p, axis=0)) / v if len(p) > 1 else np.zeros((0, 4))
+        durations = seg.max(axis=1) if len(seg) else np.zeros(0)
+        self._cum_time = np.concatenate([[0.0], np.cumsum(durations)])
+
+    @property
+    def duration(self) -> float:
+        """Total time of the path at full rate (s)."""
+        return float(self._cum_time[-1])
+
+    @property
+    def progress(self) -> float:
+        return 1.0 if self.duration == 0 else min(1.0, self._t / self.duration)
+
+    def step(self, q_measured: Array, dt: float) -> TaskStatus:
+        """The next point of the path, or Done at its end."""
+        if self._t >= self.duration:
+            return Done()
+        # path-time rate r in (0, 1]: ramps up over ramp_s, and down to stop at the end
+        # (r <= sqrt(2 * remaining / ramp_s)); never 0, so the task always finishes
+        self._elapsed += dt
+        remaining = self.duration - self._t
+        rate = min(1.0, self._elapsed / self.ramp_s, math.sqrt(2.0 * remaining / self.ramp_s))
+        self._t = min(self.duration, self._t + dt * max(rate, 0.02))
+        i = int(np.searchsorted(self._cum_time, self._t, side="right")) - 1
+        i = min(max(i, 0), len(self.path) - 2)
+        t0, t1 = self._cum_time[i], self._cum_time[i + 1]
+        s = 1.0 if t1 <= t0 else (self._t - t0) / (t1 - t0)
+        return Running(np.asarray(self.path[i] + s * (self.path[i + 1] - self.path[i])))
+
+    def next_command(self, q_measured: Array, dt: float) -> Array | None:
+        """As :meth:`step`, for a caller that drives the path itself (the evaluations): the
+        next set-point, or None at the end."""
+        status = self.step(q_measured, dt)
+        return status.q if isinstance(status, Running) else None
+
+
+class PlanningTask:
+    """Go to a view on a large roadmap: hold while a worker computes the shortest-path tree
+    to the view (on a snapshot of the graph), then plan from where the robot is and follow
+    the path (a :class:`PathTask`).
+
+    Parameters
+    ----------
+    view : View
+        The goal.
+    tree : Future
+        The worker's job: the shortest-path tree to the view (``Roadmap.tree_job``).
+    roadmap : Roadmap
+        The controller's roadmap (planned on the control thread, after installation).
+    hold : array, shape (4,)
+        The set-point held while planning (the current command).
+    make_path : callable
+        ``make_path(path (n, 4)) -> PathTask``.
+    install : callable
+        Installs the finished tree into the roadmap (once: the controller's job does the
+        same when the task is gone before).
+    """
+
+    mode = Mode.GOTO_VIEW
+
+    def __init__(
+        self,
+        view: View,
+        tree: Future[Any],
+        roadmap: Roadmap,
+        hold: Array,
+        make_path: Callable[[Array], PathTask],
+        install: Callable[[], None],
+    ) -> None:
+        self.label = f"go to view {view.name!r}"
+        self._install = install
+        self._view = view
+        self._tree = tree
+        self._roadmap = roadmap
+        self._hold = np.array(hold, dtype=np.float64)
+        self._make_path = make_path
+        self._path: PathTask | None = None
+
+    @property
+    def progress(self) -> float:
+        return 0.0 if self._path is None else self._path.progress
+
+    def step(self, q_measured: Array, dt: float) -> TaskStatus:
+        if self._path is None:
+            if not self._tree.done():
+                return Running(self._hold)  # planning: hold position
+            exc = self._tree.exception()
+            if exc is not None:
+                return Failed(f"cannot go to {self._view.name!r}: planning failed: {exc}")
+            self._install()
+            try:
+                path = self._roadmap.plan(q_measured, self._view, approach=True)
+            except IcenavError as err:
+                return Failed(f"cannot go to {self._view.name!r}: {err}")
+            self._path = self._make_path(path)
+        return self._path.step(q_measured, dt)
+
+
+class MotionGenerator(Protocol):
+    """What :class:`MotionAdapter` drives: a set-point per cycle until None."""
+
+    @property
+    def label(self) -> str:
+        """What it is, for the operator (may change as it goes)."""
+        ...
+
+    @property
+    def progress(self) -> float:
+        """Fraction done, in [0, 1]."""
+        ...
+
+    def next_command(self, q_measured: Array, dt: float) -> Array | None:
+        """The next motor set-point (4,), or None at its end."""
+        ...
+
+
+class MotionAdapter:
+    """A motion generator (``next_command(q, dt) -> q | None``) as a task.
+
+    Parameters
+    ----------
+    inner : MotionGenerator
+        The generator (a :class:`icenav.control.spin.SpinTask`, a refinement stage, ...).
+    mode : Mode
+        The controller's mode while it runs.
+    verdict : callable, optional
+        Called once the generator returned None: None if it did what it was asked, else the
+        reason it did not (the task then ends Failed). Default: done.
+    """
+
+    def __init__(
+        self,
+        inner: MotionGenerator,
+        mode: Mode,
+        *,
+        verdict: Callable[[], str | None] | None = None,
+    ) -> None:
+        self.inner = inner
+        self.mode = mode
+        self._verdict = verdict
+
+    @property
+    def label(self) -> str:
+        return self.inner.label
+
+    @property
+    def progress(self) -> float:
+        return float(self.inner.progress)
+
+    def step(self, q_measured: Array, dt: float) -> TaskStatus:
+        q = self.inner.next_command(q_measured, dt)
+        if q is not None:
+            return Running(np.asarray(q, dtype=np.float64))
+        why = None if self._verdict is None else self._verdict()
+        return Done() if why is None else Failed(f"{self.label}: {why}")
+
+
+_FAILED_ENDS = frozenset({"aborted", "no_pose"})
+"""Statuses of a refinement stage that mean it did not refine (the robot holds)."""
+
+
+def refinement_task(
+    inner: ViewRefinementTask | PoseStageTask | RefinementTask,
+) -> MotionAdapter:
+    """The closed-loop refinement of a returned view (a
+    :class:`icenav.refinement.task.ViewRefinementTask`, or one of its stages) as a go-to-view
+    task: done when it converged or used its budget, failed when it was aborted or lost the
+    tracker (the robot then holds where it was)."""
+
+    from icenav.refinement.task import ViewRefinementTask
+
+    def verdict() -> str | None:
+        if isinstance(inner, ViewRefinementTask):
+            pose, image = inner.result()
+            statuses: list[enum.Enum] = [pose.status]
+            if image is not None:
+                statuses.append(image.status)
+        else:
+            statuses = [inner.status]
+        bad = [str(s.value) for s in statuses if s.value in _FAILED_ENDS]
+        return None if not bad else f"ended {bad[-1].replace('_', ' ')}"
+
+    return MotionAdapter(inner, Mode.GOTO_VIEW, verdict=verdict)

@@ -1,0 +1,279 @@
+"""Shared helpers of the console tests: a recording test double of the controller's
+protocol, plausible snapshots, and a fake viser client (no server, no browser)."""
+
+from __future__ import annotations
+
+import contextlib
+import dataclasses
+import itertools
+import threading
+from collections.abc import Callable
+from typing import Any, Literal
+
+import numpy as np
+
+from icenav.control.authorization import Authorizer
+from icenav.control.calibration_runner import CalibrationPreview
+from icenav.control.commands import (
+    Calibrate,
+    Command,
+    CommandResult,
+    DeleteView,
+    EStop,
+    Export,
+    GoToView,
+    Jog,
+    Outcome,
+    RenameView,
+    Reset,
+    SaveView,
+    SetCompensation,
+    SetMode,
+    Source,
+    Spin,
+    Stop,
+    Ticket,
+)
+from icenav.control.state import CalibrationKind, ControllerState, ImageFrame, Mode
+from icenav.devices.robot import RobotStatus
+from icenav.geometry.kinematics import backbone, forward
+
+
+def make_state(q: np.ndarray | None = None, **kw: Any) -> ControllerState:
+    """A plausible snapshot at joint state q (model = motor, truth = model)."""
+    q = np.zeros(4) if q is None else np.asarray(q, dtype=np.float64)
+    tip = forward(q)
+    bb = backbone(q, n=20).points_in_base
+    base: dict[str, Any] = dict(
+        time=0.0,
+        cycle=0,
+        mode=Mode.IDLE,
+        robot_status=RobotStatus.ENABLED,
+        q_motor=q,
+        q_model=q,
+        tip2base_model=tip,
+        tip2base_true=tip,
+        backbone_model=bb,
+        backbone_true=bb,
+        sensor2base=tip,
+        tracker_status="VALID",
+    )
+    base.update(kw)
+    return ControllerState(**base)
+
+
+def _args(command: Command) -> tuple[Any, ...]:
+    if isinstance(command, Jog):
+        return (np.asarray(command.velocity), command.frame)
+    if isinstance(command, SetMode):
+        return (command.mode,)
+    if isinstance(command, SaveView | GoToView | DeleteView | Export):
+        return (command.view,)
+    if isinstance(command, RenameView):
+        return (command.view, command.new_name)
+    if isinstance(command, Calibrate):
+        return (command.kind,)
+    if isinstance(command, SetCompensation):
+        return (command.enabled,)
+    return ()
+
+
+class RecordingController:
+    """Test double of ControllerCommands: records the commands it gets (by name: "jog",
+    "save_view", ...) and decides them at once with the controller's ownership rule (Stop
+    and E-STOP from anyone, the rest only from the holder or while control is free, never
+    from a view-only client); publishes the states a test gives it. It does no control:
+    the browser test drives the real controller."""
+
+    def __init__(self) -> None:
+        self.calls: list[tuple[str, tuple[Any, ...], str]] = []
+        self.call_event = threading.Condition()
+        self.auth = Authorizer()
+        """The controller's own authorization (the double decides as the controller does)."""
+        self.notes: list[str] = []
+        self.image: ImageFrame | None = None
+        self.view_images: dict[str, ImageFrame] = {}
+        self._state = make_state()
+        self._listeners: list[Callable[[ControllerState], None]] = []
+        self._seq = itertools.count()
+
+    def _rec(self, name: str, args: tuple[Any, ...], client: str) -> None:
+        with self.call_event:
+            self.calls.append((name, args, client))
+            self.call_event.notify_all()
+
+    def wait_for_call(self, name: str, timeout: float = 10.0) -> tuple[Any, ...]:
+        """Block until a request ``name`` was recorded; return (args, client)."""
+        with self.call_event:
+            ok = self.call_event.wait_for(
+                lambda: any(c[0] == name for c in self.calls), timeout=timeout
+            )
+        assert ok, f"no {name} request within {timeout} s; got {[c[0] for c in self.calls]}"
+        return next((c[1], c[2]) for c in self.calls if c[0] == name)
+
+    @property
+    def owner(self) -> str | None:
+        """Who holds control."""
+        return self.auth.holder
+
+    @owner.setter
+    def owner(self, client: str | None) -> None:
+        """Make ``client`` the holder (None: free), as if it had taken control."""
+        holder = self.auth.holder
+        if holder is not None:
+            self.auth.release(Source.of(holder), next(self._seq))
+        if client is not None:
+            assert self.auth.take(Source("gamepad", client)) is None
+
+    def publish(self, state: ControllerState) -> None:
+        """Hand ``state`` (with this double's control owner) to the listeners."""
+        state = dataclasses.replace(state, control_owner=self.owner)
+        self._state = state
+        for cb in list(self._listeners):
+            cb(state)
+
+    # commands
+    def submit(self, command: Command) -> Ticket:
+        client = command.source.client
+        self._rec(command.name, _args(command), client)
+        ticket = Ticket(next(self._seq), command)
+        reason = self.auth.authorize(command, ticket.seq) or ""
+        outcome = Outcome.REFUSED if reason else Outcome.DONE
+        ticket.resolve(CommandResult(ticket.seq, command, outcome, reason))
+        return ticket
+
+    def request_mode(self, mode: Mode, client: str = "script") -> Ticket:
+        return self.submit(SetMode(mode, source=Source.of(client)))
+
+    def jog(self, velocity: Any, frame: Literal["knob", "tip"], client: str = "script") -> Ticket:
+        return self.submit(Jog(np.asarray(velocity), frame, source=Source.of(client)))
+
+    def save_view(self, name: str, client: str = "script") -> Ticket:
+        return self.submit(SaveView(name, source=Source.of(client)))
+
+    def goto_view(self, name: str, client: str = "script") -> Ticket:
+        return self.submit(GoToView(name, source=Source.of(client)))
+
+    def rename_view(self, name: str, new_name: str, client: str = "script") -> Ticket:
+        return self.submit(RenameView(name, new_name, source=Source.of(client)))
+
+    def delete_view(self, name: str, client: str = "script") -> Ticket:
+        return self.submit(DeleteView(name, source=Source.of(client)))
+
+    def start_spin(self, client: str = "script") -> Ticket:
+        return self.submit(Spin(source=Source.of(client)))
+
+    def start_calibration(self, kind: CalibrationKind, client: str = "script") -> Ticket:
+        return self.submit(Calibrate(kind, source=Source.of(client)))
+
+    def preview_calibration(self, kind: CalibrationKind) -> CalibrationPreview:
+        return CalibrationPreview(kind, f"{kind} (double)", 5, 5, 90.0, 1.5)
+
+    def set_compensation(self, enabled: bool, client: str = "script") -> Ticket:
+        return self.submit(SetCompensation(enabled, source=Source.of(client)))
+
+    def stop(self, client: str = "script") -> Ticket:
+        return self.submit(Stop(source=Source.of(client)))
+
+    def estop(self, client: str = "script") -> Ticket:
+        return self.submit(EStop(source=Source.of(client)))
+
+    def reset_fault(self, client: str = "script") -> Ticket:
+        return self.submit(Reset(source=Source.of(client)))
+
+    def acquire_control(self, client: str) -> bool:
+        self._rec("acquire_control", (), client)
+        return self.auth.take(Source.of(client)) is None
+
+    def release_control(self, client: str) -> None:
+        self._rec("release_control", (), client)
+        self.auth.release(Source.of(client), next(self._seq))
+
+    def disconnect(self, client: str) -> None:
+        self._rec("disconnect", (), client)
+        self.auth.disconnect(Source.of(client), next(self._seq))
+
+    def set_view_only(self, client: str, view_only: bool) -> None:
+        self.auth.set_view_only(client, view_only)
+
+    def note(self, text: str) -> None:
+        self.notes.append(text)
+
+    # reads
+    def snapshot(self) -> ControllerState:
+        return self._state
+
+    def latest_image(self) -> ImageFrame | None:
+        return self.image
+
+    def view_image(self, name: str) -> ImageFrame | None:
+        return self.view_images.get(name)
+
+    def add_listener(self, callback: Callable[[ControllerState], None]) -> None:
+        self._listeners.append(callback)
+
+
+class FakeHandle:
+    """Stands in for a viser GUI handle: keeps its value and the callbacks given to it."""
+
+    def __init__(self, *args: object, **kwargs: object) -> None:
+        self.value = kwargs.get("initial_value", "")
+        self.content = args[0] if args else ""
+        self.label = args[0] if args else ""
+        self.callbacks: list[Callable[[Any], None]] = []
+        self.closed = False
+
+    def on_click(self, fn: Callable[[Any], None]) -> Callable[[Any], None]:
+        self.callbacks.append(fn)
+        return fn
+
+    on_update = on_click
+
+    def on_hold(self, fn: Callable[[Any], None], callback_hz: float = 0.0) -> object:
+        return self.on_click(fn)
+
+    def click(self) -> None:
+        """What viser does when a browser clicks the button."""
+
+        class Ev:
+            client = object()
+            client_id = 1
+
+        for fn in self.callbacks:
+            fn(Ev())
+
+    def add_tab(self, *args: object, **kwargs: object) -> contextlib.nullcontext[None]:
+        return contextlib.nullcontext()
+
+    def __enter__(self) -> FakeHandle:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        return None
+
+    def close(self) -> None:
+        self.closed = True
+
+
+class FakeGui:
+    """A viser client's ``gui``: every ``add_*`` makes a :class:`FakeHandle`; the latest
+    handles made are kept in order (a modal's markdown and buttons)."""
+
+    def __init__(self) -> None:
+        self.made: list[FakeHandle] = []
+
+    def __getattr__(self, name: str) -> object:
+        def make(*args: object, **kwargs: object) -> FakeHandle:
+            h = FakeHandle(*args, **kwargs)
+            self.made.append(h)
+            return h
+
+        return make
+
+
+class FakeClient:
+    """A browser connection as the console's connection handler sees it (no server)."""
+
+    def __init__(self, client_id: int) -> None:
+        self.client_id = client_id
+        self.gui = FakeGui()
