@@ -3,7 +3,8 @@
 TARGET is one of ``fuzz.targets.TARGETS`` (store, store_rows, robot_config,
 joystick_mapping, calibration, igtl_command, igtl_message). Without a corpus directory the
 run starts from the target's built-in seeds. Needs the ``fuzz`` extra
-(``pip install -e '.[fuzz]'``); ``make test`` runs a seeded corpus of mutated inputs instead (tests/reliability).
+(``pip install -e '.[fuzz]'``); ``make test`` runs a seeded corpus of mutated inputs
+instead (tests/reliability).
 """
 
 from __future__ import annotations
