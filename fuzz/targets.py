@@ -40,7 +40,7 @@ def _tmp(data: bytes, suffix: str) -> Path:
 
 
 def _remove(path: Path) -> None:
-    for p in (path, Path(str(path) + "-wal"), Path(str(path) + "-shm")):
+    for p in (path, *(Path(str(path) + x) for x in ("-wal", "-shm", "-journal", ".lock"))):
         p.unlink(missing_ok=True)
 
 

@@ -209,6 +209,9 @@ class IgtlServer:
         self.command_device = command_device
         self._on_command = on_command
         self._listener = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
+        # a restart may bind while old connections linger in TIME_WAIT; on Linux this
+        # never lets two servers listen on one port (a port in use stays an error)
+        self._listener.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
         try:
             self._listener.bind((host, port))
             self._listener.listen(min(socket.SOMAXCONN, 512))
