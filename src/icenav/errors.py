@@ -41,12 +41,6 @@ unit and the allowed range (as canopen's ``SdoAbortedError`` carries the abort c
 from __future__ import annotations
 
 __all__ = [
-    "NeighbourhoodError",
-    "ViewNotFoundError",
-    "ViewExistsError",
-    "RoadmapFullError",
-    "IgtlError",
-    "IgtlProtocolError",
     "CommandStepError",
     "ConfigurationError",
     "DriveFaultError",
@@ -57,11 +51,15 @@ __all__ = [
     "HardwareError",
     "HeartbeatLostError",
     "IcenavError",
+    "IgtlError",
+    "IgtlProtocolError",
     "InvalidValueError",
     "JointLimitError",
     "MotionAborted",
+    "NeighbourhoodError",
     "NonFiniteError",
     "PlanningError",
+    "RoadmapFullError",
     "SessionLockedError",
     "ShapeError",
     "StoreError",
@@ -70,6 +68,8 @@ __all__ = [
     "UnreachablePoseError",
     "UnsafeExportPathError",
     "UnsupportedVersionError",
+    "ViewExistsError",
+    "ViewNotFoundError",
 ]
 
 

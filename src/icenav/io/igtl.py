@@ -44,6 +44,7 @@ from icenav.errors import IgtlError, InvalidValueError, ShapeError
 from icenav.io.igtl_server import IgtlServer, Incoming, ServerLimits, ServerStats
 
 __all__ = [
+    "CommandRecord",
     "DEFAULT_PORT",
     "DEVICE_COMMAND",
     "DEVICE_COMMAND_ACK",
@@ -51,7 +52,6 @@ __all__ = [
     "DEVICE_SENSOR_TO_TRACKER",
     "DEVICE_STATUS",
     "DEVICE_TIP_TO_BASE",
-    "CommandRecord",
     "IgtlBridge",
     "IgtlCommand",
     "IgtlConfig",
