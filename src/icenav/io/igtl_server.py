@@ -44,7 +44,7 @@ import pyigtl
 from icenav.errors import IgtlError, IgtlProtocolError, InvalidValueError
 from icenav.io.igtl_wire import HEADER_SIZE, Header, decode_body, parse_header
 
-__all__ = ["Incoming", "IgtlServer", "ServerEvent", "ServerLimits", "ServerStats"]
+__all__ = ["IgtlServer", "Incoming", "ServerEvent", "ServerLimits", "ServerStats"]
 
 logger = logging.getLogger(__name__)
 
