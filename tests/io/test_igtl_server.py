@@ -178,6 +178,8 @@ def test_a_flood_is_paid_by_the_flooder_and_memory_stays_bounded(bridge: IgtlBri
     assert stats.bytes_in > 4 * LIMITS.max_queued_replies * 64 * 1024  # they did flood
     assert stats.peak_buffered_bytes <= _memory_bound(LIMITS, clients=5), stats
     assert bridge.command_counts["refused"] >= 4 * LIMITS.max_queued_replies
+    # the server paused them; its own pause is not counted against their read deadline
+    assert stats.closed.get("read_timeout", 0) == 0, stats
     assert len(bridge.command_log) == bridge.command_log.maxlen  # a ring, not a list
 
 

@@ -464,6 +464,11 @@ class IgtlServer:
                 self._flush(c, now)
                 if c.id not in self._clients:
                     continue
+                if self._paused(c) or c.tokens <= 0:
+                    # the server is not reading: its own pause does not count against the
+                    # peer's read deadline (a peer that never reads its replies is closed by
+                    # the send-stall deadline instead)
+                    c.msg_started = now if c.rbuf else None
                 if c.msg_started is not None and now - c.msg_started > self.limits.read_timeout_s:
                     self._faults["read_timeout"] += 1
                     self._close_locked(
@@ -480,9 +485,8 @@ class IgtlServer:
                         f"no byte taken for {self.limits.send_stall_timeout_s:g} s",
                     )
                     continue
-                if not self._paused(c) and len(c.rbuf) >= HEADER_SIZE and c.msg_started is None:
-                    c.msg_started = now  # resumed after a pause: the deadline starts again
-                    self._parse(c, now)
+                if not self._paused(c) and len(c.rbuf) >= HEADER_SIZE:
+                    self._parse(c, now)  # complete messages left in the buffer by a pause
                 self._set_mask(c)
                 buffered += len(c.rbuf) + c.pending_bytes + sum(len(r) for r in c.replies)
                 if c.inflight is not None:
