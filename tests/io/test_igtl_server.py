@@ -351,3 +351,21 @@ def test_a_new_client_gets_the_latest_frame_of_each_device_at_once(bridge: IgtlB
         msg: Any = client.wait_for(DEVICE_TIP_TO_BASE)
         np.testing.assert_allclose(msg.matrix, pose, atol=1e-6)
         client.wait_for(DEVICE_STATUS, lambda m: m.string == "ready")
+
+
+def test_a_bug_met_serving_one_peer_closes_that_peer_only(
+    bridge: IgtlBridge, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    import icenav.io.igtl_server as server_module
+
+    def broken(header: Any, body: bytes) -> Any:
+        raise RuntimeError("a decoder bug")
+
+    with connected_client(bridge) as client:
+        monkeypatch.setattr(server_module, "decode_body", broken)
+        with raw_connection(bridge.port) as peer:
+            peer.sendall(command_message("stop"))
+            stats = _wait_stats(bridge, lambda s: s.closed.get("internal", 0) == 1)
+        assert stats.faults["internal"] == 1
+        bridge.send_status("still serving")
+        client.wait_for(DEVICE_STATUS, lambda m: m.string == "still serving")

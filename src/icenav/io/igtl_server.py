@@ -30,6 +30,7 @@ from __future__ import annotations
 
 import collections
 import contextlib
+import errno
 import logging
 import queue
 import selectors
@@ -221,7 +222,7 @@ class IgtlServer:
                 f"cannot open the OpenIGTLink server on {host} port {port}: {exc.strerror or exc}"
                 + (
                     " (the port is in use; choose another, or 0 for a free one)"
-                    if getattr(exc, "errno", None) == 98
+                    if getattr(exc, "errno", None) == errno.EADDRINUSE
                     else ""
                 )
             ) from exc
@@ -239,10 +240,9 @@ class IgtlServer:
         self._sel = selectors.DefaultSelector()
         self._sel.register(self._listener, selectors.EVENT_READ, _LISTENER)
         self._sel.register(self._wake_r, selectors.EVENT_READ, _WAKE)
-        self.events: collections.deque[ServerEvent] = collections.deque(
+        self._events: collections.deque[ServerEvent] = collections.deque(
             maxlen=self.limits.event_ring
         )
-        """The last ``limits.event_ring`` events (bounded)."""
         self._accepted = self._refused = self._messages_in = 0
         self._bytes_in = self._bytes_out = self._dropped = 0
         self._buffered = self._peak_buffered = 0
@@ -280,6 +280,12 @@ class IgtlServer:
         """Wait (on a condition, no polling) until at least ``n`` clients are connected."""
         with self._changed:
             return self._changed.wait_for(lambda: len(self._clients) >= n, timeout=timeout)
+
+    @property
+    def events(self) -> tuple[ServerEvent, ...]:
+        """The last ``limits.event_ring`` events (a bounded ring), oldest first."""
+        with self._lock:
+            return tuple(self._events)
 
     def wait_until(self, predicate: Callable[[ServerStats], bool], timeout: float) -> bool:
         """Wait (on a condition notified at every connection, close and fault) until
@@ -332,7 +338,7 @@ class IgtlServer:
                             while self._wake_r.recv(4096):
                                 pass
                     elif mask & selectors.EVENT_READ:
-                        self._read(key.data, now)
+                        self._guarded(key.data, self._read, now)
                 self._sweep(time.monotonic())
         finally:
             with self._lock:
@@ -342,6 +348,16 @@ class IgtlServer:
             self._listener.close()
             self._wake_r.close()
             self._wake_w.close()
+
+    def _guarded(self, c: _Client, step: Callable[[_Client, float], None], now: float) -> None:
+        """Run one client's step; a bug it hits closes that client, never the server."""
+        try:
+            step(c, now)
+        except Exception as exc:  # noqa: BLE001 - one peer must not end the I/O thread
+            logger.exception("OpenIGTLink: unexpected error serving %s", c.peer)
+            with self._lock:
+                self._faults["internal"] += 1
+                self._close_locked(c, "internal", f"{type(exc).__name__}: {exc}")
 
     def _accept(self, now: float) -> None:
         for _ in range(64):
@@ -461,7 +477,7 @@ class IgtlServer:
             seen: set[int] = set()
             for c in list(self._clients.values()):
                 self._refill(c, now)
-                self._flush(c, now)
+                self._guarded(c, self._flush, now)
                 if c.id not in self._clients:
                     continue
                 if self._paused(c) or c.tokens <= 0:
@@ -486,7 +502,7 @@ class IgtlServer:
                     )
                     continue
                 if not self._paused(c) and len(c.rbuf) >= HEADER_SIZE:
-                    self._parse(c, now)  # complete messages left in the buffer by a pause
+                    self._guarded(c, self._parse, now)  # messages left in the buffer by a pause
                 self._set_mask(c)
                 buffered += len(c.rbuf) + c.pending_bytes + sum(len(r) for r in c.replies)
                 if c.inflight is not None:
@@ -554,7 +570,7 @@ class IgtlServer:
     # ------------------------------------------------------------------ events
     def _event(self, peer: str, kind: str, detail: str) -> None:
         with self._changed:
-            self.events.append(ServerEvent(time.time(), peer, kind, detail[:200]))
+            self._events.append(ServerEvent(time.time(), peer, kind, detail[:200]))
             self._changed.notify_all()
 
     def _fault_event(self, peer: str, kind: str, detail: str, c: _Client | None = None) -> None:

@@ -19,6 +19,7 @@ import numpy as np
 
 from icenav.control.controller import Controller
 from icenav.control.state import Mode
+from icenav.errors import IgtlError
 from icenav.io.igtl import (
     DEVICE_IMAGE,
     DEVICE_SENSOR_TO_TRACKER,
@@ -136,7 +137,10 @@ class IgtlStreamer:
         while not self._stop.is_set():
             with_image = now - last_image >= self._image_period
             sent = self.sent_images
-            self.send_once(with_image)
+            try:
+                self.send_once(with_image)
+            except IgtlError:  # the bridge was closed under us: the stream ends
+                return
             if self.sent_images != sent:
                 last_image = now
             next_pose = max(next_pose + self._pose_period, now - self._pose_period)

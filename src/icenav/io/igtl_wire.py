@@ -194,6 +194,9 @@ def _decode_transform(header: Header, body: bytes) -> TransformMessage:
     if not all(math.isfinite(v) for v in values):
         raise IgtlProtocolError("TRANSFORM holds a NaN or inf", kind="non_finite")
     message = TransformMessage(timestamp=header.timestamp_s, device_name=header.device)
-    message.unpack(_fields(header), body)
+    try:  # pyigtl also reads the version-2 metadata: anything it raises is a bad body
+        message.unpack(_fields(header), body)
+    except Exception as exc:  # noqa: BLE001 - pyigtl raises struct.error, ValueError, ...
+        raise IgtlProtocolError(f"TRANSFORM body cannot be read: {exc}", "malformed") from exc
     message.matrix = np.asarray(message.matrix, dtype=np.float64)
     return message
