@@ -318,7 +318,8 @@ def hostile_run(duration_s: float = 60.0) -> dict[str, float]:
 def _bound_mb(clients: int) -> float:
     """The stated bound of what the server keeps (docs/safety.md), default limits, with
     480 x 640 images: per client one incoming message and one read, the commands waiting,
-    the replies unsent and a frame in flight; the latest frame of each of 4 devices."""
+    the replies unsent and a frame in flight; the frames queued, shared (per device at most
+    max_device_backlog_bytes or one image)."""
     lim = ServerLimits()
     image = 58 + 12 + 48 + 12 + IMAGE_SHAPE[0] * IMAGE_SHAPE[1]
     per_client = (
@@ -329,7 +330,7 @@ def _bound_mb(clients: int) -> float:
         + (lim.max_queued_replies + lim.max_commands_per_message) * 256
         + image
     )
-    return (clients * per_client + 4 * image) / 1e6
+    return (clients * per_client + 3 * lim.max_device_backlog_bytes + image) / 1e6
 
 
 def main() -> list[Result]:

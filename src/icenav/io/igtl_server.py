@@ -10,8 +10,10 @@ What a peer can make the server keep, and the bound on each (per client):
 * bytes of the message being received: at most ``max_body_bytes`` + the header, plus one
   ``recv_chunk_bytes`` read; a message must be complete within ``read_timeout_s`` of its
   first byte (a peer sending one byte every few seconds is closed then);
-* outgoing stream frames: the latest frame of each device only (a client that reads
-  slowly skips old frames, counted in ``frames_dropped``; the frame bytes are shared by
+* outgoing stream frames: per device, the frames not yet sent while they are at most
+  ``max_frames_per_device`` and ``max_device_backlog_bytes`` (poses: 32 frames, 0.64 s at
+  50 Hz; images: the latest only); a client further behind skips the oldest frames and
+  always gets the newest (counted in ``frames_dropped``; the frame bytes are shared by
   every client, packed once);
 * commands waiting for the command thread: ``max_pending_commands``, and replies not yet
   sent: ``max_queued_replies``. Beyond either, the server stops *reading* from that peer
@@ -69,6 +71,10 @@ class ServerLimits:
     """Command messages of one peer waiting for the command thread; reading pauses beyond."""
     max_queued_replies: int = 64
     """Replies to one peer not yet sent; reading pauses beyond."""
+    max_frames_per_device: int = 32
+    """Unsent stream frames kept per client and device (the newest always)."""
+    max_device_backlog_bytes: int = 64 * 1024
+    """... while they hold at most this many bytes (bytes; one larger frame is kept alone)."""
     max_commands_per_message: int = 16
     """Commands (lines) read from one STRING; the rest are refused in one reply."""
     recv_chunk_bytes: int = 64 * 1024
@@ -141,7 +147,7 @@ class ServerStats:
     bytes_out: int
     """Bytes sent (bytes)."""
     frames_dropped: int
-    """Stream frames replaced by a newer one before a slow client read them."""
+    """Stream frames dropped (the oldest of a device) for clients too far behind."""
     buffered_bytes: int
     """Bytes held for clients now (receive buffers, frames, replies, commands)."""
     peak_buffered_bytes: int
@@ -156,7 +162,7 @@ class _Client:
     rbuf: bytearray = field(default_factory=bytearray)
     header: Header | None = None
     msg_started: float | None = None
-    frames: dict[str, bytes] = field(default_factory=dict)
+    frames: dict[str, collections.deque[bytes]] = field(default_factory=dict)
     replies: collections.deque[bytes] = field(default_factory=collections.deque)
     inflight: memoryview | None = None
     last_progress: float = 0.0
@@ -271,10 +277,22 @@ class IgtlServer:
                 raise IgtlError("the OpenIGTLink server is closed")
             self._latest[device] = data
             for c in self._clients.values():
-                if c.frames.get(device) is not None:
-                    self._dropped += 1
-                c.frames[device] = data
+                queue_ = c.frames.setdefault(device, collections.deque())
+                queue_.append(data)
+                self._dropped += self._trim(queue_)
         self._wake()
+
+    def _trim(self, frames: collections.deque[bytes]) -> int:
+        """Drop the oldest frames beyond the per-device backlog; how many were dropped."""
+        lim = self.limits
+        dropped = 0
+        while len(frames) > 1 and (
+            len(frames) > lim.max_frames_per_device
+            or sum(len(f) for f in frames) > lim.max_device_backlog_bytes
+        ):
+            frames.popleft()
+            dropped += 1
+        return dropped
 
     def wait_for_clients(self, n: int, timeout: float) -> bool:
         """Wait (on a condition, no polling) until at least ``n`` clients are connected."""
@@ -383,7 +401,8 @@ class IgtlServer:
                 sock.setsockopt(socket.SOL_SOCKET, socket.SO_KEEPALIVE, 1)
                 rate = self.limits.max_in_bytes_per_s
                 c = _Client(self._next_id, sock, peer, last_progress=now, tokens=rate, refilled=now)
-                c.frames = dict(self._latest)  # a new client gets the latest of each device
+                # a new client gets the latest frame of each device at once
+                c.frames = {d: collections.deque([f]) for d, f in self._latest.items()}
                 self._next_id += 1
                 self._accepted += 1
                 self._clients[c.id] = c
@@ -507,10 +526,11 @@ class IgtlServer:
                 buffered += len(c.rbuf) + c.pending_bytes + sum(len(r) for r in c.replies)
                 if c.inflight is not None:
                     buffered += len(c.inflight)
-                for f in c.frames.values():
-                    if id(f) not in seen:
-                        seen.add(id(f))
-                        buffered += len(f)
+                for frames in c.frames.values():
+                    for f in frames:
+                        if id(f) not in seen:
+                            seen.add(id(f))
+                            buffered += len(f)
             self._buffered = buffered
             self._peak_buffered = max(self._peak_buffered, buffered)
 
@@ -520,8 +540,11 @@ class IgtlServer:
                 if c.replies:
                     c.inflight = memoryview(c.replies.popleft())
                 elif c.frames:
-                    device = next(iter(c.frames))
-                    c.inflight = memoryview(c.frames.pop(device))
+                    device = next(iter(c.frames))  # the devices take turns
+                    frames = c.frames.pop(device)
+                    c.inflight = memoryview(frames.popleft())
+                    if frames:
+                        c.frames[device] = frames
                 else:
                     return
             try:
