@@ -371,3 +371,21 @@ def test_a_bug_met_serving_one_peer_closes_that_peer_only(
         assert stats.faults["internal"] == 1
         bridge.send_status("still serving")
         client.wait_for(DEVICE_STATUS, lambda m: m.string == "still serving")
+
+
+def test_a_client_leaving_mid_image_is_a_counted_event_not_a_traceback(
+    bridge: IgtlBridge, caplog: pytest.LogCaptureFixture, capfd: pytest.CaptureFixture[str]
+) -> None:
+    image = np.random.default_rng(1).integers(0, 256, (480, 640), dtype=np.uint8)
+    with connected_client(bridge):
+        leaver = raw_connection(bridge.port)
+        leaver.setsockopt(socket.SOL_SOCKET, socket.SO_LINGER, struct.pack("ii", 1, 0))
+        _wait_stats(bridge, lambda s: s.accepted >= 2)
+        for k in range(20):  # more than the socket buffers hold: the server is mid-send
+            bridge.send_image(DEVICE_IMAGE, image, np.eye(4), timestamp=float(k))
+        leaver.close()  # SO_LINGER 0: a reset, as a crashed client gives
+        stats = _wait_stats(bridge, lambda s: s.clients == 1)
+    assert sum(stats.closed.values()) == 1
+    assert set(stats.closed) <= {"reset", "peer_closed"}
+    assert not [r for r in caplog.records if r.exc_info or r.levelname == "ERROR"]
+    assert "Traceback" not in capfd.readouterr().err  # pyigtl's server printed one here
