@@ -330,7 +330,7 @@ def _bound_mb(clients: int) -> float:
         + (lim.max_queued_replies + lim.max_commands_per_message) * 256
         + image
     )
-    return (clients * per_client + 3 * lim.max_device_backlog_bytes + image) / 1e6
+    return (clients * per_client + 4 * max(lim.max_device_backlog_bytes, image)) / 1e6
 
 
 def main() -> list[Result]:

@@ -12,9 +12,9 @@ What a peer can make the server keep, and the bound on each (per client):
   first byte (a peer sending one byte every few seconds is closed then);
 * outgoing stream frames: per device, the frames not yet sent while they are at most
   ``max_frames_per_device`` and ``max_device_backlog_bytes`` (poses: 32 frames, 0.64 s at
-  50 Hz; images: the latest only); a client further behind skips the oldest frames and
-  always gets the newest (counted in ``frames_dropped``; the frame bytes are shared by
-  every client, packed once);
+  50 Hz; 480 x 640 images: 3 frames, 0.2 s at 15 Hz); a client further behind skips the
+  oldest frames and always gets the newest (counted in ``frames_dropped``; the frame
+  bytes are shared by every client, packed once);
 * commands waiting for the command thread: ``max_pending_commands``, and replies not yet
   sent: ``max_queued_replies``. Beyond either, the server stops *reading* from that peer
   (TCP pushes back on it), so a flood costs it, not the server;
@@ -73,8 +73,9 @@ class ServerLimits:
     """Replies to one peer not yet sent; reading pauses beyond."""
     max_frames_per_device: int = 32
     """Unsent stream frames kept per client and device (the newest always)."""
-    max_device_backlog_bytes: int = 64 * 1024
-    """... while they hold at most this many bytes (bytes; one larger frame is kept alone)."""
+    max_device_backlog_bytes: int = 1024 * 1024
+    """... while they hold at most this many bytes (bytes; one larger frame is kept alone):
+    3 frames of a 480 x 640 image, 0.2 s at 15 Hz."""
     max_commands_per_message: int = 16
     """Commands (lines) read from one STRING; the rest are refused in one reply."""
     recv_chunk_bytes: int = 64 * 1024
