@@ -1,9 +1,10 @@
 """atheris harness for every loader and parser: ``python fuzz/fuzz.py TARGET -runs=N [corpus]``.
 
 TARGET is one of ``fuzz.targets.TARGETS`` (store, store_rows, robot_config,
-joystick_mapping, calibration, igtl_command). Without a corpus directory the run starts
-from the target's built-in seeds. Needs the ``fuzz`` extra (``pip install -e '.[fuzz]'``);
-``make test`` runs a seeded corpus of mutated inputs instead (tests/reliability).
+joystick_mapping, calibration, igtl_command, igtl_message). Without a corpus directory the
+run starts from the target's built-in seeds. Needs the ``fuzz`` extra
+(``pip install -e '.[fuzz]'``); ``make test`` runs a seeded corpus of mutated inputs
+instead (tests/reliability).
 """
 
 from __future__ import annotations
@@ -21,6 +22,7 @@ with atheris.instrument_imports():
     import icenav.control.teleop  # noqa: F401, E402
     import icenav.devices.canopen.config  # noqa: F401, E402
     import icenav.io.igtl  # noqa: F401, E402
+    import icenav.io.igtl_wire  # noqa: F401, E402
     import icenav.persistence.store  # noqa: F401, E402
     from fuzz.targets import TARGETS, seed_inputs  # noqa: E402
 

@@ -22,14 +22,10 @@ import sqlite3
 import tempfile
 from collections.abc import Callable
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 import numpy as np
 
 from icenav.errors import IcenavError
-
-if TYPE_CHECKING:
-    from icenav.io.igtl import IgtlBridge
 
 __all__ = ["SEEDS", "TARGETS", "mutate", "seed_inputs"]
 
@@ -44,7 +40,7 @@ def _tmp(data: bytes, suffix: str) -> Path:
 
 
 def _remove(path: Path) -> None:
-    for p in (path, Path(str(path) + "-wal"), Path(str(path) + "-shm")):
+    for p in (path, *(Path(str(path) + x) for x in ("-wal", "-shm", "-journal", ".lock"))):
         p.unlink(missing_ok=True)
 
 
@@ -199,30 +195,45 @@ def target_calibration(data: bytes) -> None:
 
 
 def target_igtl_command(data: bytes) -> None:
-    """An OpenIGTLink command STRING as a client sends it (io.igtl IgtlBridge)."""
-    from icenav.io.igtl import IgtlCommand, IgtlRequest
+    """An OpenIGTLink command STRING as a client sends it: every line gets exactly one
+    reply, and only well-formed enabled commands reach the callback."""
+    from icenav.io.igtl import IgtlCommand, IgtlConfig, IgtlOutcome, IgtlRequest, parse_command
 
     text = data.decode("utf-8", errors="replace")
-    got: list[IgtlRequest] = []
-    bridge = _offline_bridge(got.append)
-    bridge._handle_command(text, 0.0)  # noqa: SLF001 - the parser without a socket
-    assert len(got) + len(bridge.rejected) == 1
-    for req in got:
-        assert isinstance(req.command, IgtlCommand)
-        assert req.argument == req.argument.strip()
-        assert req.command is IgtlCommand.STOP or req.argument
+    config = IgtlConfig(accepted_commands=frozenset(IgtlCommand))
+    for line in text.splitlines():
+        parsed = parse_command(line, config)
+        if isinstance(parsed, IgtlRequest):
+            assert isinstance(parsed.command, IgtlCommand)
+            assert parsed.argument == parsed.argument.strip()
+            assert parsed.command is IgtlCommand.STOP or parsed.argument
+        else:
+            assert parsed.outcome is IgtlOutcome.REFUSED and parsed.reason
 
 
-def _offline_bridge(on_command: Callable[..., None]) -> IgtlBridge:
-    """An IgtlBridge with every command enabled and no server: only its parser runs."""
-    from icenav.io.igtl import IgtlBridge, IgtlCommand, IgtlConfig
+def target_igtl_message(data: bytes) -> None:
+    """Bytes as a peer sends them after the header's 58 bytes: header checks, CRC and body
+    decoding (io.igtl_wire) raise only IgtlProtocolError."""
+    from pyigtl.messages import CRC64
 
-    bridge = IgtlBridge.__new__(IgtlBridge)
-    bridge.config = IgtlConfig(accepted_commands=frozenset(IgtlCommand))
-    bridge.rejected = []
-    bridge._closed = True  # noqa: SLF001 - no server to acknowledge on
-    bridge._on_command = on_command  # noqa: SLF001
-    return bridge
+    from icenav.io.igtl_wire import HEADER_SIZE, decode_body, parse_header
+
+    if len(data) < HEADER_SIZE:
+        return
+    try:
+        header = parse_header(data[:HEADER_SIZE], max_body_bytes=1 << 20)
+    except IcenavError:
+        return
+    body = data[HEADER_SIZE : HEADER_SIZE + header.body_size]
+    for crc_ok in (False, True):
+        if crc_ok:  # the same body with a matching CRC reaches the decoders
+            header = type(header)(**{**header.__dict__, "crc": CRC64(body)})
+        try:
+            message = decode_body(header, body)
+        except IcenavError:
+            continue
+        matrix = getattr(message, "matrix", None)
+        assert matrix is None or bool(np.all(np.isfinite(matrix)))
 
 
 TARGETS: dict[str, Callable[[bytes], None]] = {
@@ -232,6 +243,7 @@ TARGETS: dict[str, Callable[[bytes], None]] = {
     "joystick_mapping": target_joystick_mapping,
     "calibration": target_calibration,
     "igtl_command": target_igtl_command,
+    "igtl_message": target_igtl_message,
 }
 """name -> target; ``fuzz/fuzz_<name>.py`` runs each under atheris."""
 
@@ -296,7 +308,28 @@ translation_rate = 5.0
 enable_button = 4
 """
 
-_IGTL_SEEDS = [b"stop", b"save_view aortic valve", b"go_to_view apex", b"GO_TO_VIEW  x "]
+_IGTL_SEEDS = [
+    b"stop",
+    b"save_view aortic valve",
+    b"go_to_view apex",
+    b"GO_TO_VIEW  x ",
+    b"stop\nsave_view a\n\ngo_to_view a",
+]
+
+
+def _igtl_message_seeds() -> list[bytes]:
+    import pyigtl
+
+    eye = np.eye(4)
+    eye[:3, 3] = (1.0, 2.0, 3.0)
+    v2 = pyigtl.StringMessage("go_to_view apex", device_name="IcenavCommand")
+    v2.header_version = 2
+    v2.metadata = {"k": "v"}
+    return [
+        bytes(pyigtl.StringMessage("stop", device_name="IcenavCommand").pack()),
+        bytes(pyigtl.TransformMessage(eye, device_name="TipToBase").pack()),
+        bytes(v2.pack()),
+    ]
 
 
 def seed_inputs(name: str) -> list[bytes]:
@@ -313,6 +346,8 @@ def seed_inputs(name: str) -> list[bytes]:
         return [_calibration_seed()]
     if name == "igtl_command":
         return list(_IGTL_SEEDS)
+    if name == "igtl_message":
+        return _igtl_message_seeds()
     raise KeyError(name)
 
 

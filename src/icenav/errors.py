@@ -26,6 +26,7 @@ unit and the allowed range (as canopen's ``SdoAbortedError`` carries the abort c
     │   ├── RoadmapFullError                  the roadmap's vertex budget is used up
     │   └── NeighbourhoodError                a refinement would leave the view's neighbourhood
     ├── StoreError                            the session store failed (disk full, read-only, ...)
+    │   └── SessionLockedError                another process writes the session file
     ├── ExportError                           writing an export failed (disk full, permission)
     ├── MotionAborted                         an automatic motion was aborted or stopped
     ├── CommandTimeoutError (TimeoutError)    a command's outcome did not come in time
@@ -36,6 +37,7 @@ unit and the allowed range (as canopen's ``SdoAbortedError`` carries the abort c
     │   └── EmergencyStopError                the robot is e-stopped; reset required
     ├── TrackerError                          the tracker is not running or misconfigured
     └── IgtlError                             the OpenIGTLink server cannot start or is misused
+        └── IgtlProtocolError                 a peer sent bytes that break the protocol
 """
 
 from __future__ import annotations
@@ -54,6 +56,7 @@ __all__ = [
     "HeartbeatLostError",
     "IcenavError",
     "IgtlError",
+    "IgtlProtocolError",
     "InvalidValueError",
     "JointLimitError",
     "MotionAborted",
@@ -61,6 +64,7 @@ __all__ = [
     "NonFiniteError",
     "PlanningError",
     "RoadmapFullError",
+    "SessionLockedError",
     "ShapeError",
     "StoreError",
     "TrackerError",
@@ -153,6 +157,15 @@ class StoreError(IcenavError):
     """The session store could not read or write (disk full, read-only, locked, ...)."""
 
 
+class SessionLockedError(StoreError):
+    """Another process holds the session file open for writing; ``holder`` says who
+    ("pid 1234 on host lab-pc"); the file may still be opened read-only."""
+
+    def __init__(self, message: str, holder: str = "") -> None:
+        super().__init__(message)
+        self.holder = holder
+
+
 class MotionAborted(IcenavError):
     """An automatic motion was aborted (operator input, stop or e-stop)."""
 
@@ -213,7 +226,19 @@ class CommandStepError(InvalidValueError):
 
 
 class IgtlError(IcenavError):
-    """The OpenIGTLink bridge cannot start or is used wrongly (e.g. off the main thread)."""
+    """The OpenIGTLink server cannot start (the port is taken) or is used wrongly."""
+
+
+class IgtlProtocolError(IgtlError):
+    """A peer's bytes break the OpenIGTLink protocol (header, size, CRC, body).
+
+    ``kind`` names the class of fault for the server's counters: "bad_header",
+    "oversize", "bad_crc", "unknown_type", "bad_device", "malformed", "non_finite".
+    """
+
+    def __init__(self, message: str, kind: str = "malformed") -> None:
+        super().__init__(message)
+        self.kind = kind
 
 
 class RoadmapFullError(PlanningError):

@@ -102,3 +102,34 @@ def test_export_directory_defaults_beside_the_session(
         _check_args(parser.parse_args(["--export-dir", "file"]), parser)
     assert info.value.code == 2
     assert "--export-dir file exists and is not a directory" in capsys.readouterr().err
+
+
+def test_session_files_the_demo_refuses_name_the_file_or_folder(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    empty = tmp_path / "empty.icenav"
+    empty.touch()
+    assert main(["--headless", "--duration", "1", "--session", str(empty)]) == 1
+    assert f"session file {empty} is empty (0 bytes)" in capsys.readouterr().err
+    missing = tmp_path / "nope" / "s.icenav"
+    assert main(["--headless", "--duration", "1", "--session", str(missing)]) == 1
+    assert f"the folder {missing.parent} does not exist" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        main(["--new-session"])
+    assert "--new-session needs --session" in capsys.readouterr().err
+
+
+def test_new_session_starts_a_session_in_an_empty_file_and_never_overwrites(
+    tmp_path: Path,
+) -> None:
+    from icenav.apps.demo import _parser, start_new_session
+    from icenav.errors import StoreError
+
+    empty = tmp_path / "empty.icenav"
+    empty.touch()
+    args = _parser().parse_args(["--session", str(empty), "--new-session"])
+    start_new_session(args)
+    with SessionStore(empty) as store:  # now a session, resumed without the flag
+        assert store.load_views().names() == []
+    with pytest.raises(StoreError, match="never written over"):
+        start_new_session(args)

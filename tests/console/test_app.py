@@ -364,3 +364,21 @@ def test_an_update_to_a_just_closed_browser_is_not_a_console_error() -> None:
         while c.last_error == "" and time.monotonic() < deadline:
             time.sleep(0.01)
         assert c.last_error == "RuntimeError: boom: a real failure"
+
+
+def test_a_console_port_in_use_is_an_error_naming_it() -> None:
+    import socket
+
+    from icenav.control.controller import Controller, ControllerConfig
+    from icenav.devices.sim_robot import IdealPlant, SimulatedRobot
+    from icenav.errors import ConfigurationError
+
+    ctrl = Controller(SimulatedRobot(IdealPlant()), ControllerConfig())
+    with socket.socket() as taken:
+        taken.bind(("127.0.0.1", 0))
+        taken.listen()
+        port = taken.getsockname()[1]
+        console = Console(ctrl, port=port)
+        with pytest.raises(ConfigurationError, match=f"console port {port} on 127.0.0.1 is in use"):
+            console.start()
+        assert console._server is None  # noqa: SLF001 - nothing left serving elsewhere

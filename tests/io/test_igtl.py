@@ -1,17 +1,15 @@
 """The OpenIGTLink bridge with pyigtl's client over loopback, on a port the OS chooses.
 
-pyigtl keeps only the latest message per device on the receiving side, so every check waits
-(with a timeout) until the client's latest message is the expected one; no fixed sleeps.
+The client keeps every message it receives (tests/support/igtl.py); every check waits on a
+condition with a timeout, no fixed sleeps.
 """
 
 from __future__ import annotations
 
-import contextlib
 import json
 import signal
 import threading
-import time
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from typing import Any
 
 import numpy as np
@@ -30,12 +28,12 @@ from icenav.io.igtl import (
     IgtlCommand,
     IgtlConfig,
     IgtlError,
+    IgtlOutcome,
+    IgtlReply,
     IgtlRequest,
     check_device_name,
-    wait_for_client,
 )
-
-TIMEOUT_S = 10.0
+from tests.support.igtl import RecordingClient, connected_client
 
 
 def _rigid(rng: np.random.Generator) -> np.ndarray:
@@ -48,41 +46,31 @@ def _rigid(rng: np.random.Generator) -> np.ndarray:
     return t
 
 
-def wait_for(client: pyigtl.OpenIGTLinkClient, device: str, accept: Callable[[Any], bool]) -> Any:
-    """The first message of ``device`` that ``accept`` takes, within TIMEOUT_S."""
-    deadline = time.monotonic() + TIMEOUT_S
-    while time.monotonic() < deadline:
-        msg = client.wait_for_message(device, timeout=0.05)
-        if msg is not None and accept(msg):
-            return msg
-    pytest.fail(f"no acceptable {device} message within {TIMEOUT_S} s")
+class FakeSink:
+    """The command callback: records requests; refuses go_to_view, accepts the rest."""
+
+    def __init__(self) -> None:
+        self.received: list[IgtlRequest] = []
+
+    def __call__(self, request: IgtlRequest) -> IgtlReply:
+        self.received.append(request)
+        if request.command is IgtlCommand.GO_TO_VIEW:
+            return IgtlReply(IgtlOutcome.REFUSED, "control is held by browser-1")
+        return IgtlReply(IgtlOutcome.ACCEPTED)
 
 
 @pytest.fixture
-def link() -> Iterator[tuple[IgtlBridge, pyigtl.OpenIGTLinkClient, list[IgtlRequest]]]:
-    received: list[IgtlRequest] = []
+def link() -> Iterator[tuple[IgtlBridge, RecordingClient, FakeSink]]:
+    sink = FakeSink()
     config = IgtlConfig(
         port=0, accepted_commands=frozenset({IgtlCommand.STOP, IgtlCommand.SAVE_VIEW})
     )
-    bridge = IgtlBridge(config, on_command=received.append)
+    bridge = IgtlBridge(config, on_command=sink)
     try:
         with connected_client(bridge) as client:
-            yield bridge, client, received
+            yield bridge, client, sink
     finally:
         bridge.close()
-
-
-@contextlib.contextmanager
-def connected_client(bridge: IgtlBridge) -> Iterator[pyigtl.OpenIGTLinkClient]:
-    """A real pyigtl client connected to ``bridge`` over loopback; stopped and closed after."""
-    client = pyigtl.OpenIGTLinkClient(host="127.0.0.1", port=bridge.port)
-    try:
-        assert wait_for_client(bridge, TIMEOUT_S)
-        yield client
-    finally:
-        client.stop()
-        if client.socket is not None:
-            client.socket.close()
 
 
 def test_binds_loopback_on_a_free_port(link: Any) -> None:
@@ -101,7 +89,7 @@ def test_transforms_arrive_with_their_matrices_and_names(link: Any) -> None:
         (DEVICE_TIP_TO_BASE, tip2base),
         (DEVICE_SENSOR_TO_TRACKER, sensor2tracker),
     ):
-        msg = wait_for(client, name, lambda m: True)
+        msg = client.wait_for(name)
         assert msg.device_name == name
         np.testing.assert_allclose(msg.matrix, expected, atol=1e-4)
 
@@ -113,9 +101,7 @@ def test_latest_pose_wins_when_many_are_queued(link: Any) -> None:
     for pose in poses:
         bridge.send_pose(DEVICE_TIP_TO_BASE, pose)
     # The client may skip intermediate poses, but it ends on the newest one.
-    msg = wait_for(
-        client, DEVICE_TIP_TO_BASE, lambda m: np.allclose(m.matrix, poses[-1], atol=1e-4)
-    )
+    msg = client.wait_for(DEVICE_TIP_TO_BASE, lambda m: np.allclose(m.matrix, poses[-1], atol=1e-4))
     np.testing.assert_allclose(msg.matrix, poses[-1], atol=1e-4)
 
 
@@ -128,7 +114,7 @@ def test_image_content_and_ijk_matrix(link: Any) -> None:
     ijk2base = pose.copy()
     ijk2base[:3, :3] = pose[:3, :3] * spacing
     bridge.send_image(DEVICE_IMAGE, image, ijk2base)
-    msg = wait_for(client, DEVICE_IMAGE, lambda m: True)
+    msg = client.wait_for(DEVICE_IMAGE)
     assert msg.device_name == DEVICE_IMAGE
     assert msg.image.shape == (1, 48, 64)
     np.testing.assert_array_equal(msg.image[0], image)
@@ -142,37 +128,93 @@ def test_image_content_and_ijk_matrix(link: Any) -> None:
 def test_status_text_and_json(link: Any) -> None:
     bridge, client, _ = link
     bridge.send_status("homing")
-    wait_for(client, DEVICE_STATUS, lambda m: m.string == "homing")
+    client.wait_for(DEVICE_STATUS, lambda m: m.string == "homing")
     bridge.send_status({"mode": "knob", "fault": ""})
-    msg = wait_for(client, DEVICE_STATUS, lambda m: m.string.startswith("{"))
+    msg = client.wait_for(DEVICE_STATUS, lambda m: m.string.startswith("{"))
     assert json.loads(msg.string) == {"fault": "", "mode": "knob"}
 
 
-def _send_command(client: pyigtl.OpenIGTLinkClient, text: str) -> str:
+def _send_command(client: RecordingClient, text: str) -> list[str]:
+    """Send one STRING; the replies to it (one per non-blank line), in order."""
+    n_lines = sum(1 for ln in text.splitlines() if ln.strip())
+    before = len(client.messages(DEVICE_COMMAND_ACK))
     client.send_message(pyigtl.StringMessage(text, device_name=DEVICE_COMMAND), wait=True)
-    return str(wait_for(client, DEVICE_COMMAND_ACK, lambda m: text in m.string).string)
+    assert client.wait_until(lambda: len(client.messages(DEVICE_COMMAND_ACK)) >= before + n_lines)
+    return [m.string for m in client.messages(DEVICE_COMMAND_ACK)[before:]]
 
 
 def test_enabled_commands_reach_the_callback(link: Any) -> None:
-    bridge, client, received = link
-    assert _send_command(client, "save_view septum").startswith("accepted")
-    assert _send_command(client, "stop").startswith("accepted")
-    assert [(r.command, r.argument) for r in received] == [
+    bridge, client, sink = link
+    assert _send_command(client, "save_view septum") == ["accepted: save_view septum"]
+    assert _send_command(client, "stop") == ["accepted: stop"]
+    assert [(r.command, r.argument) for r in sink.received] == [
         (IgtlCommand.SAVE_VIEW, "septum"),
         (IgtlCommand.STOP, ""),
     ]
+    assert all(r.peer.startswith("127.0.0.1:") for r in sink.received)
 
 
-def test_disabled_and_malformed_commands_are_rejected(link: Any) -> None:
-    bridge, client, received = link
-    ack = _send_command(client, "go_to_view septum")
-    assert ack.startswith("rejected") and "not enabled" in ack
-    ack = _send_command(client, "launch rockets")
-    assert ack.startswith("rejected") and "unknown command" in ack
-    ack = _send_command(client, "save_view")
-    assert "needs a view name" in ack
-    assert received == []
-    assert bridge.rejected == ["go_to_view septum", "launch rockets", "save_view"]
+def test_disabled_and_malformed_commands_are_refused_with_the_reason(link: Any) -> None:
+    bridge, client, sink = link
+    assert _send_command(client, "go_to_view septum") == [
+        "refused: go_to_view septum: command go_to_view is not enabled"
+    ]
+    (ack,) = _send_command(client, "launch rockets")
+    assert ack.startswith("refused") and "unknown command" in ack
+    (ack,) = _send_command(client, "save_view")
+    assert ack.startswith("refused") and "needs a view name" in ack
+    assert sink.received == []
+    assert [r.command for r in bridge.command_log] == [
+        "go_to_view septum",
+        "launch rockets",
+        "save_view",
+    ]
+    assert bridge.command_counts["refused"] == 3
+
+
+def test_the_callbacks_refusal_is_what_the_client_reads() -> None:
+    sink = FakeSink()
+    config = IgtlConfig(port=0, accepted_commands=frozenset(IgtlCommand))
+    with IgtlBridge(config, on_command=sink) as bridge, connected_client(bridge) as client:
+        assert _send_command(client, "go_to_view apex") == [
+            "refused: go_to_view apex: control is held by browser-1"
+        ]
+        assert [r.argument for r in sink.received] == ["apex"]
+
+
+def test_several_commands_in_one_message_each_get_their_reply_in_order(link: Any) -> None:
+    bridge, client, sink = link
+    acks = _send_command(client, "save_view a\nstop\n\ngo_to_view a\nsave_view b")
+    assert acks == [
+        "accepted: save_view a",
+        "accepted: stop",
+        "refused: go_to_view a: command go_to_view is not enabled",
+        "accepted: save_view b",
+    ]
+    assert [r.argument for r in sink.received] == ["a", "", "b"]
+
+
+def test_more_lines_than_the_cap_are_refused_in_one_reply(link: Any) -> None:
+    bridge, client, sink = link
+    cap = bridge.config.limits.max_commands_per_message
+    text = "\n".join(f"save_view v{i}" for i in range(cap + 5))
+    client.send_message(pyigtl.StringMessage(text, device_name=DEVICE_COMMAND), wait=True)
+    assert client.wait_until(lambda: len(client.messages(DEVICE_COMMAND_ACK)) >= cap + 1)
+    acks = [m.string for m in client.messages(DEVICE_COMMAND_ACK)]
+    assert acks[:cap] == [f"accepted: save_view v{i}" for i in range(cap)]
+    assert acks[cap] == f"refused: ...: 5 more commands in one message (at most {cap} are read)"
+    assert len(sink.received) == cap
+
+
+def test_a_handler_that_raises_is_a_failed_reply_and_the_server_goes_on() -> None:
+    def broken(request: IgtlRequest) -> IgtlReply:
+        raise RuntimeError("boom")
+
+    config = IgtlConfig(port=0, accepted_commands=frozenset(IgtlCommand))
+    with IgtlBridge(config, on_command=broken) as bridge, connected_client(bridge) as client:
+        assert _send_command(client, "stop") == ["failed: stop: RuntimeError: boom"]
+        bridge.send_status("still here")
+        client.wait_for(DEVICE_STATUS, lambda m: m.string == "still here")
 
 
 def test_no_commands_accepted_by_default() -> None:
@@ -205,27 +247,23 @@ def test_device_names() -> None:
         check_device_name("Spitze→Basis")
 
 
-def test_must_be_created_on_the_main_thread() -> None:
-    errors: list[BaseException] = []
-
-    def create() -> None:
-        try:
-            IgtlBridge(IgtlConfig(port=0))
-        except BaseException as exc:  # collected for the assertion below
-            errors.append(exc)
-
-    t = threading.Thread(target=create)
+def test_may_be_created_off_the_main_thread_and_leaves_signal_handlers_alone() -> None:
+    before = signal.getsignal(signal.SIGINT)
+    made: list[IgtlBridge] = []
+    t = threading.Thread(target=lambda: made.append(IgtlBridge(IgtlConfig(port=0))))
     t.start()
     t.join()
-    assert len(errors) == 1 and isinstance(errors[0], IgtlError)
-    assert "main thread" in str(errors[0])
-
-
-def test_close_restores_the_signal_handlers() -> None:
-    before = signal.getsignal(signal.SIGINT)
-    bridge = IgtlBridge(IgtlConfig(port=0))
-    assert signal.getsignal(signal.SIGINT) is not before  # pyigtl installed its own
-    bridge.close()
+    (bridge,) = made
     assert signal.getsignal(signal.SIGINT) is before
+    bridge.close()
     with pytest.raises(IgtlError, match="closed"):
         bridge.send_status("late")
+
+
+def test_a_port_in_use_is_an_error_naming_the_port() -> None:
+    first = IgtlBridge(IgtlConfig(port=0))
+    try:
+        with pytest.raises(IgtlError, match=f"port {first.port}.*in use"):
+            IgtlBridge(IgtlConfig(port=first.port))
+    finally:
+        first.close()

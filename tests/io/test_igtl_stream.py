@@ -1,10 +1,9 @@
 """The controller streamed to an OpenIGTLink client (pyigtl) over loopback: poses, image,
-status, and commands routed back to the controller."""
+status, and commands routed to the controller through the one adapter, with true replies."""
 
 from __future__ import annotations
 
-import time
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from typing import Any
 
 import numpy as np
@@ -14,33 +13,27 @@ import pytest
 from icenav.apps.wiring import SimSession, make_sim_controller
 from icenav.io.igtl import (
     DEVICE_COMMAND,
+    DEVICE_COMMAND_ACK,
     DEVICE_IMAGE,
     DEVICE_SENSOR_TO_TRACKER,
     DEVICE_TIP_TO_BASE,
     IgtlBridge,
     IgtlCommand,
     IgtlConfig,
+    IgtlOutcome,
+    IgtlRequest,
 )
-from icenav.io.igtl_stream import CommandForwarder, IgtlStreamer
-from tests.io.test_igtl import connected_client
-
-TIMEOUT_S = 15.0
-
-
-def wait_for(client: pyigtl.OpenIGTLinkClient, device: str, accept: Callable[[Any], bool]) -> Any:
-    deadline = time.monotonic() + TIMEOUT_S
-    while time.monotonic() < deadline:
-        msg = client.wait_for_message(device, timeout=0.05)
-        if msg is not None and accept(msg):
-            return msg
-    pytest.fail(f"no acceptable {device} message within {TIMEOUT_S} s")
+from icenav.io.igtl_stream import CommandForwarder, IgtlStreamer, handle_request
+from tests.support.igtl import RecordingClient, connected_client
 
 
 @pytest.fixture
-def streamed() -> Iterator[tuple[SimSession, IgtlStreamer, pyigtl.OpenIGTLinkClient]]:
+def streamed() -> Iterator[tuple[SimSession, IgtlStreamer, RecordingClient]]:
     forwarder = CommandForwarder()
     bridge = IgtlBridge(
-        IgtlConfig(port=0, accepted_commands=frozenset({IgtlCommand.SAVE_VIEW})),
+        IgtlConfig(
+            port=0, accepted_commands=frozenset({IgtlCommand.SAVE_VIEW, IgtlCommand.GO_TO_VIEW})
+        ),
         on_command=forwarder,
     )
     session = make_sim_controller(seed=104)
@@ -63,32 +56,69 @@ def test_pose_image_and_sensor_reach_the_client(streamed: Any) -> None:
         ctrl.step()
     state = ctrl.snapshot()
     streamer.send_once(with_image=True)
-    tip = wait_for(
-        client,
-        DEVICE_TIP_TO_BASE,
-        lambda m: np.allclose(m.matrix, state.tip2base_model, atol=1e-3),
+    tip = client.wait_for(
+        DEVICE_TIP_TO_BASE, lambda m: np.allclose(m.matrix, state.tip2base_model, atol=1e-3)
     )
     assert tip.device_name == "TipToBase"
     if state.sensor2base is not None:
-        wait_for(client, DEVICE_SENSOR_TO_TRACKER, lambda m: m.matrix.shape == (4, 4))
+        client.wait_for(DEVICE_SENSOR_TO_TRACKER, lambda m: m.matrix.shape == (4, 4))
     frame = ctrl.latest_image()
     assert frame is not None
-    img = wait_for(client, DEVICE_IMAGE, lambda m: m.image.size == frame.pixels.size)
+    img = client.wait_for(DEVICE_IMAGE, lambda m: m.image.size == frame.pixels.size)
     np.testing.assert_array_equal(np.squeeze(img.image), frame.pixels)
-    # the image sits in the imaging plane at the true tip: its centre column's first pixel
-    # is next to the transducer (the image centre frame's origin)
+    # the image sits in the imaging plane at the true tip
     ijk2base = np.asarray(img.ijk_to_world_matrix)
     expected = state.tip2base_true @ frame.ijk2tip  # type: ignore[operator]
     np.testing.assert_allclose(ijk2base, expected, atol=1e-3)
+    # the same image is not sent twice
+    streamer.send_once(with_image=True)
+    assert streamer.sent_images == 1
 
 
-def test_save_view_command_from_the_client_reaches_the_controller(streamed: Any) -> None:
+def _command(client: RecordingClient, text: str) -> str:
+    before = len(client.messages(DEVICE_COMMAND_ACK))
+    client.send_message(pyigtl.StringMessage(text, device_name=DEVICE_COMMAND), wait=True)
+    assert client.wait_until(lambda: len(client.messages(DEVICE_COMMAND_ACK)) > before)
+    return str(client.messages(DEVICE_COMMAND_ACK)[before].string)
+
+
+def test_commands_from_the_client_get_the_controllers_answer(streamed: Any) -> None:
     session, _, client = streamed
     ctrl = session.controller
     ctrl.step()
-    client.send_message(pyigtl.StringMessage("SAVE_VIEW slicer-view", device_name=DEVICE_COMMAND))
-    deadline = time.monotonic() + TIMEOUT_S
-    while time.monotonic() < deadline and "slicer-view" not in ctrl.views:
-        ctrl.step()
-        time.sleep(0.01)
+    assert _command(client, "go_to_view nowhere") == (
+        "refused: go_to_view nowhere: no view named 'nowhere'"
+    )
+    assert _command(client, "SAVE_VIEW slicer-view") == "accepted: SAVE_VIEW slicer-view"
+    ctrl.step()
     assert "slicer-view" in ctrl.views
+    assert _command(client, "save_view slicer-view") == (
+        "refused: save_view slicer-view: a view named 'slicer-view' exists"
+    )
+    ctrl.estop("test")
+    ctrl.step()  # the adapter reads the published state (until the controller answers itself)
+    assert _command(client, "go_to_view slicer-view") == (
+        "refused: go_to_view slicer-view: the robot is in estop: reset first"
+    )
+
+
+def test_the_adapter_refuses_motion_while_another_client_holds_control() -> None:
+    session = make_sim_controller(seed=104, imaging=False)
+    try:
+        ctrl = session.controller
+        ctrl.save_view("apex")
+        ctrl.step()
+        assert ctrl.acquire_control("browser-1")
+        ctrl.step()
+        reply = handle_request(ctrl, IgtlRequest(IgtlCommand.GO_TO_VIEW, "apex", 0.0))
+        assert reply.outcome is IgtlOutcome.REFUSED and "browser-1 holds control" in reply.reason
+        assert ctrl.step().mode.value == "idle"  # nothing was queued
+        stop = handle_request(ctrl, IgtlRequest(IgtlCommand.STOP, "", 0.0))
+        assert stop.outcome is IgtlOutcome.ACCEPTED  # stop from anyone
+    finally:
+        session.close()
+
+
+def test_a_forwarder_without_a_controller_refuses() -> None:
+    reply = CommandForwarder()(IgtlRequest(IgtlCommand.STOP, "", 0.0))
+    assert reply.outcome is IgtlOutcome.REFUSED and "not running" in reply.reason

@@ -315,3 +315,98 @@ def test_threaded_recorder_stores_exactly_what_the_roadmap_holds(tmp_path: Path,
     assert sorted(zip(map(tuple, uv0.tolist()), w0.tolist(), strict=True)) == sorted(
         zip(map(tuple, uv1.tolist()), w1.tolist(), strict=True)
     )
+
+
+# ------------------------------------------------------------------ one writer per file
+
+HOLDER = textwrap.dedent(
+    """
+    import sys
+    from icenav.persistence.store import SessionStore
+    from icenav.recovery.roadmap import Roadmap
+
+    store = SessionStore(sys.argv[1], batch_states=1)
+    rm = Roadmap()
+    for i in range(50):
+        rm.add([0.0, 0.0, 0.0, 0.1 * i])
+    store.add_view(rm.make_view("held", created_s=1.0), rm)
+    print("HOLDING", flush=True)
+    sys.stdin.read()  # hold the store until killed
+    """
+)
+
+
+def _holder(path: Path) -> subprocess.Popen[str]:
+    proc = subprocess.Popen(
+        [sys.executable, "-c", HOLDER, str(path)],
+        stdin=subprocess.PIPE,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    assert proc.stdout is not None
+    line = proc.stdout.readline()  # blocks until the child holds the store
+    assert line.strip() == "HOLDING", proc.stderr.read() if proc.stderr else line
+    return proc
+
+
+def test_a_second_process_is_refused_names_the_holder_and_may_read(tmp_path: Path) -> None:
+    import socket
+
+    from icenav.errors import SessionLockedError
+
+    path = tmp_path / "session.icenav"
+    proc = _holder(path)
+    try:
+        with pytest.raises(SessionLockedError, match=str(path)) as info:
+            SessionStore(path)
+        assert f"pid {proc.pid} on host {socket.gethostname()}" in str(info.value)
+        assert info.value.holder.startswith(f"pid {proc.pid}")
+        with SessionStore(path, read_only=True) as reader:  # reading is allowed meanwhile
+            assert reader.load_views().names() == ["held"]
+    finally:
+        proc.send_signal(signal.SIGKILL)  # kill -9: the OS releases the lock
+        proc.communicate(timeout=30)
+    assert proc.returncode == -signal.SIGKILL
+    with SessionStore(path) as store:  # the next open succeeds
+        assert store._db.execute("PRAGMA integrity_check").fetchone()[0] == "ok"  # noqa: SLF001
+        assert store.load_views().names() == ["held"]
+        rm = store.load_roadmap()
+        store.add_view(rm.make_view("after", created_s=2.0), rm)
+    with SessionStore(path, read_only=True) as store:
+        assert store.load_views().names() == ["held", "after"]
+
+
+def test_two_stores_in_one_process_are_refused_too_and_close_releases(tmp_path: Path) -> None:
+    from icenav.errors import SessionLockedError
+
+    path = tmp_path / "s.icenav"
+    first = SessionStore(path)
+    with pytest.raises(SessionLockedError, match=f"pid {__import__('os').getpid()}"):
+        SessionStore(path)
+    first.close()
+    SessionStore(path).close()  # released by close
+
+
+def test_an_empty_file_is_a_new_session_only_by_explicit_choice(tmp_path: Path) -> None:
+    path = tmp_path / "empty.icenav"
+    path.touch()
+    with pytest.raises(StoreError, match=r"empty \(0 bytes\).*--new-session"):
+        SessionStore(path)
+    with pytest.raises(StoreError, match=r"read-only: it is empty"):
+        SessionStore(path, read_only=True)
+    assert path.stat().st_size == 0  # refused, untouched
+    with SessionStore(path, new_session=True) as store:
+        assert store.load_views().names() == []
+    with pytest.raises(StoreError, match="holds data.*never written over"):
+        SessionStore(path, new_session=True)
+    SessionStore(path).close()  # resumed as a session
+
+
+def test_a_missing_folder_is_named(tmp_path: Path) -> None:
+    folder = tmp_path / "no" / "such"
+    with pytest.raises(StoreError, match=f"the folder {folder} does not exist"):
+        SessionStore(folder / "s.icenav")
+    with pytest.raises(StoreError, match=f"the folder {folder} does not exist"):
+        SessionStore(folder / "s.icenav", read_only=True)
+    assert not folder.exists()

@@ -22,6 +22,7 @@ N_INPUTS = {
     "joystick_mapping": 800,
     "calibration": 800,
     "igtl_command": 2000,
+    "igtl_message": 2000,
 }
 
 # Loaders that let a non-icenav error out (none now: the robot-config and joystick-mapping

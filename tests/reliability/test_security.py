@@ -9,20 +9,29 @@ from pathlib import Path
 import pytest
 
 from icenav.errors import InvalidValueError
-from icenav.io.igtl import IgtlBridge, IgtlCommand, IgtlConfig, IgtlRequest
+from icenav.io.igtl import (
+    IgtlBridge,
+    IgtlCommand,
+    IgtlConfig,
+    IgtlOutcome,
+    IgtlReply,
+    IgtlRequest,
+)
 from tests.support.console import FakeClient
 
 TOKEN = "s3cret-token-0123456789"
+PEER = "127.0.0.1:40000"
 
 
 def _bridge(config: IgtlConfig) -> tuple[IgtlBridge, list[IgtlRequest]]:
+    """A real bridge (port 0) whose command callback records and accepts."""
     got: list[IgtlRequest] = []
-    bridge = IgtlBridge.__new__(IgtlBridge)
-    bridge.config = config
-    bridge.rejected = []
-    bridge._closed = True  # noqa: SLF001 - the parser only, no socket
-    bridge._on_command = got.append  # noqa: SLF001
-    return bridge, got
+
+    def sink(request: IgtlRequest) -> IgtlReply:
+        got.append(request)
+        return IgtlReply(IgtlOutcome.ACCEPTED)
+
+    return IgtlBridge(config, on_command=sink), got
 
 
 def test_defaults_bind_loopback_and_accept_no_commands() -> None:
@@ -38,18 +47,34 @@ def test_defaults_bind_loopback_and_accept_no_commands() -> None:
 def test_real_bridge_listens_on_loopback_only() -> None:
     with IgtlBridge(IgtlConfig(port=0)) as bridge:
         assert bridge.host == "127.0.0.1"
-        bridge._handle_command("stop", 0.0)  # noqa: SLF001
-        assert bridge.rejected == ["stop"]  # commands are off by default
+        bridge.handle_line("stop", 0.0, PEER)
+        (record,) = bridge.command_log  # commands are off by default
+        assert record.outcome is IgtlOutcome.REFUSED and "not enabled" in record.reason
 
 
 def test_commands_need_the_token_when_one_is_set() -> None:
-    bridge, got = _bridge(IgtlConfig(accepted_commands=frozenset(IgtlCommand), token=TOKEN))
-    for text in ["stop", "wrong stop", f"{TOKEN}x stop", f" {TOKEN[:-1]} stop", ""]:
-        bridge._handle_command(text, 0.0)  # noqa: SLF001
-    assert got == []
-    assert all(r == "<redacted>" for r in bridge.rejected)  # the guess is not logged
-    bridge._handle_command(f"{TOKEN} go_to_view apex", 1.0)  # noqa: SLF001
-    assert got == [IgtlRequest(IgtlCommand.GO_TO_VIEW, "apex", 1.0)]
+    bridge, got = _bridge(IgtlConfig(port=0, accepted_commands=frozenset(IgtlCommand), token=TOKEN))
+    with bridge:
+        for text in ["stop", "wrong stop", f"{TOKEN}x stop", f" {TOKEN[:-1]} stop"]:
+            bridge.handle_line(text, 0.0, PEER)
+        assert got == []
+        assert all(r.command == "<redacted>" for r in bridge.command_log)  # never logged
+        assert all(TOKEN[:8] not in r.reason for r in bridge.command_log)
+        bridge.handle_line(f"{TOKEN} go_to_view apex", 1.0, PEER)
+        assert got == [IgtlRequest(IgtlCommand.GO_TO_VIEW, "apex", 1.0, PEER)]
+
+
+def test_token_guesses_are_limited_per_host() -> None:
+    bridge, got = _bridge(IgtlConfig(port=0, accepted_commands=frozenset(IgtlCommand), token=TOKEN))
+    with bridge:
+        for k in range(5):
+            bridge.handle_line(f"guess{k} stop", 0.0, f"10.0.0.9:{k}")
+        # the sixth try from that host is refused unchecked, even with the right token
+        bridge.handle_line(f"{TOKEN} stop", 0.0, "10.0.0.9:99")
+        assert got == []
+        assert "too many wrong tokens from 10.0.0.9" in bridge.command_log[-1].reason
+        bridge.handle_line(f"{TOKEN} stop", 0.0, "10.0.0.7:1")  # another host is not held
+        assert [r.command for r in got] == [IgtlCommand.STOP]
 
 
 def test_exposed_bridge_with_commands_needs_a_strong_token() -> None:
@@ -65,8 +90,9 @@ def test_exposed_bridge_with_commands_needs_a_strong_token() -> None:
 
 
 def test_view_names_from_igtl_are_passed_as_data() -> None:
-    bridge, got = _bridge(IgtlConfig(accepted_commands=frozenset(IgtlCommand)))
-    bridge._handle_command("save_view ../../../tmp/evil", 0.0)  # noqa: SLF001
+    bridge, got = _bridge(IgtlConfig(port=0, accepted_commands=frozenset(IgtlCommand)))
+    with bridge:
+        bridge.handle_line("save_view ../../../tmp/evil", 0.0, PEER)
     assert got[0].argument == "../../../tmp/evil"  # a name; the controller never opens it
 
 

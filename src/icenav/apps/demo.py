@@ -2,13 +2,16 @@
 
 ::
 
-    icenav demo [--host 127.0.0.1] [--port 8080] [--session FILE] [--seed N]
+    icenav demo [--host 127.0.0.1] [--port 8080] [--session FILE [--new-session]] [--seed N]
                 [--vessel straight|moderate|steep] [--igtl [--igtl-port 18944]]
                 [--export-dir DIR]
     icenav demo --headless --duration S    # scripted operator, no browser; exit 0 if all well
 
-The console binds to 127.0.0.1 unless ``--host`` says otherwise. With ``--session`` the
-roadmap, the views and the event log are kept in an SQLite file and resumed from it.
+The console binds to 127.0.0.1 unless ``--host`` says otherwise; ``--port 0`` picks a free
+port (printed), a port in use is an error naming it. With ``--session`` the roadmap, the
+views and the event log are kept in an SQLite file and resumed from it; one process writes
+a session at a time; an empty (0-byte) file becomes a new session only with
+``--new-session``.
 The console's Export DICOM button writes into ``--export-dir`` (default: ``exports/`` beside
 the session file, or in the current directory without ``--session``), with file names made
 by the program.
@@ -29,7 +32,7 @@ import numpy as np
 
 from icenav.errors import IcenavError
 
-__all__ = ["export_dir_for", "main", "run_headless"]
+__all__ = ["export_dir_for", "main", "run_headless", "start_new_session"]
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -38,13 +41,20 @@ def _parser() -> argparse.ArgumentParser:
         description="Start the icenav console on the simulated ICE catheter robot.",
     )
     p.add_argument("--host", default="127.0.0.1", help="address to bind (default 127.0.0.1)")
-    p.add_argument("--port", type=int, default=8080, help="console port (default 8080)")
+    p.add_argument(
+        "--port", type=int, default=8080, help="console port (default 8080; 0: a free one)"
+    )
     p.add_argument(
         "--allow-remote",
         action="store_true",
         help="required with a --host other than loopback: expose the console on the network",
     )
     p.add_argument("--session", type=Path, default=None, help="SQLite session file to resume")
+    p.add_argument(
+        "--new-session",
+        action="store_true",
+        help="start a new session in --session, which must not exist or be empty (0 bytes)",
+    )
     p.add_argument(
         "--export-dir",
         type=Path,
@@ -74,7 +84,9 @@ def _parser() -> argparse.ArgumentParser:
         help="headless: simulated seconds to run (> 0, default 20)",
     )
     p.add_argument("--igtl", action="store_true", help="stream to 3D Slicer over OpenIGTLink")
-    p.add_argument("--igtl-port", type=int, default=18944, help="OpenIGTLink port (default 18944)")
+    p.add_argument(
+        "--igtl-port", type=int, default=18944, help="OpenIGTLink port (default 18944; 0: free)"
+    )
     return p
 
 
@@ -89,6 +101,8 @@ def _check_args(args: argparse.Namespace, parser: argparse.ArgumentParser) -> No
         )
     if args.export_dir is not None and args.export_dir.exists() and not args.export_dir.is_dir():
         parser.error(f"--export-dir {args.export_dir} exists and is not a directory")
+    if args.new_session and args.session is None:
+        parser.error("--new-session needs --session FILE")
     if not 0 <= args.port <= 65535:
         parser.error(f"--port must be in [0, 65535], got {args.port}")
     if not 0 <= args.igtl_port <= 65535:
@@ -115,6 +129,15 @@ def control_token_for(host: str) -> str | None:
     import secrets
 
     return secrets.token_urlsafe(16)
+
+
+def start_new_session(args: argparse.Namespace) -> None:
+    """With ``--new-session``, create the session in ``--session`` (which must not exist or
+    be empty) before the controller opens it."""
+    if args.new_session:
+        from icenav.persistence.store import SessionStore
+
+        SessionStore(args.session, new_session=True).close()
 
 
 def run_headless(args: argparse.Namespace) -> int:
@@ -237,7 +260,6 @@ def run_console(args: argparse.Namespace) -> int:
         from icenav.io.igtl import IgtlBridge, IgtlConfig
         from icenav.io.igtl_stream import CommandForwarder
 
-        # pyigtl installs signal handlers: the server must be made on the main thread
         forwarder = CommandForwarder()
         bridge = IgtlBridge(IgtlConfig(port=args.igtl_port), on_command=forwarder)
     gamepad = Sdl2Gamepad()
@@ -267,14 +289,14 @@ def run_console(args: argparse.Namespace) -> int:
     print(f"DICOM exports (Export DICOM in the views panel) go to {exports.root}")
     if token is not None:
         print(f"control token (enter it in the console to take control): {token}", flush=True)
-    ctrl.start()
-    console.start()
     stop = threading.Event()
-    # SIGTERM (a service manager, `kill`) ends the console as cleanly as Ctrl-C; installed
-    # before the URL is printed, so whoever reads the URL may stop it at once
-    signal.signal(signal.SIGTERM, lambda *_: stop.set())
-    print(f"icenav console: {console.url}  (Ctrl-C to stop)", flush=True)
     try:
+        console.start()  # first: a console port in use ends here, before the robot runs
+        ctrl.start()
+        # SIGTERM (a service manager, `kill`) ends the console as cleanly as Ctrl-C;
+        # installed before the URL is printed, so whoever reads the URL may stop it at once
+        signal.signal(signal.SIGTERM, lambda *_: stop.set())
+        print(f"icenav console: {console.url}  (Ctrl-C to stop)", flush=True)
         while not stop.is_set():
             time.sleep(0.2)
     except KeyboardInterrupt:
@@ -295,6 +317,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = parser.parse_args(argv)
     _check_args(args, parser)
     try:
+        start_new_session(args)
         return run_headless(args) if args.headless else run_console(args)
     except IcenavError as exc:
         print(f"icenav demo: {exc}", file=sys.stderr)

@@ -345,6 +345,16 @@ class Console(ConsoleCommands):
         self._server = viser.ViserServer(
             host=self.host, port=self.requested_port, label="icenav", verbose=False
         )
+        bound = int(self._server.get_port())
+        if self.requested_port != 0 and bound != self.requested_port:
+            # viser moves to the next free port on its own; a console that is not where
+            # the operator was told to look is an error, not a surprise
+            self._server.stop()
+            self._server = None
+            raise ConfigurationError(
+                f"console port {self.requested_port} on {self.host} is in use: choose "
+                "another --port, or --port 0 for a free one"
+            )
         self._stop.clear()
         self._reset_view_state()
         self._build_shared()

@@ -1,6 +1,7 @@
-"""The OpenIGTLink bridge to 3D Slicer (pyigtl's server).
+"""The OpenIGTLink bridge to 3D Slicer: what icenav streams, and the commands it takes.
 
-It streams, on one TCP port (18944 by default, bound to 127.0.0.1 unless told otherwise):
+It streams, on one TCP port (18944 by default, bound to 127.0.0.1 unless told otherwise),
+to every connected client at once (:class:`~icenav.io.igtl_server.IgtlServer`):
 
 * ``TipToBase`` (TRANSFORM): the model's tip pose ``tip2base`` (mm);
 * ``SensorToTracker`` (TRANSFORM): the tracked EM sensor pose;
@@ -9,36 +10,29 @@ It streams, on one TCP port (18944 by default, bound to 127.0.0.1 unless told ot
   columns of the matrix);
 * ``IcenavStatus`` (STRING): a status text, or a JSON object.
 
-It accepts a small set of commands (STRING messages on the device ``IcenavCommand``:
-``stop``, ``save_view <name>``, ``go_to_view <name>``) only when they are enabled in
-:class:`IgtlConfig`; each accepted command goes to the ``on_command`` callback and is
-acknowledged on ``IcenavCommandAck`` (``accepted: ...`` / ``rejected: ...``).
+Each message is packed once (pyigtl) and queued to every client; a client that reads
+slowly gets the newest frame of each device and skips older ones.
 
-pyigtl's behaviour that shapes this design:
-
-* its server installs SIGINT / SIGTERM handlers, and Python allows that only on the main
-  thread: :class:`IgtlBridge` must be created on the main thread (it checks, and raises
-  IgtlError otherwise); the bridge restores the previous handlers in :meth:`close`. Sending
-  is thread-safe (a locked queue), so the controller thread may send;
-* it cuts device names past 20 characters silently: names are checked here instead;
-* both ends keep only the *latest* incoming message per device: a client that polls sees the
-  newest pose, not every pose; two commands sent between two polls of the bridge keep only
-  the second, so a client should wait for the acknowledgement before sending the next one;
-* its outgoing queue keeps at most 100 messages: while no client is connected, older ones
-  are dropped.
+Commands (STRING messages on ``IcenavCommand``, one command per line: ``stop``,
+``save_view <name>``, ``go_to_view <name>``) are read only when enabled in
+:class:`IgtlConfig`. Every command gets exactly one reply on ``IcenavCommandAck``,
+``<outcome>: <command>[: <reason>]`` with the outcome ``accepted``, ``refused``, ``done``
+or ``failed``, from the ``on_command`` callback (which decides: the controller's answer)
+or from the bridge (not enabled, unknown, wrong token, unreadable message). Several lines
+in one message get one reply each, in order. Commands refused by the bridge become
+counters and a bounded ring (:attr:`IgtlBridge.command_log`), never a growing list.
 """
 
 from __future__ import annotations
 
+import collections
 import enum
 import hmac
 import json
 import logging
-import signal
-import threading
 import time
-from collections.abc import Callable, Mapping
-from dataclasses import dataclass
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -47,8 +41,10 @@ from numpy.typing import ArrayLike, NDArray
 
 from icenav._validation import check_finite, check_transform
 from icenav.errors import IgtlError, InvalidValueError, ShapeError
+from icenav.io.igtl_server import IgtlServer, Incoming, ServerLimits, ServerStats
 
 __all__ = [
+    "CommandRecord",
     "DEFAULT_PORT",
     "DEVICE_COMMAND",
     "DEVICE_COMMAND_ACK",
@@ -60,9 +56,13 @@ __all__ = [
     "IgtlCommand",
     "IgtlConfig",
     "IgtlError",
+    "IgtlOutcome",
+    "IgtlReply",
     "IgtlRequest",
     "MAX_DEVICE_NAME_LENGTH",
+    "ServerLimits",
     "check_device_name",
+    "parse_command",
     "wait_for_client",
 ]
 
@@ -81,6 +81,11 @@ DEVICE_STATUS = "IcenavStatus"
 DEVICE_COMMAND = "IcenavCommand"
 DEVICE_COMMAND_ACK = "IcenavCommandAck"
 
+_ECHO_CHARS = 100  # a reply repeats at most this much of the command
+_TOKEN_GUESSES = 5  # wrong tokens per host ...
+_TOKEN_WINDOW_S = 60.0  # ... within this window before the host is refused unchecked
+_TOKEN_HOSTS = 1024  # hosts remembered for the guess limit (oldest forgotten)
+
 
 class IgtlCommand(enum.Enum):
     """Commands a client (3D Slicer) may send, when enabled."""
@@ -93,9 +98,32 @@ class IgtlCommand(enum.Enum):
     """Go to a saved view by name."""
 
 
+class IgtlOutcome(enum.Enum):
+    """The outcome a reply reports (the names of the controller's command outcomes)."""
+
+    ACCEPTED = "accepted"
+    """Taken: the controller will act on it (or has started)."""
+    REFUSED = "refused"
+    """Not taken, and why (not enabled, not in control, in ESTOP, unknown view, ...)."""
+    DONE = "done"
+    """Taken and finished."""
+    FAILED = "failed"
+    """Taken, and it failed (why in the reason)."""
+
+
+@dataclass(frozen=True)
+class IgtlReply:
+    """What ``on_command`` answers for one command."""
+
+    outcome: IgtlOutcome
+    """Accepted, refused, done or failed."""
+    reason: str = ""
+    """Why (required for refused and failed)."""
+
+
 @dataclass(frozen=True)
 class IgtlRequest:
-    """One accepted command."""
+    """One command that passed the bridge's checks, for ``on_command``."""
 
     command: IgtlCommand
     """What to do."""
@@ -103,6 +131,24 @@ class IgtlRequest:
     """The view name for SAVE_VIEW / GO_TO_VIEW ("" for STOP)."""
     timestamp: float
     """Time stamp of the OpenIGTLink message (s since 1970)."""
+    peer: str = ""
+    """``host:port`` of the client that sent it (the command's source)."""
+
+
+@dataclass(frozen=True)
+class CommandRecord:
+    """One entry of the bridge's command log (a bounded ring)."""
+
+    t: float
+    """Wall-clock time (s since 1970)."""
+    peer: str
+    """``host:port`` of the client."""
+    command: str
+    """The command as received (at most 100 characters; a token is never kept)."""
+    outcome: IgtlOutcome
+    """The outcome replied."""
+    reason: str
+    """Why, for refused / failed."""
 
 
 @dataclass(frozen=True)
@@ -112,22 +158,20 @@ class IgtlConfig:
     port: int = DEFAULT_PORT
     """TCP port; 0 lets the operating system choose a free one (see IgtlBridge.port)."""
     local_only: bool = True
-    """Bind to 127.0.0.1 (True) or to the address of ``iface`` (False)."""
-    iface: str = "eth0"
-    """Network interface whose address the server binds to when not local_only."""
+    """Bind to 127.0.0.1 (True) or to ``bind_address`` (False)."""
+    bind_address: str = "0.0.0.0"
+    """Address the server binds to when not local_only ("0.0.0.0": every interface)."""
     accepted_commands: frozenset[IgtlCommand] = frozenset()
     """Commands accepted from clients; the empty default accepts none."""
-    poll_period_s: float = 0.01
-    """How often incoming commands are polled (s)."""
     token: str = ""
     """When set, a command is accepted only as ``<token> <command> [argument]`` (required
     when the bridge is exposed beyond loopback)."""
+    limits: ServerLimits = field(default_factory=ServerLimits)
+    """What one client may cost the server (connections, sizes, timeouts, backlogs)."""
 
     def __post_init__(self) -> None:
         if not 0 <= self.port <= 65535:
             raise InvalidValueError(f"port must be in [0, 65535], got {self.port}")
-        if not self.poll_period_s > 0:
-            raise InvalidValueError(f"poll_period_s must be > 0 s, got {self.poll_period_s} s")
         if not self.local_only and self.accepted_commands and len(self.token) < 16:
             raise InvalidValueError(
                 "commands on an exposed OpenIGTLink bridge need a token of >= 16 characters"
@@ -161,71 +205,91 @@ def _check_affine(m: ArrayLike, name: str) -> NDArray[np.float64]:
     return arr
 
 
+def parse_command(
+    line: str, config: IgtlConfig, timestamp: float = 0.0, peer: str = ""
+) -> IgtlRequest | IgtlReply:
+    """One command line (token already removed) as a request, or the refusal and why."""
+    word, _, argument = line.strip().partition(" ")
+    try:
+        command = IgtlCommand(word.lower())
+    except ValueError:
+        return IgtlReply(IgtlOutcome.REFUSED, f"unknown command {word[:40]!r}")
+    if command not in config.accepted_commands:
+        return IgtlReply(IgtlOutcome.REFUSED, f"command {command.value} is not enabled")
+    argument = argument.strip()
+    if command is not IgtlCommand.STOP and not argument:
+        return IgtlReply(IgtlOutcome.REFUSED, f"command {command.value} needs a view name")
+    return IgtlRequest(command, argument, timestamp, peer)
+
+
+def _pack_ack(text: str) -> bytes:
+    return bytes(pyigtl.StringMessage(text, device_name=DEVICE_COMMAND_ACK).pack())
+
+
 class IgtlBridge:
     """An OpenIGTLink server that streams poses, images and status to 3D Slicer.
+
+    May be created on any thread; sending (``send_*``) is thread-safe and never waits for a
+    socket (the server's I/O thread sends).
 
     Parameters
     ----------
     config : IgtlConfig
-        Port, binding and accepted commands.
+        Port, binding, accepted commands and limits.
     on_command : callable, optional
-        Called (on the bridge's polling thread) with each accepted :class:`IgtlRequest`.
+        ``on_command(request) -> IgtlReply``, called on the server's command thread for each
+        enabled command; its reply is sent to the client. Without it, enabled commands are
+        refused ("no controller").
 
     Raises
     ------
     IgtlError
-        Not on the main thread, or the port cannot be bound.
+        The port cannot be bound (the message names it).
     """
 
     def __init__(
         self,
         config: IgtlConfig | None = None,
-        on_command: Callable[[IgtlRequest], None] | None = None,
+        on_command: Callable[[IgtlRequest], IgtlReply] | None = None,
     ):
-        if threading.current_thread() is not threading.main_thread():
-            raise IgtlError(
-                "IgtlBridge must be created on the main thread: pyigtl's server installs "
-                "SIGINT / SIGTERM handlers, which Python allows only there"
-            )
         self.config = config or IgtlConfig()
         self._on_command = on_command
-        self._previous_handlers = {
-            sig: signal.getsignal(sig) for sig in (signal.SIGINT, signal.SIGTERM)
-        }
-        try:
-            self._server = pyigtl.OpenIGTLinkServer(
-                port=self.config.port,
-                local_server=self.config.local_only,
-                iface=self.config.iface,
-                start_now=True,
-            )
-        except OSError as exc:
-            self._restore_signal_handlers()
-            raise IgtlError(
-                f"cannot open the OpenIGTLink server on port {self.config.port}: {exc}"
-            ) from exc
-        self.rejected: list[str] = []
-        """Texts of the commands refused because they are not enabled (for diagnostics)."""
-        self._stop = threading.Event()
+        self.command_counts: collections.Counter[str] = collections.Counter()
+        """Replies sent, by outcome value ("accepted", "refused", ...)."""
+        self.command_log: collections.deque[CommandRecord] = collections.deque(maxlen=128)
+        """The last 128 commands and their outcomes (a bounded ring)."""
+        self._guesses: collections.OrderedDict[str, collections.deque[float]] = (
+            collections.OrderedDict()
+        )
         self._closed = False
-        self._poller = threading.Thread(target=self._poll, name="igtl-commands", daemon=True)
-        self._poller.start()
+        host = "127.0.0.1" if self.config.local_only else self.config.bind_address
+        self.server = IgtlServer(
+            host=host,
+            port=self.config.port,
+            limits=self.config.limits,
+            command_device=DEVICE_COMMAND,
+            on_command=self._handle,
+        )
 
     # ------------------------------------------------------------------ properties
     @property
     def port(self) -> int:
         """The TCP port the server listens on (the chosen one when config.port is 0)."""
-        return int(self._server.server_address[1])
+        return int(self.server.port)
 
     @property
     def host(self) -> str:
         """The address the server is bound to."""
-        return str(self._server.server_address[0])
+        return str(self.server.host)
 
     @property
     def connected(self) -> bool:
-        """Whether a client is connected."""
-        return bool(self._server.is_connected())
+        """Whether at least one client is connected."""
+        return self.server.n_clients > 0
+
+    def stats(self) -> ServerStats:
+        """The server's counters (connections, faults, bytes, buffered bytes)."""
+        return self.server.stats()
 
     # ------------------------------------------------------------------ sending
     def send_pose(self, name: str, a2b: ArrayLike, timestamp: float | None = None) -> None:
@@ -234,7 +298,7 @@ class IgtlBridge:
         matrix = check_transform(a2b, name, tol=1e-5)
         if matrix.shape != (4, 4):
             raise ShapeError(f"{name} must have shape (4, 4), got {matrix.shape}")
-        self._send(pyigtl.TransformMessage(matrix, timestamp=timestamp, device_name=name))
+        self._send(name, pyigtl.TransformMessage(matrix, timestamp=timestamp, device_name=name))
 
     def send_image(
         self,
@@ -269,79 +333,112 @@ class IgtlBridge:
             timestamp=timestamp,
             device_name=name,
         )
-        self._send(message)
+        self._send(name, message)
 
     def send_status(self, status: str | Mapping[str, Any], timestamp: float | None = None) -> None:
         """Send a status text, or a mapping as a JSON object, on ``IcenavStatus``."""
         text = status if isinstance(status, str) else json.dumps(dict(status), sort_keys=True)
-        self._send(pyigtl.StringMessage(text, timestamp=timestamp, device_name=DEVICE_STATUS))
+        self._send(
+            DEVICE_STATUS,
+            pyigtl.StringMessage(text, timestamp=timestamp, device_name=DEVICE_STATUS),
+        )
 
-    def _send(self, message: Any) -> None:
+    def _send(self, device: str, message: Any) -> None:
         if self._closed:
             raise IgtlError("the OpenIGTLink bridge is closed")
-        # wait=False: with no client connected, waiting for the queue to drain would block.
-        self._server.send_message(message, wait=False)
+        self.server.broadcast(device, bytes(message.pack()))  # packed once, on this thread
 
     # ------------------------------------------------------------------ commands
-    def _poll(self) -> None:
-        while not self._stop.wait(self.config.poll_period_s):
-            try:
-                for message in self._server.get_latest_messages():
-                    if message.device_name == DEVICE_COMMAND and hasattr(message, "string"):
-                        self._handle_command(str(message.string), float(message.timestamp))
-            except Exception:  # pragma: no cover - keep polling whatever a client sends
-                logger.exception("OpenIGTLink command handling failed")
-
-    def _handle_command(self, text: str, timestamp: float) -> None:
-        if self.config.token:  # reliability: part 4 (security); the token is never echoed
-            given, _, rest = text.strip().partition(" ")
-            if not hmac.compare_digest(given.encode(), self.config.token.encode()):
-                self._reject("<redacted>", "missing or wrong token")
-                return
-            text = rest
-        word, _, argument = text.strip().partition(" ")
-        try:
-            command = IgtlCommand(word.lower())
-        except ValueError:
-            self._reject(text, f"unknown command {word!r}")
-            return
-        if command not in self.config.accepted_commands:
-            self._reject(text, f"command {command.value} is not enabled")
-            return
-        argument = argument.strip()
-        if command is not IgtlCommand.STOP and not argument:
-            self._reject(text, f"command {command.value} needs a view name")
-            return
-        self._ack(f"accepted: {text.strip()}")
-        if self._on_command is not None:
-            self._on_command(IgtlRequest(command, argument, timestamp))
-
-    def _reject(self, text: str, reason: str) -> None:
-        self.rejected.append(text)
-        logger.warning("OpenIGTLink command %r rejected: %s", text, reason)
-        self._ack(f"rejected: {text.strip()}: {reason}")
-
-    def _ack(self, text: str) -> None:
-        if not self._closed:
-            self._server.send_message(
-                pyigtl.StringMessage(text, device_name=DEVICE_COMMAND_ACK), wait=False
+    def _handle(self, incoming: Incoming) -> Sequence[bytes]:
+        """The server's command handler: one reply per command line."""
+        if incoming.error is not None or incoming.text is None:
+            why = str(incoming.error) if incoming.error is not None else "no text"
+            return [self._reply(incoming.peer, "<unreadable>", IgtlReply(IgtlOutcome.REFUSED, why))]
+        lines = [ln for ln in incoming.text.splitlines() if ln.strip()]
+        if not lines:
+            return [self._reply(incoming.peer, "", IgtlReply(IgtlOutcome.REFUSED, "empty command"))]
+        cap = self.config.limits.max_commands_per_message
+        replies = [self.handle_line(ln, incoming.timestamp_s, incoming.peer) for ln in lines[:cap]]
+        if len(lines) > cap:
+            more = IgtlReply(
+                IgtlOutcome.REFUSED,
+                f"{len(lines) - cap} more commands in one message (at most {cap} are read)",
             )
+            replies.append(self._reply(incoming.peer, "...", more))
+        return replies
+
+    def handle_line(self, line: str, timestamp: float, peer: str) -> bytes:
+        """Check, authenticate and run one command line; its packed reply."""
+        text = line.strip()
+        if self.config.token:  # the token is never echoed or logged
+            given, _, text = text.partition(" ")
+            text = text.strip()
+            host = peer.rsplit(":", 1)[0]
+            if self._too_many_guesses(host):
+                why = f"too many wrong tokens from {host}; wait {_TOKEN_WINDOW_S:g} s"
+                return self._reply(peer, "<redacted>", IgtlReply(IgtlOutcome.REFUSED, why))
+            if not hmac.compare_digest(given.encode(), self.config.token.encode()):
+                self._note_guess(host)
+                why = "missing or wrong token"
+                return self._reply(peer, "<redacted>", IgtlReply(IgtlOutcome.REFUSED, why))
+        parsed = parse_command(text, self.config, timestamp, peer)
+        if isinstance(parsed, IgtlReply):
+            return self._reply(peer, text, parsed)
+        if self._on_command is None:
+            reply = IgtlReply(IgtlOutcome.REFUSED, "no controller is attached")
+        else:
+            try:
+                reply = self._on_command(parsed)
+            except Exception as exc:  # noqa: BLE001 - reported to the client, not raised
+                logger.exception("OpenIGTLink command %r failed", text)
+                reply = IgtlReply(IgtlOutcome.FAILED, f"{type(exc).__name__}: {exc}")
+            if not isinstance(reply, IgtlReply):
+                reply = IgtlReply(IgtlOutcome.FAILED, "the command handler gave no outcome")
+        return self._reply(peer, text, reply)
+
+    def _too_many_guesses(self, host: str) -> bool:
+        times = self._guesses.get(host)
+        if times is None or len(times) < _TOKEN_GUESSES:
+            return False
+        return time.monotonic() - times[0] < _TOKEN_WINDOW_S
+
+    def _note_guess(self, host: str) -> None:
+        times = self._guesses.setdefault(host, collections.deque(maxlen=_TOKEN_GUESSES))
+        self._guesses.move_to_end(host)
+        times.append(time.monotonic())
+        if len(times) == _TOKEN_GUESSES and times[-1] - times[0] < _TOKEN_WINDOW_S:
+            logger.warning(
+                "OpenIGTLink: %d wrong command tokens from %s within %g s; its commands are "
+                "refused unchecked until the window passes",
+                _TOKEN_GUESSES,
+                host,
+                _TOKEN_WINDOW_S,
+            )
+        while len(self._guesses) > _TOKEN_HOSTS:
+            self._guesses.popitem(last=False)
+
+    def _reply(self, peer: str, command: str, reply: IgtlReply) -> bytes:
+        echo = command[:_ECHO_CHARS]
+        self.command_counts[reply.outcome.value] += 1
+        self.command_log.append(CommandRecord(time.time(), peer, echo, reply.outcome, reply.reason))
+        if reply.outcome is not IgtlOutcome.ACCEPTED and reply.outcome is not IgtlOutcome.DONE:
+            logger.debug(
+                "OpenIGTLink command %r from %s %s: %s",
+                echo,
+                peer,
+                reply.outcome.value,
+                reply.reason,
+            )
+        text = f"{reply.outcome.value}: {echo}" + (f": {reply.reason}" if reply.reason else "")
+        return _pack_ack(text)
 
     # ------------------------------------------------------------------ life cycle
     def close(self) -> None:
-        """Stop the server and restore the signal handlers pyigtl replaced."""
+        """Close every connection and stop the server."""
         if self._closed:
             return
         self._closed = True
-        self._stop.set()
-        self._poller.join(timeout=5.0)
-        self._server.stop()
-        self._restore_signal_handlers()
-
-    def _restore_signal_handlers(self) -> None:
-        if threading.current_thread() is threading.main_thread():
-            for sig, handler in self._previous_handlers.items():
-                signal.signal(sig, handler)
+        self.server.close()
 
     def __enter__(self) -> IgtlBridge:
         return self
@@ -350,11 +447,6 @@ class IgtlBridge:
         self.close()
 
 
-def wait_for_client(bridge: IgtlBridge, timeout: float) -> bool:
-    """Wait up to ``timeout`` seconds for a client to connect; True if one did."""
-    deadline = time.monotonic() + timeout
-    while not bridge.connected:
-        if time.monotonic() > deadline:
-            return False
-        time.sleep(0.005)
-    return True
+def wait_for_client(bridge: IgtlBridge, timeout: float, n: int = 1) -> bool:
+    """Wait up to ``timeout`` seconds (on a condition) for ``n`` clients; True if they came."""
+    return bridge.server.wait_for_clients(n, timeout)

@@ -4,8 +4,10 @@ A background thread reads the controller's latest snapshot and image at fixed ra
 sends ``TipToBase`` (model tip pose), ``SensorToTracker`` (the tracked sensor, when
 valid), ``Image`` (the ICE image placed in the base frame by its ijk-to-base matrix) and a
 status string; commands the bridge accepts (only those enabled in its configuration) are
-forwarded to the controller as requests from client "igtl". Sending happens outside the
-control thread, so the network never delays a control cycle.
+forwarded to the controller by :func:`handle_request`, the one adapter between the bridge's
+requests and the controller, whose reply goes back to the client. Sending happens outside
+the control thread (packing on the streamer's thread, the sockets on the server's), so the
+network never delays a control cycle.
 """
 
 from __future__ import annotations
@@ -16,26 +18,53 @@ import time
 import numpy as np
 
 from icenav.control.controller import Controller
+from icenav.control.state import Mode
+from icenav.errors import IgtlError
 from icenav.io.igtl import (
     DEVICE_IMAGE,
     DEVICE_SENSOR_TO_TRACKER,
     DEVICE_TIP_TO_BASE,
     IgtlBridge,
     IgtlCommand,
+    IgtlOutcome,
+    IgtlReply,
     IgtlRequest,
 )
 
 __all__ = ["CommandForwarder", "IgtlStreamer", "attach_bridge", "handle_request"]
 
 
-def handle_request(ctrl: Controller, request: IgtlRequest) -> None:
-    """Forward one accepted OpenIGTLink command to the controller."""
+_CLIENT = "igtl"
+
+
+def handle_request(ctrl: Controller, request: IgtlRequest) -> IgtlReply:
+    """Forward one OpenIGTLink command to the controller and say what became of it.
+
+    Until the controller answers commands itself (a ticket with the outcome), this checks
+    what the controller would refuse, from its latest state, before queueing the request:
+    a go-to-view while another client holds control, in ESTOP / FAULT, or to an unknown
+    view; a save under a name that exists. The check and the controller's own may
+    disagree only if the state changes between the two (the controller's message then
+    says so). Stop is never refused.
+    """
     if request.command is IgtlCommand.STOP:
-        ctrl.stop("igtl")
-    elif request.command is IgtlCommand.SAVE_VIEW:
-        ctrl.save_view(request.argument, "igtl")
-    elif request.command is IgtlCommand.GO_TO_VIEW:
-        ctrl.goto_view(request.argument, "igtl")
+        ctrl.stop(_CLIENT)
+        return IgtlReply(IgtlOutcome.ACCEPTED)
+    state = ctrl.snapshot()
+    names = {v.name for v in state.views}
+    if request.command is IgtlCommand.SAVE_VIEW:
+        if request.argument in names:
+            return IgtlReply(IgtlOutcome.REFUSED, f"a view named {request.argument!r} exists")
+        ctrl.save_view(request.argument, _CLIENT)
+        return IgtlReply(IgtlOutcome.ACCEPTED)
+    if state.mode in (Mode.ESTOP, Mode.FAULT):
+        return IgtlReply(IgtlOutcome.REFUSED, f"the robot is in {state.mode.value}: reset first")
+    if state.control_owner not in (None, _CLIENT):
+        return IgtlReply(IgtlOutcome.REFUSED, f"{state.control_owner} holds control")
+    if request.argument not in names:
+        return IgtlReply(IgtlOutcome.REFUSED, f"no view named {request.argument!r}")
+    ctrl.goto_view(request.argument, _CLIENT)
+    return IgtlReply(IgtlOutcome.ACCEPTED)
 
 
 class CommandForwarder:
@@ -45,20 +74,22 @@ class CommandForwarder:
     def __init__(self) -> None:
         self.ctrl: Controller | None = None
 
-    def __call__(self, request: IgtlRequest) -> None:
-        if self.ctrl is not None:
-            handle_request(self.ctrl, request)
+    def __call__(self, request: IgtlRequest) -> IgtlReply:
+        if self.ctrl is None:
+            return IgtlReply(IgtlOutcome.REFUSED, "the controller is not running yet")
+        return handle_request(self.ctrl, request)
 
 
 class IgtlStreamer:
-    """Sends poses at ``pose_rate_hz`` and images at ``image_rate_hz`` until :meth:`stop`."""
+    """Sends poses at ``pose_rate_hz`` and each new image (at most ``image_rate_hz``)
+    until :meth:`stop`, on a thread of its own, paced by deadlines (no drift)."""
 
     def __init__(
         self,
         ctrl: Controller,
         bridge: IgtlBridge,
         pose_rate_hz: float = 50.0,
-        image_rate_hz: float = 15.0,
+        image_rate_hz: float = 30.0,
     ):
         self.ctrl = ctrl
         self.bridge = bridge
@@ -68,6 +99,7 @@ class IgtlStreamer:
         self._thread = threading.Thread(target=self._run, name="icenav-igtl", daemon=True)
         self.sent_poses = 0
         self.sent_images = 0
+        self._last_image: object = None
 
     def start(self) -> None:
         self._thread.start()
@@ -90,19 +122,30 @@ class IgtlStreamer:
         )
         self.sent_poses += 1
         frame = self.ctrl.latest_image()
-        if with_image and frame is not None and state.tip2base_true is not None:
+        new = frame is not None and frame is not self._last_image
+        if with_image and new and frame is not None and state.tip2base_true is not None:
             self.bridge.send_image(DEVICE_IMAGE, frame.pixels, state.tip2base_true @ frame.ijk2tip)
+            self._last_image = frame
             self.sent_images += 1
 
     def _run(self) -> None:
-        next_image = 0.0
+        # every tick sends the pose; the image when the controller has a new one and the
+        # last went out at least an image period ago (the controller's rate is the usual cap)
+        now = time.perf_counter()
+        next_pose = now
+        last_image = -float("inf")
         while not self._stop.is_set():
+            with_image = now - last_image >= self._image_period
+            sent = self.sent_images
+            try:
+                self.send_once(with_image)
+            except IgtlError:  # the bridge was closed under us: the stream ends
+                return
+            if self.sent_images != sent:
+                last_image = now
+            next_pose = max(next_pose + self._pose_period, now - self._pose_period)
+            self._stop.wait(max(0.0, next_pose - time.perf_counter()))
             now = time.perf_counter()
-            with_image = now >= next_image
-            if with_image:
-                next_image = now + self._image_period
-            self.send_once(with_image)
-            self._stop.wait(self._pose_period)
 
     def stop(self) -> None:
         self._stop.set()

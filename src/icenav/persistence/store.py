@@ -48,6 +48,7 @@ from icenav.errors import (
     StoreError,
     UnsupportedVersionError,
 )
+from icenav.persistence.lock import SessionLock
 from icenav.recovery.roadmap import Roadmap, RoadmapConfig, RoadmapMetric
 from icenav.recovery.views import View, ViewLibrary
 
@@ -158,16 +159,28 @@ class SessionStore:
     clock : callable, optional
         Time source (s); default ``time.monotonic``.
     read_only : bool
-        Open an existing file for reading only; any write raises StoreError.
+        Open an existing file for reading only; any write raises StoreError. Needs no lock:
+        a session being written by another process can be read.
+    new_session : bool
+        Start a new session in ``path``, which must not exist or be empty (0 bytes); a file
+        holding a session is never overwritten. Without it an empty file is refused (it is
+        what a crash during creation, or a mistaken ``touch``, leaves).
+
+    A store opened for writing holds an exclusive lock on the file (:mod:`.lock`,
+    ``<path>.lock``) until :meth:`close`; the operating system releases it if the process
+    dies.
 
     Raises
     ------
+    SessionLockedError
+        Another process (or another store here) writes the file; names the holder.
     FileFormatError
         Not an SQLite file, or not an icenav session.
     UnsupportedVersionError
         Written by a newer icenav.
     StoreError
-        Cannot create or write the file (read-only, disk full, locked, ...).
+        Cannot create or write the file (missing folder, read-only, disk full, an empty
+        file without ``new_session``, ...).
     """
 
     def __init__(
@@ -179,6 +192,7 @@ class SessionStore:
         batch_seconds: float = 1.0,
         clock: Callable[[], float] | None = None,
         read_only: bool = False,
+        new_session: bool = False,
     ) -> None:
         self.path = Path(path)
         self.read_only = bool(read_only)
@@ -187,9 +201,47 @@ class SessionStore:
         self._clock = clock if clock is not None else time.monotonic
         self._pending = 0
         self._pending_since: float | None = None
-        exists = self.path.exists() and self.path.stat().st_size > 0
-        if read_only and not exists:
-            raise StoreError(f"cannot open session file {self.path} read-only: it does not exist")
+        self._lock: SessionLock | None = None
+        self._check_folder()
+        if not read_only:
+            self._lock = SessionLock(self.path)  # before anything is read or created
+        try:
+            exists = self._check_path(read_only, new_session)
+            self._open(exists, config, read_only)
+        except BaseException:
+            if self._lock is not None:
+                self._lock.release()
+            raise
+
+    def _check_folder(self) -> None:
+        folder = self.path.parent
+        if not folder.is_dir():
+            what = "does not exist" if not folder.exists() else "is not a folder"
+            raise StoreError(f"cannot open session file {self.path}: the folder {folder} {what}")
+
+    def _check_path(self, read_only: bool, new_session: bool) -> bool:
+        """Whether the file holds data; refuses an empty file without ``new_session`` and a
+        file with data with it."""
+        try:
+            size = self.path.stat().st_size if self.path.exists() else None
+        except OSError as exc:
+            raise StoreError(f"cannot open session file {self.path}: {exc}") from exc
+        if read_only and not size:
+            what = "does not exist" if size is None else "is empty (0 bytes)"
+            raise StoreError(f"cannot open session file {self.path} read-only: it {what}")
+        if size == 0 and not new_session:
+            raise StoreError(
+                f"session file {self.path} is empty (0 bytes), not a session: start a new "
+                "session in it explicitly (icenav demo --new-session) or choose another file"
+            )
+        if size and new_session:
+            raise StoreError(
+                f"session file {self.path} holds data ({size} bytes): a new session is never "
+                "written over a file; choose another file, or resume it without --new-session"
+            )
+        return bool(size)
+
+    def _open(self, exists: bool, config: RoadmapConfig | None, read_only: bool) -> None:
         try:
             if read_only:
                 uri = self.path.resolve().as_uri() + "?mode=ro"
@@ -592,7 +644,7 @@ class SessionStore:
     # --- closing ------------------------------------------------------------------------
 
     def close(self) -> None:
-        """Commit what is pending and close the file."""
+        """Commit what is pending, close the file and release the lock."""
         try:
             if self._db.in_transaction:
                 self._db.execute("COMMIT")
@@ -600,6 +652,8 @@ class SessionStore:
             self._raise(exc, "commit to")
         finally:
             self._db.close()
+            if self._lock is not None:
+                self._lock.release()
 
     def __enter__(self) -> SessionStore:
         return self
