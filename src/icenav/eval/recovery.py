@@ -51,6 +51,7 @@ from typing import Any
 import numpy as np
 
 from icenav._typing import Array
+from icenav.errors import ConfigurationError
 from icenav.eval.recovery_bench import DT, Bench
 from icenav.eval.recovery_report import (
     RecoveryRecord,
@@ -253,7 +254,13 @@ def run_recovery(cfg: RecoveryConfig | None = None) -> RecoveryRun:
             rs = [s for s in samples if s.target == name and s.mode == mode]
             records.append(
                 make_record(
-                    cfg, name, mode, rs, saved_pose[name], saved_dct[name], saved_clip[name],
+                    cfg,
+                    name,
+                    mode,
+                    rs,
+                    saved_pose[name],
+                    saved_dct[name],
+                    saved_clip[name],
                     ceiling[name],
                 )  # fmt: skip
             )
@@ -429,7 +436,7 @@ def _pairs(args: argparse.Namespace) -> list[tuple[int, int]]:
     if len(patients) == 1:
         patients = patients * len(seeds)
     if len(patients) != len(seeds):
-        raise ValueError(
+        raise ConfigurationError(
             f"--patient gives {len(patients)} seeds for {len(seeds)} catheters; give one, or "
             "as many as catheters (they are paired in order)"
         )
@@ -444,7 +451,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 2
     try:
         pairs = _pairs(args)
-    except ValueError as exc:
+    except ConfigurationError as exc:
         print(f"icenav eval recovery: {exc}", file=sys.stderr)
         return 2
     all_records: list[RecoveryRecord] = []

@@ -44,9 +44,7 @@ class TwinBeatImager(SimulatedBeatImager):
     frames_per_beat : int
     """
 
-    def __init__(
-        self, twin: Twin, renderer: Any, clock: Any, frames_per_beat: int = 10
-    ) -> None:
+    def __init__(self, twin: Twin, renderer: Any, clock: Any, frames_per_beat: int = 10) -> None:
         super().__init__(twin.plant, renderer, clock, frames_per_beat, twin.base2anatomy)
         self.twin = twin
 

@@ -334,8 +334,9 @@ def format_table(records: Sequence[RecoveryRecord]) -> str:
         lines.append(
             f"  {r.target:<16s} {r.mode:<10s} EM {_f(r.tip_error_mm_mean)} / "
             f"{_f(r.em_orientation_error_deg_mean)}   true {_f(r.true_tip_error_gm_mm_mean)} +- "
-            f"{_f(r.true_tip_error_gm_mm_sd, '4.2f')}   sim. {_f(r.similarity_true_gm_pct_mean, '5.1f')}"
-            f"   ROI {_f(r.roi_true_gm_error_mm_mean)}   orient {_f(r.true_orientation_error_deg_mean)}"
+            f"{_f(r.true_tip_error_gm_mm_sd, '4.2f')}   sim. "
+            f"{_f(r.similarity_true_gm_pct_mean, '5.1f')}   ROI {_f(r.roi_true_gm_error_mm_mean)}"
+            f"   orient {_f(r.true_orientation_error_deg_mean)}"
             f"   contact {r.max_contact_force_n:5.3f}"
         )
     refined = [r for r in records if r.mode == "refined"]

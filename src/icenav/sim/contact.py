@@ -11,11 +11,12 @@ Equations as in ``docs/digital-twin.md``, section 9:
 * (C2) Walls: ``phi(x, t) = min(sdf_RA, sdf_IVC, sdf_SVC)(X)``, ``X = x - u(x, t)`` (the
   material point, so walls move as the heart does); penetration of node ``i``
   ``p_i = phi(P_i, t) + r_c``; the outward normal ``n_i = grad phi``.
-* (C3) Compliance of the clamped, curved, linearly elastic section (small deflection,
-  base clamped, the housing rigid): a load ``F_j`` at ``P_j`` turns the section at arc
-  length ``sigma < min(s_i, s_j, L)`` by ``dTheta = K (P_j - p(sigma)) x F_j dsigma`` with
-  ``K = t t^T / GJ + (I - t t^T) / EI``, which moves node ``i`` by ``dTheta x (P_i - p)``:
-  ``delta_i = sum_j C_ij F_j``.
+* (C3) Compliance of the curved, linearly elastic section (small deflection, the housing
+  rigid): a load ``F_j`` at ``P_j`` turns the section at arc length
+  ``sigma < min(s_i, s_j, L)`` by ``dTheta = K (P_j - p(sigma)) x F_j dsigma`` with
+  ``K = t t^T / GJ + (I - t t^T) / EI``, which moves node ``i`` by ``dTheta x (P_i - p)``;
+  the base yields sideways with compliance ``c_b``:
+  ``delta_i = sum_j (C_ij + c_b (I - z z^T)) F_j``.
 * (C4) Contact forces: ``f >= 0``, ``p - M f <= 0``, ``f (p - M f) = 0`` with
   ``M_ij = n_i^T C_ij n_j + delta_ij / k_wall`` (tissue indentation in series with the
   catheter's deflection): a linear complementarity problem, solved as the non-negative
@@ -29,7 +30,8 @@ Equations as in ``docs/digital-twin.md``, section 9:
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 import scipy.linalg
@@ -73,6 +75,11 @@ class ContactParams:
     80 g for 6.9 mm in porcine myocardium (Masnok et al.), secant 0.11-0.14 N/mm."""
     housing_mm: float = 6.0
     """Rigid transducer housing beyond the image centre (mm)."""
+    base_compliance_mm_per_n: float = 100.0
+    """Lateral compliance of the section's base (mm/N): the shaft below it lies free in
+    the IVC's lumen (about 9 mm of clearance) and yields sideways, a cantilever of some
+    100 mm with the shaft's EI of about 1000 N mm^2 (about 300 mm/N) until it meets the
+    opposite wall; linearised here (tuned, see the docs)."""
     n_section_nodes: int = 6
     """Contact nodes along the bending section (C1)."""
     n_segments: int = 18
@@ -83,6 +90,12 @@ class ContactParams:
         check_positive(self.bending_stiffness_nmm2, "bending_stiffness_nmm2", "N mm^2")
         check_positive(self.torsional_stiffness_nmm2, "torsional_stiffness_nmm2", "N mm^2")
         check_positive(self.wall_stiffness_n_per_mm, "wall_stiffness_n_per_mm", "N/mm")
+        if not (
+            math.isfinite(self.base_compliance_mm_per_n) and self.base_compliance_mm_per_n >= 0
+        ):
+            raise ConfigurationError(
+                f"base_compliance_mm_per_n must be >= 0 mm/N, got {self.base_compliance_mm_per_n}"
+            )
         if self.housing_mm < 0:
             raise ConfigurationError(f"housing_mm must be >= 0 mm, got {self.housing_mm}")
         for name in ("n_section_nodes", "n_segments"):
@@ -237,7 +250,7 @@ class Walls:
         self.phantom = phantom
         self.base2anatomy = np.asarray(base2anatomy, np.float64)
         self._rot = self.base2anatomy[:3, :3]
-        self._shapes = (
+        self._shapes: tuple[Any, ...] = (
             phantom.chamber("ra"),
             *(v for name in ("ivc", "svc") for v in phantom.vessels if v.name == name),
         )
@@ -316,6 +329,10 @@ def _bump(phase: float, start: float, end: float) -> float:
     return 0.5 * (1.0 - math.cos(2.0 * math.pi * (phase - start) / (end - start)))
 
 
+_LATERAL = np.diag([1.0, 1.0, 0.0])
+"""Sideways in the base frame: the directions the base yields in."""
+
+
 @dataclass
 class _Shape:
     """The free catheter's nodes and compliance in one pose (in the plant's base frame)."""
@@ -335,6 +352,8 @@ class _Shape:
     """Index of the image centre node."""
     in_atrium: Array
     """(n,) 1 for nodes above the IVC-RA junction (where the atrial flow acts), else 0."""
+    base_compliance: float = 0.0
+    """Lateral compliance of the base (mm/N), added to every pair of nodes (C3)."""
     _compliance: Array | None = None
     _tip_row: Array | None = None
 
@@ -345,7 +364,8 @@ class _Shape:
             n, m = self.lever.shape[:2]
             a = self.lever.transpose(0, 2, 1, 3).reshape(3 * n, 3 * m)
             b = self.turn.transpose(1, 2, 0, 3).reshape(3 * m, 3 * n)
-            self._compliance = -(a @ b).reshape(n, 3, n, 3).transpose(0, 2, 1, 3)
+            c = -(a @ b).reshape(n, 3, n, 3).transpose(0, 2, 1, 3)
+            self._compliance = c + self.base_compliance * _LATERAL
         return self._compliance
 
     @property
@@ -355,7 +375,9 @@ class _Shape:
             return self._compliance[self.tip_index]
         if self._tip_row is None:
             rt = self.lever[self.tip_index]  # (m, 3, 3)
-            self._tip_row = -np.einsum("kab,jkbc->jac", rt, self.turn)
+            self._tip_row = -np.einsum("kab,jkbc->jac", rt, self.turn) + (
+                self.base_compliance * _LATERAL
+            )
         return self._tip_row
 
     @property
@@ -445,7 +467,7 @@ class ContactModel:
         if self._b2a is not None:
             inside = ((pts @ self._b2a[2, :3] + self._b2a[2, 3]) > 0.0).astype(np.float64)
         del L
-        return _Shape(self._s, pts, tan, R, KR, self._tip_index, inside)
+        return _Shape(self._s, pts, tan, R, KR, self._tip_index, inside, p.base_compliance_mm_per_n)
 
     # --- loads ------------------------------------------------------------------------------
 
@@ -462,9 +484,7 @@ class ContactModel:
         s = f.systolic_inflow_m_s * _bump(phase, 0.05, 0.40)
         if s > 0.0:
             return amp * s, 0
-        e = f.early_filling_m_s * _bump(phase, 0.45, 0.70) + f.atrial_m_s * _bump(
-            phase, 0.82, 0.98
-        )
+        e = f.early_filling_m_s * _bump(phase, 0.45, 0.70) + f.atrial_m_s * _bump(phase, 0.82, 0.98)
         return amp * e, 1
 
     def flow_loads(self, shape: _Shape, t: float, frame2base: Array | None = None) -> Array | None:

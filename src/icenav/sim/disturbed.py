@@ -141,9 +141,13 @@ class DisturbedPlant:
         """Move the motors to ``q_motor`` (4,) now; returns the (4, 4) true tip2base (mm)."""
         q = np.asarray(q_motor, np.float64)
         t = float(self.clock())
-        if q.shape == (4,) and np.array_equal(q, self._q):
-            return self._pose_for_move(t)  # a held command: nothing moves but time
         self.inner.move(q)  # the plant checks the command first
+        if q.shape == (4,) and np.array_equal(q, self._q):
+            # a held command: the motors stay, time goes on (the plant may still settle)
+            pose = np.asarray(self.inner.state.tip2base, np.float64)
+            if not np.array_equal(pose, self._plant_pose):
+                self._new_motor_state(q, t)
+            return self._pose_for_move(t)
         if self.shaft is not None:
             self.shaft.drive(float(q[3]), float(q[2]), t)
         self._new_motor_state(q.reshape(4), t)
@@ -189,7 +193,9 @@ class DisturbedPlant:
         if t - t_solved >= self.solve_period_s or self.contact is None:
             return self.state_at(t).tip2base.copy()
         s, rho = self._lost_motion(t)
-        out: Array = deflection @ _rigid_z(s, rho) @ self._plant_pose
+        out: Array = deflection @ (
+            _rigid_z(s, rho) @ self._plant_pose if (s or rho) else self._plant_pose
+        )
         return out
 
     def _lost_motion(self, t: float) -> tuple[float, float]:
@@ -206,7 +212,7 @@ class DisturbedPlant:
             return self._cache[2]
         s, rho = self._lost_motion(t)
         frame = _rigid_z(s, rho)
-        free = frame @ self._plant_pose
+        free = frame @ self._plant_pose if (s or rho) else self._plant_pose.copy()
         contacts: tuple[ContactForce, ...] = ()
         deflection = 0.0
         pose = free

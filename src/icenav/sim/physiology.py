@@ -185,7 +185,9 @@ class Breathing:
         bases = np.asarray(self._bases)
         # Eq. (P4): baseline interpolated over the breath, Lujan's sin^(2n) curve on top
         level = (1.0 - tau) * bases[k] + tau * bases[k + 1]
-        level = level + np.asarray(self._depths)[k] * np.sin(np.pi * tau) ** (2 * self.params.shape_n)
+        level = level + np.asarray(self._depths)[k] * np.sin(np.pi * tau) ** (
+            2 * self.params.shape_n
+        )
         out: Array = level.reshape(tt.shape)
         return out
 
@@ -223,9 +225,7 @@ class CardiacRhythm:
         Modulates RR (sinus arrhythmia) and the amplitude (stroke variation).
     """
 
-    def __init__(
-        self, params: RhythmParams, seed: int, breathing: Breathing | None = None
-    ) -> None:
+    def __init__(self, params: RhythmParams, seed: int, breathing: Breathing | None = None) -> None:
         self.params = params
         self.breathing = breathing
         self._rng = np.random.default_rng([int(seed), 0xC4])
