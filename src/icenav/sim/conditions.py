@@ -7,7 +7,8 @@ section 9):
 * ``none``: today's twin, nothing disturbs a return (the default everywhere);
 * ``phantom``: the paper's bench study, a beating heart phantom: contact with its walls,
   its pump's flow and regular beat (small stroke-to-stroke variation), the catheter held
-  at the phantom's access (a short, stiff shaft with little friction), no breathing;
+  at the phantom's access (the shaft through the access and the phantom's vessel, dragged
+  by the beating junction), no breathing;
 * ``in-vivo``: the animal study: contact, flow, a beat that varies from beat to beat and
   with breathing, irregular breathing that moves the heart, a long shaft through the
   introducer's seal and the vessel that sticks, slips and is dragged by the breathing
@@ -100,14 +101,14 @@ PHANTOM = Condition(
     rhythm=RhythmParams(amplitude_sd=0.02),
     breathing=None,
     shaft=ShaftParams(
-        axial_stiffness_n_per_mm=0.5,
+        axial_stiffness_n_per_mm=0.25,
         torsional_stiffness_nmm_per_rad=20.0,
         static_friction_n=0.3,
-        kinetic_friction_n=0.15,
-        static_friction_sd=0.4,
+        kinetic_friction_n=0.1,
+        static_friction_sd=0.5,
         ageing=0.05,
         ageing_time_s=1.0,
-        entrainment=0.0,
+        entrainment=0.5,
         settling_time_s=0.15,
     ),
     patient_variation=True,
@@ -122,14 +123,14 @@ IN_VIVO = Condition(
     ),
     breathing=BreathingParams(period_sd=0.05, amplitude_sd=0.10, baseline_sd=0.05),
     shaft=ShaftParams(
-        axial_stiffness_n_per_mm=0.25,
+        axial_stiffness_n_per_mm=0.15,
         torsional_stiffness_nmm_per_rad=15.0,
         static_friction_n=1.0,
         kinetic_friction_n=0.6,
         static_friction_sd=0.2,
         ageing=0.05,
         ageing_time_s=1.0,
-        entrainment=0.6,
+        entrainment=0.8,
         settling_time_s=0.3,
     ),
     patient_variation=True,
@@ -237,9 +238,11 @@ def build_twin(
     shaft = None
     if c.shaft is not None:
         axis = base2anatomy[:3, 2]
+        junction = np.zeros((1, 3))  # the IVC-RA junction, origin of the anatomy frame
 
         def wall(t: float) -> float:
-            return 0.0 if breathing is None else float(breathing.translation_mm(t) @ axis)
+            # Eq. (S5): the junction moves with the beat and with breathing
+            return float(heart.displacement(junction, t)[0] @ axis)
 
         shaft = ShaftFriction(c.shaft, (int(catheter_seed), int(patient_seed)), wall)
     contact = None

@@ -18,8 +18,9 @@ vivo the vessel wall, moving with breathing, drags it. Equations as in
 * (S4) Static friction grows with the time ``t_s`` stuck (frictional ageing, Dieterich;
   Rabinowicz): ``F_s = F_s0 xi (1 + beta ln(1 + t_s / t_a))``, ``xi`` drawn per stick
   (``1 + sigma_s N(0, 1)``, at least ``F_k / F_s0``): asperity junctions renew at each slip.
-* (S5) Wall: ``w(t) = e (z_b . u_heart(t))``, the heart's respiratory translation along the
-  base axis times the entrainment ``e`` of the vessel at the contact.
+* (S5) Wall: ``w(t) = e (z_b . u(X_j, t))``, the displacement of the IVC-RA junction
+  (the beat and breathing) along the base axis times the entrainment ``e`` of the vessel
+  at the shaft's friction contact.
 * (S6) Settling: the bending section's base follows the quasi-static end with a first-order
   lag ``tau`` (the long shaft is damped by the blood and the vessel): after a slip that
   moves the end by ``J`` the base is ``J exp(-(t - t_slip) / tau)`` behind.
@@ -64,8 +65,8 @@ class ShaftParams:
     ageing_time_s: float = 1.0
     """t_a: time scale of the ageing (s)."""
     entrainment: float = 0.0
-    """e: fraction of the heart's respiratory translation the vessel wall at the shaft's
-    friction contact moves along the base axis (S5); 0 on a bench."""
+    """e: fraction of the IVC-RA junction's motion (beat and breathing) that the vessel wall
+    at the shaft's friction contact follows along the base axis (S5)."""
     settling_time_s: float = 0.0
     """tau: time constant of the bending section's base following the shaft's end (S6)."""
     wall_step_s: float = 0.02
