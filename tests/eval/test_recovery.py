@@ -164,7 +164,7 @@ def test_todays_twin_records_the_new_fields_without_disturbance(quick_run: Recov
 def in_vivo_run() -> RecoveryRun:
     args = _parser().parse_args(
         ["--quick", "--open-loop-only", "--seed", "101", "--condition", "in-vivo",
-         "--patient", "1", "--rounds", "3"]
+         "--patient", "1", "--rounds", "2"]
     )  # fmt: skip
     return run_recovery(config_from_args(args))
 

@@ -237,12 +237,7 @@ def build_twin(
     )
     shaft = None
     if c.shaft is not None:
-        axis = base2anatomy[:3, 2]
-        junction = np.zeros((1, 3))  # the IVC-RA junction, origin of the anatomy frame
-
-        def wall(t: float) -> float:
-            # Eq. (S5): the junction moves with the beat and with breathing
-            return float(heart.displacement(junction, t)[0] @ axis)
+        wall = _junction_motion(anatomy, rhythm, breathing, base2anatomy[:3, 2])
 
         shaft = ShaftFriction(c.shaft, (int(catheter_seed), int(patient_seed)), wall)
     contact = None
@@ -270,6 +265,38 @@ def build_twin(
         breathing,
         views,
     )
+
+
+def _junction_motion(
+    anatomy: HeartPhantom, rhythm: CardiacRhythm, breathing: Breathing | None, axis: Array
+) -> Callable[[float], float]:
+    """Eq. (S5): the displacement (mm) of the IVC-RA junction (the anatomy frame's origin)
+    along the base axis, a function of time: the beat's displacement (tabulated over the
+    phase once, scaled by the beat's amplitude, P3) and breathing (P5)."""
+    still = HeartPhantom(
+        anatomy.chambers,
+        anatomy.vessels,
+        anatomy.valves,
+        septum_centre=tuple(float(x) for x in anatomy.septum_centre),  # type: ignore[arg-type]
+        septum_normal=tuple(float(x) for x in anatomy.septum_normal),  # type: ignore[arg-type]
+        septum_radius_mm=anatomy.septum_radius_mm,
+        septum_mm=anatomy.septum_mm,
+        motion=replace(anatomy.motion, respiratory_amplitude_mm=(0.0, 0.0, 0.0)),
+    )
+    period = still.motion.period_s
+    phases = np.linspace(0.0, 1.0, 257)
+    junction = np.zeros((1, 3))
+    table = np.array(
+        [float(still.displacement(junction, min(p, 1.0 - 1e-9) * period)[0] @ axis) for p in phases]
+    )
+
+    def wall(t: float) -> float:
+        u = rhythm.amplitude(t) * float(np.interp(rhythm.phase(t), phases, table))
+        if breathing is not None:
+            u += float(breathing.displacement(junction, t)[0] @ axis)
+        return u
+
+    return wall
 
 
 def _default_geometry() -> Any:

@@ -69,7 +69,7 @@ class ShaftParams:
     at the shaft's friction contact follows along the base axis (S5)."""
     settling_time_s: float = 0.0
     """tau: time constant of the bending section's base following the shaft's end (S6)."""
-    wall_step_s: float = 0.02
+    wall_step_s: float = 0.04
     """Time step at which the moving wall is followed (s)."""
 
     def __post_init__(self) -> None:
