@@ -6,6 +6,9 @@
   tuning seeds 0-9 and seeds 100-109 (100 leaked into tuning; results use 110+), beside
   the paper's Table I.
 - twin_reference.png: plant vs Cosserat-rod reference backbones for a few tendon tensions.
+- twin_contact.png, twin_breathing.png, twin_stick_slip.png: the disturbances of section 9
+  (contact force along a bend into the wall, the breathing level and the heart's motion, the
+  shaft's lost motion at each of 16 returns); ``--disturbances`` makes only these.
 Prints the numbers quoted in the document.
 """
 
@@ -201,7 +204,122 @@ def widths() -> None:
         print(f"loop width {v}: {loop_width_deg(v):.2f} deg of knob")
 
 
+def contact_pass() -> None:
+    """Contact force and tip deflection along a pass of the AP knob into the RA wall."""
+    from icenav.refinement.image_search import SimClock
+    from icenav.sim.anatomy import BASE2ANATOMY, default_phantom
+    from icenav.sim.contact import ContactModel, Walls
+    from icenav.sim.disturbed import DisturbedPlant
+
+    clock = SimClock()
+    plant = DisturbedPlant(
+        CatheterPlant(seed=0),
+        clock.now,
+        contact=ContactModel(Walls(default_phantom(), BASE2ANATOMY)),
+        solve_period_s=0.0,
+    )
+    knob = np.linspace(0.0, 80.0, 161)
+    force, defl, where = [], [], []
+    for k in knob:
+        plant.move([k * DEG, 0.0, 0.0, 0.0])
+        st = plant.state
+        force.append(st.contact_force_n)
+        defl.append(st.deflection_mm)
+        where.append(max(st.contacts, key=lambda c: c.force_n).structure if st.contacts else "")
+    fig, ax = plt.subplots(figsize=(6.5, 4))
+    ax.plot(knob, force, color="tab:red", label="total contact force (N)")
+    ax.set_xlabel("AP knob (deg), translation 0, nominal catheter seed 0")
+    ax.set_ylabel("contact force (N)")
+    ax2 = ax.twinx()
+    ax2.plot(knob, defl, color="tab:blue", ls="--", label="tip deflection (mm)")
+    ax2.set_ylabel("deflection of the image centre (mm)")
+    first = next((k for k, f in zip(knob, force, strict=True) if f > 0), None)
+    ax.set_title(f"Bending into the RA wall (first contact at {first} deg)")
+    ax.legend(loc="upper left")
+    ax2.legend(loc="lower right")
+    fig.tight_layout()
+    fig.savefig(HERE / "twin_contact.png", dpi=110)
+    plt.close(fig)
+    print(f"contact: first at {first} deg of knob; at 80 deg {force[-1]:.3f} N on {where[-1]}, "
+          f"tip deflected {defl[-1]:.1f} mm")  # fmt: skip
+
+
+def breathing_trace() -> None:
+    """The breathing level of an in-vivo patient and the heart's caudal displacement."""
+    from icenav.sim.conditions import build_twin
+
+    twin = build_twin("in-vivo", 110, 100, lambda: 0.0)
+    assert twin.breathing is not None
+    t = np.linspace(0.0, 30.0, 3001)
+    level = twin.breathing.signal(t)
+    z = np.array([twin.breathing.translation_mm(x)[2] for x in t])
+    fig, ax = plt.subplots(2, 1, figsize=(7, 4.5), sharex=True)
+    ax[0].plot(t, level, color="k")
+    ax[0].set_ylabel("breathing level r(t)")
+    ax[1].plot(t, z, color="tab:green")
+    ax[1].set_ylabel("heart superior shift (mm)")
+    ax[1].set_xlabel("time (s)")
+    ax[0].set_title(f"Breathing of patient 100 (period {twin.patient.breathing_period_s:.1f} s, "
+                    f"depth x{twin.patient.breathing_scale:.2f})")  # fmt: skip
+    fig.tight_layout()
+    fig.savefig(HERE / "twin_breathing.png", dpi=110)
+    plt.close(fig)
+    print(f"breathing: heart shift {z.min():.2f} .. {z.max():.2f} mm over 30 s")
+
+
+def stick_slip_returns() -> None:
+    """The shaft's lost motion (translation, roll) at the end of 16 identical moves to a view,
+    in the phantom and in vivo."""
+    from icenav.refinement.image_search import SimClock
+    from icenav.sim.conditions import build_twin
+
+    fig, ax = plt.subplots(1, 2, figsize=(9, 3.6))
+    for cond, colour in (("phantom", "tab:blue"), ("in-vivo", "tab:red")):
+        clock = SimClock()
+        twin = build_twin(cond, 110, 100, clock.now)
+        shaft = twin.plant.shaft
+        assert shaft is not None
+        a = np.zeros(4)
+        b = np.array([0.0, 0.0, 30 * DEG, 8.0])
+        trans, roll = [], []
+        for _ in range(16):
+            for q0, q1 in ((a, b), (b, a)):
+                for f in np.linspace(0, 1, 200)[1:]:
+                    shaft.drive(q0[3] + f * (q1[3] - q0[3]), q0[2] + f * (q1[2] - q0[2]), clock.t)
+                    clock.advance(0.01)
+                clock.advance(3.0)
+                if q1 is b:
+                    s, r = shaft.lost_motion(clock.t)
+                    trans.append(s)
+                    roll.append(np.degrees(r))
+        ax[0].plot(range(1, 17), trans, "o-", color=colour, label=cond)
+        ax[1].plot(range(1, 17), roll, "o-", color=colour, label=cond)
+        print(f"stick-slip {cond}: translation {np.mean(trans):.2f} +- {np.std(trans):.2f} mm, "
+              f"roll {np.mean(roll):.2f} +- {np.std(roll):.2f} deg")  # fmt: skip
+    ax[0].set_ylabel("lost translation (mm)")
+    ax[1].set_ylabel("lost roll (deg)")
+    for x in ax:
+        x.set_xlabel("return")
+        x.legend()
+    fig.suptitle(
+        "Shaft lost motion 3 s after each return (8 mm, 30 deg moves; catheter 110, patient 100)"
+    )
+    fig.tight_layout()
+    fig.savefig(HERE / "twin_stick_slip.png", dpi=110)
+    plt.close(fig)
+
+
+def disturbances() -> None:
+    contact_pass()
+    breathing_trace()
+    stick_slip_returns()
+
+
 if __name__ == "__main__":
+    if "--disturbances" in sys.argv:
+        disturbances()
+        sys.exit(0)
+    disturbances()
     hysteresis()
     grid()
     reference()

@@ -140,5 +140,59 @@ def test_main_writes_json_and_plots(tmp_path: Path) -> None:
 
 def test_bad_arguments_are_refused() -> None:
     assert main(["--rounds", "1"]) == 2
+    assert main(["--seed", "110-112", "--patient", "1-2", "--quick"]) == 2
     with pytest.raises(SystemExit):
         main(["--vessel", "tortuous"])
+    with pytest.raises(SystemExit):
+        main(["--condition", "mars"])
+    with pytest.raises(SystemExit):
+        main(["--condition", "in-vivo", "--disable", "gravity"])
+
+
+def test_todays_twin_records_the_new_fields_without_disturbance(quick_run: RecoveryRun) -> None:
+    """On today's twin nothing disturbs a return: no contact, the DCT pose is the pose."""
+    for r in quick_run.records:
+        assert r.condition == "none" and r.patient is None
+        assert r.max_contact_force_n == 0.0
+        assert r.true_orientation_error_deg_mean == pytest.approx(r.orientation_error_deg_mean)
+        assert r.true_tip_error_gm_mm_mean >= 0.0
+    for s in quick_run.returns:
+        np.testing.assert_array_equal(s.dct_tip2base, s.true_tip2base)
+
+
+@pytest.fixture(scope="module")
+def in_vivo_run() -> RecoveryRun:
+    args = _parser().parse_args(
+        ["--quick", "--open-loop-only", "--seed", "101", "--condition", "in-vivo",
+         "--patient", "1", "--rounds", "2"]
+    )  # fmt: skip
+    return run_recovery(config_from_args(args))
+
+
+def test_in_vivo_returns_are_disturbed(in_vivo_run: RecoveryRun) -> None:
+    """Under the in-vivo disturbances the same motor state gives different true poses from
+    one return to the next (the DCT-averaged tips spread), the EM spread exceeds the
+    tracker's jitter, contact is reported, and the records carry condition and patient."""
+    for r in in_vivo_run.records:
+        assert r.condition == "in-vivo" and r.patient == 1
+        assert r.true_tip_error_gm_mm_mean > 0.02
+        assert 0.0 <= r.max_contact_force_n < 5.0
+        assert 0 < r.similarity_true_gm_pct_mean <= 100
+    for t in TARGETS:
+        rs = [s for s in in_vivo_run.returns if s.target == t]
+        assert all(np.array_equal(s.q, rs[0].q) for s in rs)
+        tips = np.stack([s.dct_tip2base[:3, 3] for s in rs])
+        assert np.ptp(tips, axis=0).max() > 0.02
+
+
+def test_catheters_and_patients_are_paired_in_order() -> None:
+    from icenav.eval.recovery import _pairs
+
+    args = _parser().parse_args(["--seed", "110-112", "--patient", "100-102"])
+    assert _pairs(args) == [(110, 100), (111, 101), (112, 102)]
+    args = _parser().parse_args(["--seed", "110,111", "--patient", "7"])
+    assert _pairs(args) == [(110, 7), (111, 7)]
+    cfg = config_from_args(
+        _parser().parse_args(["--condition", "phantom", "--disable", "shaft"]), 111, 101
+    )
+    assert (cfg.seed, cfg.patient, cfg.condition, cfg.disable) == (111, 101, "phantom", ("shaft",))

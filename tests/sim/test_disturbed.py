@@ -1,0 +1,113 @@
+"""The disturbed plant: a plant of the plug-in protocol around any plant, identical to it
+with nothing switched on, time-dependent with the heart, measured over the tracker's window;
+and the conditions that build it."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from icenav.devices.sim_robot import SimulatedRobot
+from icenav.errors import ConfigurationError
+from icenav.refinement.image_search import SimClock
+from icenav.sim.conditions import CONDITIONS, DISTURBANCES, build_twin, condition
+from icenav.sim.disturbed import DisturbedPlant, DisturbedTracker, mean_pose
+from icenav.sim.plant import CatheterPlant
+from icenav.sim.tracker import EMTracker, TrackerConfig
+
+Q_VIEW = np.array([-0.17453292519943295, 0.3490658503988659, 0.7853981633974483, 0.0])
+
+
+def test_with_nothing_on_it_is_the_plant() -> None:
+    clock = SimClock()
+    plain = CatheterPlant(seed=101, vessel="moderate")
+    wrapped = DisturbedPlant(CatheterPlant(seed=101, vessel="moderate"), clock.now)
+    path = np.linspace(np.zeros(4), Q_VIEW, 50)
+    np.testing.assert_array_equal(wrapped.move_along(path), plain.move_along(path))
+    np.testing.assert_array_equal(wrapped.state.tip2base, plain.state.tip2base)
+    wrapped.reset(Q_VIEW)
+    plain.reset(Q_VIEW)
+    np.testing.assert_array_equal(wrapped.state.tip2base, plain.state.tip2base)
+
+
+def test_the_robot_drives_a_twin_and_the_catheter_moves_with_the_heart() -> None:
+    """In vivo the pose changes with time at a fixed motor state (beat, breathing, the
+    shaft), the plant's own pose does not; past times since the last move are answered
+    consistently; the contact force is reported per state."""
+    clock = SimClock()
+    twin = build_twin("in-vivo", 100, 0, clock.now)
+    robot = SimulatedRobot(twin.plant, clock=clock.now)
+    robot.enable()
+    for q in np.linspace(np.zeros(4), np.asarray(twin.views["aortic_valve"]), 300):
+        robot.command_position(q)
+        clock.advance(0.01)
+    t0 = clock.now()
+    clock.advance(8.0)
+    poses = np.stack([twin.plant.pose_at(t) for t in np.linspace(t0, t0 + 8.0, 81)])
+    spread = np.ptp(poses[:, :3, 3], axis=0)
+    assert 0.2 < np.linalg.norm(spread) < 15.0
+    st = twin.plant.state_at(t0 + 3.0)
+    np.testing.assert_array_equal(st.plant_tip2base, twin.plant.state.plant_tip2base)
+    np.testing.assert_array_equal(twin.plant.pose_at(t0 + 3.0), st.tip2base)
+    assert st.contact_force_n >= 0.0 and st.t == t0 + 3.0
+
+
+def test_the_tracker_averages_over_its_window() -> None:
+    """A jitter-free tracker of a disturbed plant returns the mean of the true poses over
+    the last n / rate seconds."""
+    clock = SimClock()
+    twin = build_twin("phantom", 100, 1, clock.now)
+    exact = EMTracker(
+        twin.plant.inner,
+        seed=1,
+        clock=clock.now,
+        config=TrackerConfig(
+            position_jitter_rms_mm=0.0, rotation_jitter_rms_rad=0.0, position_bias_rms_mm=0.0,
+            rotation_bias_rms_rad=0.0, dropout_probability=0.0,
+        ),
+    )  # fmt: skip
+    tracker = DisturbedTracker(exact, twin.plant)
+    twin.plant.move(np.asarray(twin.views["mitral_valve"]))
+    clock.advance(2.0)
+    now = clock.now()
+    measured = tracker.measure_tip2base(n_average=16)
+    assert measured is not None
+    times = now - np.arange(16)[::-1] / 80.0
+    keys = np.round(times * 40.0) / 40.0
+    expected = mean_pose(np.stack([twin.plant.pose_at(t) for t in keys]))
+    np.testing.assert_allclose(measured, expected, atol=1e-9)
+
+
+def test_conditions_switch_disturbances_off() -> None:
+    c = condition("in-vivo")
+    assert set(c.active) == set(DISTURBANCES)
+    assert condition("phantom").breathing is None
+    off = c.without("breathing", "shaft")
+    assert "breathing" not in off.active and "shaft" not in off.active and off.contact
+    assert condition("none").active == ()
+    assert set(CONDITIONS) == {"none", "phantom", "in-vivo"}
+    with pytest.raises(ConfigurationError, match="unknown disturbance"):
+        c.without("gravity")
+    with pytest.raises(ConfigurationError, match="condition must be one of"):
+        condition("mars")
+
+
+def test_seeds_per_catheter_and_per_patient() -> None:
+    """The patient seed sets the heart and the views; the catheter seed the plant; the
+    shaft draws depend on both."""
+    a = build_twin("in-vivo", 100, 0, SimClock().now)
+    b = build_twin("in-vivo", 101, 0, SimClock().now)
+    c = build_twin("in-vivo", 100, 1, SimClock().now)
+    assert a.patient == b.patient != c.patient
+    assert a.views == b.views != c.views
+    assert a.plant.inner.params != b.plant.inner.params
+    assert a.plant.shaft is not None and b.plant.shaft is not None and c.plant.shaft is not None
+    draws = [t.plant.shaft._xi for t in (a, b, c)]  # first stick's static friction factor
+    assert len(set(draws)) == 3
+
+
+def test_bad_wrapping_is_refused() -> None:
+    with pytest.raises(ConfigurationError, match="callable move"):
+        DisturbedPlant(object(), SimClock().now)
+    with pytest.raises(ConfigurationError, match="measure_tip2base"):
+        DisturbedTracker(object(), DisturbedPlant(CatheterPlant(), SimClock().now))
