@@ -23,11 +23,14 @@ and the junction lies within the bending section.
 
 Geometry
 --------
-Chambers are ellipsoids (blood inside, a myocardial shell of a given thickness around),
-vessels are finite cylinders, the interatrial septum is a disc, each valve is an annulus
-(torus) with thin hinged leaflets (2 for tricuspid and mitral, 3 for aortic) that swing
-open over the cardiac cycle. Dimensions are end-diastolic and documented against typical
-adult values in ``docs/imaging.md``.
+Chambers are ellipsoids (blood inside, a myocardial shell of a given thickness around;
+adjacent chambers share their walls), vessels are finite cylinders, the interatrial septum
+is a disc, each valve is an annulus (torus) with thin hinged leaflets (2 for tricuspid and
+mitral, 3 for aortic) that swing open over the cardiac cycle. The default heart adds the
+right ventricular outflow tract, the pulmonary artery, a pericardium around the smooth
+union of the chambers, and the lungs beside it. Dimensions are end-diastolic and documented
+against typical adult values in ``docs/imaging.md``; acoustic properties of every label are
+in :mod:`icenav.sim.anatomy.tissue`.
 
 Motion
 ------
