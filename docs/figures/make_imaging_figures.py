@@ -12,12 +12,15 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
+import scipy.ndimage as ndi  # noqa: E402
 
 from icenav.eval.metrics import beat_similarity, blurred_ncc, roi_centroid_distance  # noqa: E402
 from icenav.sim.anatomy import (  # noqa: E402
     BLOOD_LABELS,
     EXAMPLE_VIEWS,
-    ROI_LABELS,
+    STANDARD_VIEWS,
+    HeartPhantom,
+    Region,
     Tissue,
     default_phantom,
     tip2anatomy,
@@ -28,33 +31,122 @@ HERE = Path(__file__).parent
 TITLES = {"aortic_valve": "aortic valve", "mitral_valve": "mitral valve", "tricuspid_valve": "tricuspid valve"}  # fmt: skip  # noqa: E501
 
 
+_SHORT = {
+    Tissue.RA_BLOOD: "RA",
+    Tissue.RV_BLOOD: "RV",
+    Tissue.LA_BLOOD: "LA",
+    Tissue.LV_BLOOD: "LV",
+    Tissue.AORTA_BLOOD: "Ao",
+    Tissue.PA_BLOOD: "PA",
+    Tissue.CAVA_BLOOD: "SVC/IVC",
+    Tissue.SEPTUM: "IAS",
+    Tissue.TRICUSPID_VALVE: "TV",
+    Tissue.MITRAL_VALVE: "MV",
+    Tissue.AORTIC_VALVE: "AV",
+    Tissue.PERICARDIUM: "pericardium",
+    Tissue.LUNG: "lung",
+}
+
+
+def _annotate(ax: plt.Axes, labels: np.ndarray) -> None:
+    """Write each structure's short name at its label-map centroid (>= 40 pixels)."""
+    for tissue, text in _SHORT.items():
+        rows, cols = np.nonzero(labels == tissue)
+        if rows.size >= 40:
+            ax.text(cols.mean(), rows.mean(), text, color="yellow", fontsize=8,
+                    ha="center", va="center")  # fmt: skip
+
+
+def _depth_scale(ax: plt.Axes, r: UltrasoundRenderer) -> None:
+    px = r.config.pixel_mm
+    for cm in range(0, int(r.config.depth_mm // 10) + 1, 2):
+        ax.plot([2, 6], [cm * 10 / px] * 2, color="w", lw=0.8)
+        ax.text(8, cm * 10 / px, f"{cm}", color="w", fontsize=6, va="center")
+
+
 def views_figure(r: UltrasoundRenderer) -> None:
+    """The standard views at two phases, each with its structures named (label map)."""
     period = r.phantom.motion.period_s
-    fig, axes = plt.subplots(2, 3, figsize=(12, 8.4))
-    for col, (view, q) in enumerate(EXAMPLE_VIEWS.items()):
-        pose = tip2anatomy(np.asarray(q))
+    views = list(STANDARD_VIEWS.values())
+    fig, axes = plt.subplots(2, len(views), figsize=(4.0 * len(views), 8.4))
+    for col, view in enumerate(views):
+        pose = tip2anatomy(np.asarray(view.q))
         for row, phase in enumerate((0.15, 0.65)):
             f = r.render(pose, phase * period)
             ax = axes[row, col]
             ax.imshow(f.image, cmap="gray", vmin=0, vmax=255)
-            roi = f.labels == ROI_LABELS[view]
-            ax.contour(roi, levels=[0.5], colors="yellow", linewidths=0.8)
-            if f.rois[view].visible:
-                ax.plot(*f.rois[view].centroid_px[::-1], "r+", ms=10)
-            state = "open" if r.phantom.valve_opening(view, f.t) > 0.5 else "closed"
-            qd = np.degrees(q[:3])
+            _annotate(ax, f.labels)
+            _depth_scale(ax, r)
+            qd = np.degrees(view.q[:3])
             ax.set_title(
-                f"{TITLES[view]} ({state}), phase {phase:.2f}\n"
-                f"q = ({qd[0]:.0f}, {qd[1]:.0f}, {qd[2]:.0f}) deg, d4 = {q[3]:.0f} mm",
+                f"{view.title}, phase {phase:.2f}\n"
+                f"q = ({qd[0]:.0f}, {qd[1]:.0f}, {qd[2]:.0f}) deg, d4 = {view.q[3]:.0f} mm",
                 fontsize=9,
             )
             ax.set_xticks([])
             ax.set_yticks([])
-            ax.set_ylim(200, 0)
-    fig.suptitle("Simulated ICE views (yellow: ROI label, +: ROI centroid)")
+            ax.set_ylim(190, 0)
+    fig.suptitle(
+        "Simulated ICE standard views (14 cm depth, scale in cm; names from the label map; "
+        "distal side of the catheter on the right)"
+    )
     fig.tight_layout()
-    fig.savefig(HERE / "us_views.png", dpi=80)
+    fig.savefig(HERE / "us_views.png", dpi=70)
     plt.close(fig)
+
+
+def effects_figure(r: UltrasoundRenderer) -> dict[str, float]:
+    """Shadow behind a calcified nodule, gain and TGC settings, beam width with depth."""
+    period = r.phantom.motion.period_s
+    pose = tip2anatomy(np.asarray(STANDARD_VIEWS["home"].q))
+    t = 0.65 * period
+    nodule_at = pose[:3, :3] @ np.array([45.0, 0.0, -8.0]) + pose[:3, 3]
+    ph = default_phantom()
+    calcified = HeartPhantom(
+        ph.chambers, ph.vessels, ph.valves, motion=ph.motion, pericardium_mm=2.0,
+        lungs=ph.lungs,
+        inclusions=(Region("nodule", tuple(nodule_at), (3.0, 3.0, 3.0), Tissue.CALCIFICATION),),
+    )  # fmt: skip
+    panels = [
+        ("home view", r.render(pose, t).image),
+        ("calcified nodule: acoustic shadow", UltrasoundRenderer(calcified).render(pose, t).image),
+        ("gain -12 dB", r.with_settings(gain_db=-12.0).render(pose, t).image),
+        ("TGC off (attenuation shows)", r.with_settings(tgc_db_per_cm=0.0).render(pose, t).image),
+        ("depth 8 cm", r.with_settings(depth_mm=80.0).render(pose, t).image),
+    ]
+    fig, axes = plt.subplots(1, len(panels) + 1, figsize=(4.0 * (len(panels) + 1), 4.2))
+    for ax, (title, img) in zip(axes, panels, strict=False):
+        ax.imshow(img, cmap="gray", vmin=0, vmax=255)
+        ax.set_title(title, fontsize=9)
+        ax.set_xticks([])
+        ax.set_yticks([])
+    depth = np.linspace(5.0, 160.0, 100)
+    axes[-1].plot(depth, r.config.lateral_fwhm_mm(depth), label="lateral (Eq. I5)")
+    axes[-1].axhline(r.config.psf_axial_mm * 2.355, color="gray", ls=":", label="axial")
+    axes[-1].set_xlabel("depth (mm)")
+    axes[-1].set_ylabel("two-way FWHM (mm)")
+    axes[-1].legend(fontsize=8)
+    axes[-1].set_title("resolution vs depth", fontsize=9)
+    fig.tight_layout()
+    fig.savefig(HERE / "us_effects.png", dpi=70)
+    plt.close(fig)
+    return contrast_numbers(r)
+
+
+def contrast_numbers(r: UltrasoundRenderer) -> dict[str, float]:
+    """Mean grey of blood over myocardium in the standard views (label-map interiors: blood
+    3 px, myocardium 1 px inside their outlines; as the test), at phases 0.15 and 0.65."""
+    out = {}
+    period = r.phantom.motion.period_s
+    blood_ids = [int(b) for b in BLOOD_LABELS]
+    for key, view in STANDARD_VIEWS.items():
+        for phase in (0.15, 0.65):
+            f = r.render(tip2anatomy(np.asarray(view.q)), phase * period)
+            blood = ndi.binary_erosion(np.isin(f.labels, blood_ids), iterations=3)
+            myo = ndi.binary_erosion(f.labels == Tissue.MYOCARDIUM, iterations=1)
+            ratio = f.image[blood].mean() / f.image[myo].mean()
+            out[f"{key}_{phase:.2f}_blood_over_myocardium"] = float(ratio)
+    return out
 
 
 def anatomy_figure() -> None:
@@ -179,6 +271,7 @@ def workspace_numbers() -> dict[str, float]:
 def main() -> None:
     r = UltrasoundRenderer()
     views_figure(r)
+    print("contrast:", {k: round(v, 3) for k, v in effects_figure(r).items()})
     anatomy_figure()
     print("workspace fractions:", {k: round(v, 3) for k, v in workspace_numbers().items()})
     for view, nums in similarity_figure(r).items():

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import itertools
 import math
 
 import numpy as np
@@ -11,12 +12,15 @@ from icenav._validation import check_transform
 from icenav.errors import ConfigurationError, NonFiniteError, ShapeError
 from icenav.geometry.kinematics import CatheterGeometry
 from icenav.sim.anatomy import (
+    ACOUSTICS,
     BASE2ANATOMY,
     BLOOD_LABELS,
     ECHOGENICITY,
     EXAMPLE_VIEWS,
+    PATIENT_DIRECTIONS,
     ROI_LABELS,
     CardiacMotion,
+    Region,
     Tissue,
     default_phantom,
     tip2anatomy,
@@ -198,3 +202,74 @@ def test_each_valve_is_seen_from_a_reachable_pose_in_the_ra(valve: str) -> None:
         roi = frame.rois[valve]
         assert roi.n_pixels >= 30, (valve, phase, roi.n_pixels)
         assert renderer.in_sector(ph.roi_centroid(valve, frame.t), t)
+
+
+def test_the_heart_sits_in_a_pericardium_between_the_lungs() -> None:
+    ph = default_phantom(STILL)
+    ra = np.asarray(ph.chamber("ra").centre)
+    # from the RA centre towards the patient's right: RA blood, wall, fat, pericardium, lung
+    xs = np.arange(0.0, 60.0, 0.25)
+    labels = ph.labels_at(ra - xs[:, None] * np.array([1.0, 0.0, 0.0]), 0.0)
+    order = [int(k) for k, _ in itertools.groupby(labels.tolist())]
+    assert order == [
+        Tissue.RA_BLOOD,
+        Tissue.MYOCARDIUM,
+        Tissue.SURROUNDING,
+        Tissue.PERICARDIUM,
+        Tissue.SURROUNDING,
+        Tissue.LUNG,
+    ]
+    thick = np.count_nonzero(labels == Tissue.PERICARDIUM) * 0.25
+    assert thick == pytest.approx(ph.pericardium_mm, abs=0.5)
+    # adjacent chambers share their walls: between RV and LV cavities, no fat
+    rv, lv = np.asarray(ph.chamber("rv").centre), np.asarray(ph.chamber("lv").centre)
+    between = ph.labels_at(rv + np.linspace(0.0, 1.0, 400)[:, None] * (lv - rv), 0.0)
+    assert Tissue.SURROUNDING not in between.tolist()
+
+
+def test_landmarks_name_every_structure_inside_it() -> None:
+    ph = default_phantom(STILL)
+    marks = {m.key: m for m in ph.landmarks()}
+    wanted = {"ra", "rv", "la", "lv", "aorta", "ivc", "svc", "interatrial_septum"}
+    wanted |= {"tricuspid_valve", "mitral_valve", "aortic_valve"}
+    assert wanted <= set(marks)
+    assert [marks[k].label for k in ("ra", "rv", "la", "lv", "ivc", "svc")] == [
+        "RA",
+        "RV",
+        "LA",
+        "LV",
+        "IVC",
+        "SVC",
+    ]
+    inside = {
+        "ra": Tissue.RA_BLOOD,
+        "rv": Tissue.RV_BLOOD,
+        "la": Tissue.LA_BLOOD,
+        "lv": Tissue.LV_BLOOD,
+        "aorta": Tissue.AORTA_BLOOD,
+        "ivc": Tissue.CAVA_BLOOD,
+        "svc": Tissue.CAVA_BLOOD,
+        "pa": Tissue.PA_BLOOD,
+        "interatrial_septum": Tissue.SEPTUM,
+    }
+    for key, tissue in inside.items():
+        assert ph.labels_at(marks[key].point, 0.0) == tissue, key
+
+
+def test_patient_directions_are_the_lps_axes() -> None:
+    for a, b in (("L", "R"), ("A", "P"), ("S", "I")):
+        np.testing.assert_allclose(PATIENT_DIRECTIONS[a], -np.asarray(PATIENT_DIRECTIONS[b]))
+    # the straight catheter images anteriorly: tip x is the patient's anterior
+    np.testing.assert_allclose(tip2anatomy(np.zeros(4))[:3, 0], PATIENT_DIRECTIONS["A"], atol=1e-12)
+
+
+def test_acoustic_table_is_complete_and_physical() -> None:
+    assert set(ACOUSTICS) == set(Tissue)
+    z = {t: p.impedance_mrayl for t, p in ACOUSTICS.items()}
+    # soft tissues within 1.3-2.1 MRayl; lung far below, calcification far above
+    for t, v in z.items():
+        if t not in (Tissue.LUNG, Tissue.CALCIFICATION):
+            assert 1.3 < v < 2.1, t
+    assert z[Tissue.LUNG] < 0.5 and z[Tissue.CALCIFICATION] > 4.0
+    with pytest.raises(ConfigurationError, match="nodule semi-axis"):
+        Region("nodule", (0.0, 0.0, 0.0), (1.0, -1.0, 1.0), Tissue.CALCIFICATION)

@@ -25,7 +25,13 @@ from icenav.persistence.recorder import StoreRecorder
 from icenav.persistence.store import SessionStore
 from icenav.recovery.roadmap import Roadmap, RoadmapConfig
 
-__all__ = ["SimSession", "StoreRecorder", "anatomy_meshes", "make_sim_controller"]
+__all__ = [
+    "SimSession",
+    "StoreRecorder",
+    "anatomy_labels",
+    "anatomy_meshes",
+    "make_sim_controller",
+]
 
 
 @dataclass
@@ -161,15 +167,24 @@ def make_sim_controller(
     return SimSession(controller, plant, tracker, renderer, store, recorder, drives)
 
 
-_CHAMBER_RGB = {"ra": (70, 130, 220), "rv": (60, 90, 200), "la": (220, 90, 90), "lv": (200, 60, 60)}
+_CHAMBER_RGB = {
+    "ra": (70, 130, 220),
+    "rv": (60, 90, 200),
+    "rvot": (60, 90, 200),
+    "la": (220, 90, 90),
+    "lv": (200, 60, 60),
+}
+_VESSEL_RGB = {"aorta": (220, 60, 60), "lvot": (200, 60, 60), "pa": (60, 90, 200)}
 
 
 def anatomy_meshes(phantom: Any = None) -> list[Any]:
-    """Translucent surfaces of the heart phantom's chambers and vessels for the console.
+    """Translucent surfaces of the heart phantom's chambers, vessels and valves for the console.
 
     Each chamber is its ellipsoid (an icosphere scaled by the semi-axes), each vessel its
-    cylinder, mapped from the anatomy frame into the robot base frame (mm) through the
-    phantom's registration (``BASE2ANATOMY``). The beating motion is not drawn.
+    cylinder, each valve its annulus ring, mapped from the anatomy frame into the robot base
+    frame (mm) through the phantom's registration (``BASE2ANATOMY``). Mesh names are
+    ``anatomy-<key>`` with the keys of :func:`anatomy_labels`, which gives each structure's
+    label and anchor point. The beating motion is not drawn.
     """
     import trimesh
 
@@ -178,6 +193,10 @@ def anatomy_meshes(phantom: Any = None) -> list[Any]:
 
     ph = phantom if phantom is not None else default_phantom()
     anatomy2base = np.linalg.inv(BASE2ANATOMY)
+
+    def to_base(pts: Any) -> Any:
+        return np.asarray(pts) @ anatomy2base[:3, :3].T + anatomy2base[:3, 3]
+
     out: list[Any] = []
     for ch in ph.chambers:
         sphere = trimesh.creation.icosphere(subdivisions=3)
@@ -186,7 +205,7 @@ def anatomy_meshes(phantom: Any = None) -> list[Any]:
         out.append(
             AnatomyMesh(
                 name=f"anatomy-{ch.name}",
-                vertices=pts @ anatomy2base[:3, :3].T + anatomy2base[:3, 3],
+                vertices=to_base(pts),
                 faces=np.asarray(sphere.faces, dtype=np.uint32),
                 rgb=_CHAMBER_RGB.get(ch.name, (180, 180, 180)),
                 opacity=0.18,
@@ -196,14 +215,58 @@ def anatomy_meshes(phantom: Any = None) -> list[Any]:
         cyl = trimesh.creation.cylinder(
             radius=float(v.radius_mm), segment=np.array([v.start, v.end], dtype=np.float64)
         )
-        pts = np.asarray(cyl.vertices)
         out.append(
             AnatomyMesh(
                 name=f"anatomy-{v.name}",
-                vertices=pts @ anatomy2base[:3, :3].T + anatomy2base[:3, 3],
+                vertices=to_base(cyl.vertices),
                 faces=np.asarray(cyl.faces, dtype=np.uint32),
-                rgb=(150, 150, 200),
+                rgb=_VESSEL_RGB.get(v.name, (150, 150, 200)),
                 opacity=0.15,
+            )
+        )
+    for valve in ph.valves:
+        ring = trimesh.creation.annulus(
+            r_min=0.8 * valve.radius_mm, r_max=valve.radius_mm, height=1.0, sections=32
+        )
+        normal = np.asarray(valve.normal, dtype=np.float64)
+        align = trimesh.geometry.align_vectors([0.0, 0.0, 1.0], normal / np.linalg.norm(normal))
+        pts = np.asarray(ring.vertices) @ align[:3, :3].T + np.asarray(valve.centre)
+        out.append(
+            AnatomyMesh(
+                name=f"anatomy-{valve.name}",
+                vertices=to_base(pts),
+                faces=np.asarray(ring.faces, dtype=np.uint32),
+                rgb=(240, 220, 120),
+                opacity=0.6,
+            )
+        )
+    return out
+
+
+def anatomy_labels(phantom: Any = None) -> list[Any]:
+    """Labels of the anatomy for the console's 3-D scene, anchored in the base frame (mm).
+
+    Returns :class:`icenav.sim.anatomy.Landmark` values (key, label such as ``RA``, full
+    name, anchor point) for every chamber, vessel, valve and the interatrial septum, their
+    points mapped from the anatomy frame into the robot base frame, followed by the six
+    patient directions (keys ``dir-L``, ``dir-R``, ``dir-A``, ``dir-P``, ``dir-S``,
+    ``dir-I``; points are unit vectors in the base frame) for an orientation marker.
+    """
+    from icenav.sim.anatomy import BASE2ANATOMY, PATIENT_DIRECTIONS, Landmark, default_phantom
+
+    ph = phantom if phantom is not None else default_phantom()
+    anatomy2base = np.linalg.inv(BASE2ANATOMY)
+    out: list[Any] = []
+    for lm in ph.landmarks():
+        p = anatomy2base[:3, :3] @ np.asarray(lm.point) + anatomy2base[:3, 3]
+        out.append(Landmark(lm.key, lm.label, lm.name, (float(p[0]), float(p[1]), float(p[2]))))
+    names = {"L": "left", "R": "right", "A": "anterior", "P": "posterior"}
+    names |= {"S": "superior", "I": "inferior"}
+    for letter, vec in PATIENT_DIRECTIONS.items():
+        d = anatomy2base[:3, :3] @ np.asarray(vec)
+        out.append(
+            Landmark(
+                f"dir-{letter}", letter, names[letter], (float(d[0]), float(d[1]), float(d[2]))
             )
         )
     return out

@@ -23,11 +23,14 @@ and the junction lies within the bending section.
 
 Geometry
 --------
-Chambers are ellipsoids (blood inside, a myocardial shell of a given thickness around),
-vessels are finite cylinders, the interatrial septum is a disc, each valve is an annulus
-(torus) with thin hinged leaflets (2 for tricuspid and mitral, 3 for aortic) that swing
-open over the cardiac cycle. Dimensions are end-diastolic and documented against typical
-adult values in ``docs/imaging.md``.
+Chambers are ellipsoids (blood inside, a myocardial shell of a given thickness around;
+adjacent chambers share their walls), vessels are finite cylinders, the interatrial septum
+is a disc, each valve is an annulus (torus) with thin hinged leaflets (2 for tricuspid and
+mitral, 3 for aortic) that swing open over the cardiac cycle. The default heart adds the
+right ventricular outflow tract, the pulmonary artery, a pericardium around the smooth
+union of the chambers, and the lungs beside it. Dimensions are end-diastolic and documented
+against typical adult values in ``docs/imaging.md``; acoustic properties of every label are
+in :mod:`icenav.sim.anatomy.tissue`.
 
 Motion
 ------
@@ -40,9 +43,8 @@ the descent of the valve plane in systole. Heart rate 72 beats/min by default.
 
 from __future__ import annotations
 
-import enum
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -51,92 +53,35 @@ from icenav._typing import Array
 from icenav._validation import check_finite, check_positive
 from icenav.errors import ConfigurationError, ShapeError
 from icenav.geometry.kinematics import DEFAULT_GEOMETRY, CatheterGeometry, forward
+from icenav.sim.anatomy.shapes import (
+    _LANDMARK_NAMES,
+    PATIENT_DIRECTIONS,
+    BloodVessel,
+    Chamber,
+    Landmark,
+    Region,
+    Valve,
+    _frame_from_axis,
+    _unit,
+)
+from icenav.sim.anatomy.tissue import ECHOGENICITY, Tissue
 
 __all__ = [
     "BASE2ANATOMY",
     "BASE_BELOW_JUNCTION_MM",
-    "BLOOD_LABELS",
     "BloodVessel",
     "CardiacMotion",
     "Chamber",
-    "ECHOGENICITY",
     "EXAMPLE_VIEWS",
     "HeartPhantom",
-    "ROI_LABELS",
-    "Tissue",
+    "Landmark",
+    "PATIENT_DIRECTIONS",
+    "Region",
     "Valve",
     "default_phantom",
     "tip2anatomy",
 ]
 
-
-class Tissue(enum.IntEnum):
-    """Label of a point of the phantom."""
-
-    SURROUNDING = 0
-    """Outside the heart (pericardial fat, lung, mediastinum)."""
-    MYOCARDIUM = 1
-    """Heart wall."""
-    VESSEL_WALL = 2
-    """Wall of the venae cavae and the aortic root."""
-    RA_BLOOD = 3
-    """Right atrium cavity."""
-    RV_BLOOD = 4
-    """Right ventricle cavity."""
-    LA_BLOOD = 5
-    """Left atrium cavity."""
-    LV_BLOOD = 6
-    """Left ventricle cavity (with its outflow tract)."""
-    AORTA_BLOOD = 7
-    """Aortic root and ascending aorta lumen."""
-    CAVA_BLOOD = 8
-    """Inferior and superior vena cava lumen."""
-    SEPTUM = 9
-    """Interatrial septum."""
-    TRICUSPID_VALVE = 10
-    """Tricuspid annulus and leaflets."""
-    MITRAL_VALVE = 11
-    """Mitral annulus and leaflets."""
-    AORTIC_VALVE = 12
-    """Aortic annulus and cusps."""
-
-
-BLOOD_LABELS: frozenset[Tissue] = frozenset(
-    {
-        Tissue.RA_BLOOD,
-        Tissue.RV_BLOOD,
-        Tissue.LA_BLOOD,
-        Tissue.LV_BLOOD,
-        Tissue.AORTA_BLOOD,
-        Tissue.CAVA_BLOOD,
-    }
-)
-"""Labels of blood pools."""
-
-ECHOGENICITY: dict[Tissue, float] = {
-    Tissue.SURROUNDING: 0.03,
-    Tissue.MYOCARDIUM: 0.55,
-    Tissue.VESSEL_WALL: 0.70,
-    Tissue.RA_BLOOD: 0.012,
-    Tissue.RV_BLOOD: 0.012,
-    Tissue.LA_BLOOD: 0.012,
-    Tissue.LV_BLOOD: 0.012,
-    Tissue.AORTA_BLOOD: 0.012,
-    Tissue.CAVA_BLOOD: 0.012,
-    Tissue.SEPTUM: 0.75,
-    Tissue.TRICUSPID_VALVE: 1.0,
-    Tissue.MITRAL_VALVE: 1.0,
-    Tissue.AORTIC_VALVE: 1.0,
-}
-"""Relative backscatter amplitude of each tissue (valves brightest, blood nearly black)."""
-
-ROI_LABELS: dict[str, Tissue] = {
-    "aortic_valve": Tissue.AORTIC_VALVE,
-    "interatrial_septum": Tissue.SEPTUM,
-    "mitral_valve": Tissue.MITRAL_VALVE,
-    "tricuspid_valve": Tissue.TRICUSPID_VALVE,
-}
-"""Named regions of interest and the label that marks each in a label map."""
 
 BASE_BELOW_JUNCTION_MM = 40.0
 """Distance (mm) of the robot base below the IVC-RA junction, along the IVC axis."""
@@ -164,152 +109,11 @@ blood at least 4 mm from any wall or leaflet over the whole beat (found by a gri
 see ``docs/imaging.md``); starting views for the recovery evaluation."""
 
 
+_BEATING_CHAMBERS = ("ra", "rv", "la", "lv")
+"""Chambers whose contraction drives the motion field (the others move passively)."""
+_SMOOTH_UNION_MM = 5.0  # smoothing length of the pericardial envelope (mm)
+_MEDIASTINUM_MM = 3.0  # fat between the pericardium and the lungs (mm)
 _ORIFICE_HALF_MM = 6.0  # half-length of the valve orifice cut through the walls (mm)
-
-
-def _unit(v: ArrayLike) -> Array:
-    a = np.asarray(v, dtype=np.float64)
-    n = float(np.linalg.norm(a))
-    if n == 0.0:
-        raise ConfigurationError(f"direction must be non-zero, got {a.tolist()}")
-    out: Array = a / n
-    return out
-
-
-def _frame_from_axis(axis: Array) -> Array:
-    """Rotation (3, 3) whose third column is ``axis`` (unit); columns = local x, y, z."""
-    z = _unit(axis)
-    helper = np.array([1.0, 0.0, 0.0]) if abs(z[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
-    x = np.cross(helper, z)
-    x /= np.linalg.norm(x)
-    y = np.cross(z, x)
-    return np.stack([x, y, z], axis=1)
-
-
-@dataclass(frozen=True)
-class Chamber:
-    """A heart chamber: an ellipsoid of blood inside a myocardial shell."""
-
-    name: str
-    """Chamber name (``ra``, ``rv``, ``la``, ``lv``)."""
-    centre: tuple[float, float, float]
-    """Centre in the anatomy frame (mm)."""
-    semi_axes: tuple[float, float, float]
-    """Semi-axes (mm) along the local x, y, z axes of ``long_axis``'s frame."""
-    wall_mm: float
-    """Wall thickness (mm)."""
-    blood: Tissue
-    """Label of the cavity."""
-    long_axis: tuple[float, float, float] = (0.0, 0.0, 1.0)
-    """Direction (anatomy frame) of the local z axis (the third semi-axis)."""
-    rotation: Array = field(init=False, repr=False, compare=False)
-    """(3, 3) local-to-anatomy rotation, derived from ``long_axis``."""
-    _axis_aligned: bool = field(init=False, repr=False, compare=False)
-    """Whether ``rotation`` is the identity (skips a matrix product)."""
-
-    def __post_init__(self) -> None:
-        for a in self.semi_axes:
-            check_positive(a, f"{self.name} semi-axis", "mm")
-        check_positive(self.wall_mm, f"{self.name} wall_mm", "mm")
-        if tuple(self.long_axis) == (0.0, 0.0, 1.0):
-            rot = np.eye(3)
-        else:
-            rot = _frame_from_axis(np.asarray(self.long_axis))
-        rot.setflags(write=False)
-        object.__setattr__(self, "rotation", rot)
-        object.__setattr__(self, "_axis_aligned", bool(np.array_equal(rot, np.eye(3))))
-
-    def sdf(self, points: Array, *, beyond_mm: float = np.inf) -> Array:
-        """Approximate signed distance (mm, negative inside) of ``points`` (N, 3).
-
-        The bound ``k0 (k0 - 1) / k1`` (k0 = |p / a|, k1 = |p / a^2|) is exact on the
-        surface. Points certainly farther than ``beyond_mm`` get ``beyond_mm`` (cheap).
-        """
-        local = points - np.asarray(self.centre)
-        if not self._axis_aligned:
-            local = local @ self.rotation
-        a = np.asarray(self.semi_axes)
-        scaled = local / a
-        k0 = np.sqrt(np.einsum("ij,ij->i", scaled, scaled))
-        out: Array = np.full(k0.shape, beyond_mm)
-        # sdf >= (k0 - 1) min(a): only points below the bound need the full formula
-        near = np.flatnonzero((k0 - 1.0) * float(np.min(a)) < beyond_mm)
-        k0n = k0[near]
-        s2 = scaled[near] / a
-        k1 = np.sqrt(np.einsum("ij,ij->i", s2, s2))
-        safe = k1 > 1e-9
-        out[near] = np.where(safe, k0n * (k0n - 1.0) / np.where(safe, k1, 1.0), -float(np.min(a)))
-        return out
-
-
-@dataclass(frozen=True)
-class BloodVessel:
-    """A straight vessel: a finite cylinder of blood with a wall."""
-
-    name: str
-    """Vessel name (``ivc``, ``svc``, ``aorta``, ``lvot``)."""
-    start: tuple[float, float, float]
-    """Centre of one end (anatomy frame, mm)."""
-    end: tuple[float, float, float]
-    """Centre of the other end (anatomy frame, mm)."""
-    radius_mm: float
-    """Lumen radius (mm)."""
-    wall_mm: float
-    """Wall thickness (mm); 0 for a lumen without wall (an outflow tract)."""
-    blood: Tissue
-    """Label of the lumen."""
-
-    def sdf(self, points: Array) -> Array:
-        """Signed distance (mm) to the lumen of the capped cylinder, for ``points`` (N, 3)."""
-        a = np.asarray(self.start)
-        b = np.asarray(self.end)
-        ax = b - a
-        length = float(np.linalg.norm(ax))
-        ax = ax / length
-        rel = points - a
-        s = rel @ ax
-        radial = np.sqrt(np.maximum(np.einsum("ij,ij->i", rel, rel) - s * s, 0.0))
-        d_rad = radial - self.radius_mm
-        d_ax = np.abs(s - 0.5 * length) - 0.5 * length
-        out: Array = np.maximum(d_rad, d_ax)
-        return out
-
-
-@dataclass(frozen=True)
-class Valve:
-    """A valve: an annulus ring in a plane and hinged leaflets that open downstream."""
-
-    name: str
-    """ROI name (``tricuspid_valve``, ``mitral_valve``, ``aortic_valve``)."""
-    centre: tuple[float, float, float]
-    """Annulus centre (anatomy frame, mm)."""
-    normal: tuple[float, float, float]
-    """Direction of forward flow through the valve (anatomy frame, unit after normalising)."""
-    radius_mm: float
-    """Annulus radius (mm)."""
-    n_leaflets: int
-    """2 (tricuspid and mitral are modelled as two main leaflets) or 3 (aortic cusps)."""
-    open_phase: tuple[float, float]
-    """Cardiac phases (fraction of the beat, 0 = R wave) at which it opens and closes."""
-    label: Tissue
-    """Label of annulus and leaflets."""
-    upstream: Tissue
-    """Blood label on the inflow side (the orifice is cut through the walls)."""
-    downstream: Tissue
-    """Blood label on the outflow side."""
-    leaflet_mm: float = 1.6
-    """Leaflet thickness (mm)."""
-    ring_mm: float = 1.6
-    """Minor radius of the annulus ring (mm)."""
-    max_open_rad: float = math.radians(75.0)
-    """Leaflet swing from the annulus plane when fully open (rad)."""
-
-    def __post_init__(self) -> None:
-        check_positive(self.radius_mm, f"{self.name} radius_mm", "mm")
-        if self.n_leaflets not in (2, 3):
-            raise ConfigurationError(
-                f"{self.name}: n_leaflets must be 2 or 3, got {self.n_leaflets}"
-            )
 
 
 @dataclass(frozen=True)
@@ -373,12 +177,20 @@ class HeartPhantom:
     Parameters
     ----------
     chambers, vessels, valves :
-        The structures, painted in this order: each chamber (wall, then cavity) in
-        sequence, then vessels (wall then lumen), then the septum, then the valves.
+        The structures, painted in this order: the lungs (outside the pericardium), the
+        pericardium, every chamber wall, every chamber cavity (so adjacent chambers share
+        their walls: the interventricular septum), vessels (wall then lumen), the septum,
+        the valves, then the inclusions.
     septum_centre, septum_normal, septum_radius_mm, septum_mm :
         The interatrial septum disc (anatomy frame, mm).
     motion : CardiacMotion
         Cardiac and respiratory motion.
+    pericardium_mm : float, optional
+        Thickness (mm) of the pericardium, a shell around the smooth union of the chambers
+        (``pericardium_gap_mm`` of epicardial fat between); None: no pericardium.
+    lungs, inclusions : tuple of Region
+        Lungs (painted only outside the pericardium and its mediastinal margin) and solid
+        inclusions (painted over everything, e.g. a calcified nodule).
     """
 
     def __init__(
@@ -392,8 +204,20 @@ class HeartPhantom:
         septum_radius_mm: float = 17.0,
         septum_mm: float = 3.5,
         motion: CardiacMotion | None = None,
+        pericardium_mm: float | None = None,
+        pericardium_gap_mm: float = 4.0,
+        lungs: tuple[Region, ...] = (),
+        inclusions: tuple[Region, ...] = (),
     ) -> None:
         self.chambers = chambers
+        self.pericardium_mm = (
+            None
+            if pericardium_mm is None
+            else check_positive(pericardium_mm, "pericardium_mm", "mm")
+        )
+        self.pericardium_gap_mm = check_positive(pericardium_gap_mm, "pericardium_gap_mm", "mm")
+        self.lungs = lungs
+        self.inclusions = inclusions
         self.vessels = vessels
         self.valves = valves
         self.septum_centre = np.asarray(septum_centre, dtype=np.float64)
@@ -402,7 +226,11 @@ class HeartPhantom:
         self.septum_mm = check_positive(septum_mm, "septum_mm", "mm")
         self.motion = motion or CardiacMotion()
         self._valve_frames = {v.name: _frame_from_axis(np.asarray(v.normal)) for v in valves}
-        self._centres = {c.name: np.asarray(c.centre, dtype=np.float64) for c in chambers}
+        self._centres = {
+            c.name: np.asarray(c.centre, dtype=np.float64)
+            for c in chambers
+            if c.name in _BEATING_CHAMBERS
+        }
         self._sigmas = {c.name: max(c.semi_axes) for c in chambers}
         valve_centres = [np.asarray(v.centre) for v in valves if v.name != "tricuspid_valve"]
         self._base_centre = (
@@ -515,9 +343,27 @@ class HeartPhantom:
         """Labels of material points ``material`` (N, 3) (no validation; hot path)."""
         n = material.shape[0]
         lab = np.full(n, int(Tissue.SURROUNDING), dtype=np.int8)
-        for ch in self.chambers:
-            d = ch.sdf(material, beyond_mm=ch.wall_mm + 1.0)
+        reach = 0.0 if self.pericardium_mm is None else self.pericardium_gap_mm
+        reach += (self.pericardium_mm or 0.0) + 4.0 * _SMOOTH_UNION_MM
+        dists = [ch.sdf(material, beyond_mm=ch.wall_mm + reach) for ch in self.chambers]
+        if self.pericardium_mm is not None or self.lungs:
+            # Smooth union of the epicardial surfaces: d = -k log sum exp(-d_i / k)
+            k = _SMOOTH_UNION_MM
+            acc = np.zeros(n)
+            for ch, d in zip(self.chambers, dists, strict=True):
+                acc += np.exp(-(d - ch.wall_mm) / k)
+            envelope = -k * np.log(np.maximum(acc, 1e-300))
+            outer = self.pericardium_gap_mm + (self.pericardium_mm or 0.0)
+            for lung in self.lungs:
+                lab[lung.contains(material) & (envelope > outer + _MEDIASTINUM_MM)] = int(
+                    lung.label
+                )
+            if self.pericardium_mm is not None:
+                shell = (envelope > self.pericardium_gap_mm) & (envelope <= outer)
+                lab[shell] = int(Tissue.PERICARDIUM)
+        for ch, d in zip(self.chambers, dists, strict=True):
             lab[d < ch.wall_mm] = int(Tissue.MYOCARDIUM)
+        for ch, d in zip(self.chambers, dists, strict=True):
             lab[d < 0.0] = int(ch.blood)
         vessel_d = [v.sdf(material) for v in self.vessels]
         for v, d in zip(self.vessels, vessel_d, strict=True):
@@ -536,6 +382,8 @@ class HeartPhantom:
         phase = self.cardiac_phase(t)
         for valve in self.valves:
             self._paint_valve(valve, material, lab, _plateau(phase, *valve.open_phase))
+        for inclusion in self.inclusions:
+            lab[inclusion.contains(material)] = int(inclusion.label)
         return lab
 
     def _paint_valve(self, valve: Valve, material: Array, lab: NDArray[np.int8], op: float) -> None:
@@ -613,17 +461,52 @@ class HeartPhantom:
             f"unknown chamber {name!r}; known: {[c.name for c in self.chambers]}"
         )
 
+    def landmarks(self) -> tuple[Landmark, ...]:
+        """Labelled anchor points of the chambers, vessels, valves and septum (anatomy frame).
+
+        Chambers: the cavity centre; vessels: the lumen's midpoint (the venae cavae: 15 mm
+        from their atrial end); valves: the annulus centre; the septum: its centre.
+        """
+        out: list[Landmark] = []
+        for c in self.chambers:
+            out.append(self._landmark(c.name, c.centre))
+        for v in self.vessels:
+            a, b = np.asarray(v.start), np.asarray(v.end)
+            if v.name == "ivc":
+                p = b - 15.0 * _unit(b - a)
+            elif v.name == "svc":
+                p = a + 15.0 * _unit(b - a)
+            else:
+                p = 0.5 * (a + b)
+            out.append(self._landmark(v.name, p))
+        out.append(self._landmark("interatrial_septum", self.septum_centre))
+        for valve in self.valves:
+            out.append(self._landmark(valve.name, valve.centre))
+        return tuple(out)
+
+    @staticmethod
+    def _landmark(key: str, point: ArrayLike) -> Landmark:
+        label, name = _LANDMARK_NAMES.get(key, (key.upper(), key.replace("_", " ")))
+        p = np.asarray(point, dtype=np.float64)
+        return Landmark(key, label, name, (float(p[0]), float(p[1]), float(p[2])))
+
+
+_RVOT_AXIS = (0.45, 0.3, 0.84)
+_PV_CENTRE = (45.0, -30.0, 48.0)
+_PA_END = (60.75, -3.0, 80.4)  # 45 mm from the pulmonary valve along (0.35, 0.6, 0.72)
+
 
 def default_phantom(motion: CardiacMotion | None = None) -> HeartPhantom:
     """The default adult heart (dimensions and sources in ``docs/imaging.md``)."""
     lv_axis = (0.5, -0.55, -0.65)
     chambers = (
-        Chamber("rv", (18.0, -40.0, 2.0), (30.0, 15.0, 28.0), 4.0, Tissue.RV_BLOOD),
+        Chamber("rv", (24.0, -46.0, -4.0), (34.0, 20.0, 36.0), 4.0, Tissue.RV_BLOOD),
+        Chamber("rvot", (36.0, -38.0, 26.0), (11.0, 11.0, 22.0), 3.0, Tissue.RV_BLOOD, _RVOT_AXIS),
         Chamber("lv", (68.0, -17.0, -13.0), (24.0, 24.0, 42.0), 9.0, Tissue.LV_BLOOD, lv_axis),
         Chamber("ra", (0.0, 0.0, 26.0), (20.0, 21.0, 26.0), 2.5, Tissue.RA_BLOOD),
         Chamber("la", (43.0, 14.0, 30.0), (22.0, 18.0, 20.0), 2.5, Tissue.LA_BLOOD),
     )
-    av_normal = (-0.35, -0.3, 0.89)
+    av_normal = (-0.45, -0.45, 0.77)  # root angulation ~40 deg
     av_centre = (30.0, -10.0, 30.0)
     avn = _unit(av_normal)
     ac = np.asarray(av_centre)
@@ -640,12 +523,13 @@ def default_phantom(motion: CardiacMotion | None = None) -> HeartPhantom:
         ),
         BloodVessel(
             "lvot",
-            tuple((ac - 32.0 * avn).tolist()),
+            (50.0, -16.0, 6.0),  # in the LV cavity, anterior to the mitral valve
             tuple(ac.tolist()),
             10.5,
             0.0,
             Tissue.LV_BLOOD,
         ),
+        BloodVessel("pa", _PV_CENTRE, _PA_END, 12.0, 1.5, Tissue.PA_BLOOD),
     )
     valves = (
         Valve(
@@ -682,7 +566,11 @@ def default_phantom(motion: CardiacMotion | None = None) -> HeartPhantom:
             Tissue.AORTA_BLOOD,
         ),
     )
-    return HeartPhantom(chambers, vessels, valves, motion=motion)
+    lungs = (
+        Region("right_lung", (-62.0, 15.0, 30.0), (40.0, 70.0, 95.0), Tissue.LUNG),
+        Region("left_lung", (115.0, 25.0, 20.0), (45.0, 75.0, 90.0), Tissue.LUNG),
+    )
+    return HeartPhantom(chambers, vessels, valves, motion=motion, pericardium_mm=2.0, lungs=lungs)
 
 
 def tip2anatomy(
