@@ -15,6 +15,7 @@ unit and the allowed range (as canopen's ``SdoAbortedError`` carries the abort c
     │   ├── TransformError                    a matrix that is not a rigid transform
     │   ├── UnreachablePoseError              no joint state reaches a pose
     │   ├── ConfigurationError                a bad setting (geometry, plant, tracker, ...)
+    │   │   └── PluginError                   a plant plug-in fails to load or breaks the protocol
     │   ├── CommandStepError                  a position command jumps farther than allowed
     │   ├── ViewExistsError                   a view of that name exists already
     │   └── UnsafeExportPathError             an export would land outside its directory
@@ -39,11 +40,6 @@ unit and the allowed range (as canopen's ``SdoAbortedError`` carries the abort c
 from __future__ import annotations
 
 __all__ = [
-    "NeighbourhoodError",
-    "ViewNotFoundError",
-    "ViewExistsError",
-    "RoadmapFullError",
-    "IgtlError",
     "CommandStepError",
     "ConfigurationError",
     "DriveFaultError",
@@ -54,11 +50,15 @@ __all__ = [
     "HardwareError",
     "HeartbeatLostError",
     "IcenavError",
+    "IgtlError",
     "InvalidValueError",
     "JointLimitError",
     "MotionAborted",
+    "NeighbourhoodError",
     "NonFiniteError",
     "PlanningError",
+    "PluginError",
+    "RoadmapFullError",
     "ShapeError",
     "StoreError",
     "TrackerError",
@@ -66,6 +66,8 @@ __all__ = [
     "UnreachablePoseError",
     "UnsafeExportPathError",
     "UnsupportedVersionError",
+    "ViewExistsError",
+    "ViewNotFoundError",
 ]
 
 
@@ -127,6 +129,11 @@ class UnreachablePoseError(InvalidValueError):
 
 class ConfigurationError(InvalidValueError):
     """A configuration value (geometry, plant, tracker, controller, ...) is invalid."""
+
+
+class PluginError(ConfigurationError):
+    """A plant plug-in (``--plant MODULE:FACTORY``) cannot be loaded, or the plant or tracker
+    it makes lacks part of the protocol (the message names the spec and what is missing)."""
 
 
 class FileFormatError(IcenavError, ValueError):
