@@ -15,6 +15,7 @@ unit and the allowed range (as canopen's ``SdoAbortedError`` carries the abort c
     │   ├── TransformError                    a matrix that is not a rigid transform
     │   ├── UnreachablePoseError              no joint state reaches a pose
     │   ├── ConfigurationError                a bad setting (geometry, plant, tracker, ...)
+    │   │   └── PluginError                   a plant plug-in fails to load or breaks the protocol
     │   ├── CommandStepError                  a position command jumps farther than allowed
     │   ├── ViewExistsError                   a view of that name exists already
     │   └── UnsafeExportPathError             an export would land outside its directory
@@ -63,6 +64,7 @@ __all__ = [
     "NeighbourhoodError",
     "NonFiniteError",
     "PlanningError",
+    "PluginError",
     "RoadmapFullError",
     "SessionLockedError",
     "ShapeError",
@@ -135,6 +137,11 @@ class UnreachablePoseError(InvalidValueError):
 
 class ConfigurationError(InvalidValueError):
     """A configuration value (geometry, plant, tracker, controller, ...) is invalid."""
+
+
+class PluginError(ConfigurationError):
+    """A plant plug-in (``--plant MODULE:FACTORY``) cannot be loaded, or the plant or tracker
+    it makes lacks part of the protocol (the message names the spec and what is missing)."""
 
 
 class FileFormatError(IcenavError, ValueError):
