@@ -200,7 +200,15 @@ def _run_ray(
     ray = _import_ray()
     started = not ray.is_initialized()
     if started:
-        ray.init(address=address, include_dashboard=False, configure_logging=False)
+        if address is None:  # a local instance for this call, on the loopback address
+            ray.init(
+                include_dashboard=False,
+                configure_logging=False,
+                log_to_driver=False,
+                _node_ip_address="127.0.0.1",
+            )
+        else:
+            ray.init(address=address, configure_logging=False)
     try:
         task = ray.remote(num_cpus=1, max_retries=0)(_call)
         fn_ref = ray.put(fn)
