@@ -174,6 +174,10 @@ class ViewFindingEnv(gymnasium.Env[dict[str, Any], Any]):
     """
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 30}
+    q_low: Array
+    """(4,) lower corner of the environment's joint box (rad, rad, rad, mm; float64)."""
+    q_high: Array
+    """(4,) upper corner of the joint box."""
 
     def __init__(
         self,
@@ -190,12 +194,12 @@ class ViewFindingEnv(gymnasium.Env[dict[str, Any], Any]):
         self.render_mode = render_mode
         n = cfg.image_size
         lim = DEFAULT_GEOMETRY.knob_limit
-        self._low = np.array([-lim, -lim, -cfg.roll_limit_rad, -cfg.translation_limit_mm])
-        self._high = -self._low
+        self.q_low = np.array([-lim, -lim, -cfg.roll_limit_rad, -cfg.translation_limit_mm])
+        self.q_high = -self.q_low
         self.observation_space: spaces.Dict = spaces.Dict(
             {
                 "image": spaces.Box(0, 255, (n, n, 1), np.uint8),
-                "q": spaces.Box(self._low.astype(np.float32), self._high.astype(np.float32)),
+                "q": spaces.Box(self.q_low.astype(np.float32), self.q_high.astype(np.float32)),
             }
         )
         inc = np.asarray(cfg.max_increment, dtype=np.float32)
@@ -237,10 +241,10 @@ class ViewFindingEnv(gymnasium.Env[dict[str, Any], Any]):
         )
         if "q_start" in opts:
             q0 = np.asarray(opts.pop("q_start"), dtype=np.float64)
-            if q0.shape != (4,) or np.any(q0 < self._low) or np.any(q0 > self._high):
+            if q0.shape != (4,) or np.any(q0 < self.q_low) or np.any(q0 > self.q_high):
                 raise ConfigurationError(
-                    f"q_start must be 4 values within {self._low.tolist()} .. "
-                    f"{self._high.tolist()} (rad, rad, rad, mm), got {q0.tolist()}"
+                    f"q_start must be 4 values within {self.q_low.tolist()} .. "
+                    f"{self.q_high.tolist()} (rad, rad, rad, mm), got {q0.tolist()}"
                 )
         if opts:
             raise ConfigurationError(f"unknown reset option(s) {sorted(opts)}")
@@ -277,7 +281,7 @@ class ViewFindingEnv(gymnasium.Env[dict[str, Any], Any]):
         if a.shape != (4,) or not np.all(np.isfinite(a)):
             raise ConfigurationError(f"action must be 4 finite increments, got {action!r}")
         want = self._q + a
-        q = np.clip(want, self._low, self._high)
+        q = np.clip(want, self.q_low, self.q_high)
         clipped = bool(np.any(q != want))
         self._plant.move(q)
         self._q = q
