@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 from dataclasses import asdict
 from typing import Any
 
@@ -20,6 +21,11 @@ def square_unless_three(x: int, scale: int = 1) -> int:
     if x == 3:
         raise ValueError(f"item {x} is unlucky")
     return scale * x * x
+
+
+def blas_threads(_: int) -> str | None:
+    """The thread count a worker's BLAS was told to use."""
+    return os.environ.get("OPENBLAS_NUM_THREADS")
 
 
 def spin_records(seed: int) -> list[dict[str, Any]]:
@@ -58,6 +64,16 @@ def test_local_engine_names_the_failing_item(jobs: int) -> None:
         assert "square_unless_three" in err.value.remote_traceback
     else:
         assert isinstance(err.value.__cause__, ValueError)
+
+
+def test_pool_workers_run_one_blas_thread_and_the_parent_keeps_its_own(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    monkeypatch.delenv("OPENBLAS_NUM_THREADS", raising=False)
+    assert run_jobs(blas_threads, [1, 2], jobs=2, progress=False) == ["1", "1"]
+    assert "OPENBLAS_NUM_THREADS" not in os.environ
+    monkeypatch.setenv("OPENBLAS_NUM_THREADS", "3")  # the caller's choice is kept
+    assert run_jobs(blas_threads, [1, 2], jobs=2, progress=False) == ["3", "3"]
 
 
 @pytest.mark.parametrize(

@@ -7,7 +7,7 @@ items, whichever finishes first:
 
 - ``local`` (the default): ``jobs == 1`` runs them one after the other in this process;
   ``jobs > 1`` in a pool of ``jobs`` processes (``spawn``, so a threaded parent is never
-  forked), as ``eval spin --jobs`` always did.
+  forked), as ``eval spin --jobs`` always did, with one BLAS / OpenMP thread per worker.
 - ``ray``: one Ray task per item (1 CPU each), on the running Ray instance if this process
   has one (``ray.init`` was called), else on the cluster at ``address`` (``"auto"``: the
   one started on this machine with ``ray start --head``; ``"ray://host:10001"``: a remote
@@ -25,8 +25,10 @@ worker's traceback. A progress bar (tqdm, on standard error) counts the finished
 from __future__ import annotations
 
 import concurrent.futures
+import contextlib
 import multiprocessing
-from collections.abc import Callable, Mapping, Sequence
+import os
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from typing import Any, TypeVar
 
 from tqdm import tqdm
@@ -165,7 +167,9 @@ def _run_pool(
     ctx = multiprocessing.get_context("spawn")  # no fork of a threaded parent
     pool = concurrent.futures.ProcessPoolExecutor(max_workers=jobs, mp_context=ctx)
     try:
-        futures = {pool.submit(_call, fn, item, kw): i for i, item in enumerate(items)}
+        # the workers start on the first submit and inherit the environment then
+        with _one_thread_per_worker():
+            futures = {pool.submit(_call, fn, item, kw): i for i, item in enumerate(items)}
         for fut in concurrent.futures.as_completed(futures):
             i = futures[fut]
             try:
@@ -176,6 +180,28 @@ def _run_pool(
     finally:
         # on an error: drop the jobs not started yet, wait for the running ones
         pool.shutdown(wait=True, cancel_futures=True)
+
+
+THREAD_VARIABLES = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
+"""Thread-pool sizes of the numerical libraries, set to 1 in the local pool's workers."""
+
+
+@contextlib.contextmanager
+def _one_thread_per_worker() -> Iterator[None]:
+    """While the pool starts: one thread per numerical library in its workers (unless the
+    caller set them), as Ray's workers run. ``jobs`` processes each with a multi-threaded
+    BLAS oversubscribe the cores: measured on one catheter's calibration (dense and
+    5-point), 8.4 s of CPU with the default threads against 5.4 s with one."""
+    saved = {k: os.environ.get(k) for k in THREAD_VARIABLES}
+    for k, v in saved.items():
+        if v is None:
+            os.environ[k] = "1"
+    try:
+        yield
+    finally:
+        for k, v in saved.items():
+            if v is None:
+                os.environ.pop(k, None)
 
 
 def _import_ray() -> Any:
