@@ -98,3 +98,6 @@ def test_step_after_the_end_is_rejected() -> None:
     env.step(ZERO)
     with pytest.raises(ConfigurationError, match="the spin is over"):
         env.step(ZERO)
+    env.reset(seed=0)
+    with pytest.raises(ConfigurationError, match="action must be 4 finite corrections"):
+        env.step(np.zeros(5, dtype=np.float32))

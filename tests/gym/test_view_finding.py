@@ -125,3 +125,8 @@ def test_bad_reset_options_and_step_before_reset_are_rejected() -> None:
         env.reset(seed=0, options={"colour": 1})
     with pytest.raises(ConfigurationError, match="q_start must be 4 values within"):
         env.reset(seed=0, options={"q_start": [0.0, 0.0, 0.0, math.inf]})
+    env.reset(seed=0)
+    with pytest.raises(ConfigurationError, match="action must be 4 finite increments"):
+        env.step(np.zeros(3, dtype=np.float32))
+    with pytest.raises(ConfigurationError, match="action must be 4 finite increments"):
+        env.step(np.array([0.0, math.nan, 0.0, 0.0], dtype=np.float32))

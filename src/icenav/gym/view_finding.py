@@ -275,11 +275,10 @@ class ViewFindingEnv(gymnasium.Env[dict[str, Any], Any]):
         if self._plant is None:
             raise ConfigurationError("call reset() before step()")
         cfg = self.config
-        a = np.clip(
-            np.asarray(action, dtype=np.float64), self.action_space.low, self.action_space.high
-        )
+        a = np.asarray(action, dtype=np.float64)
         if a.shape != (4,) or not np.all(np.isfinite(a)):
             raise ConfigurationError(f"action must be 4 finite increments, got {action!r}")
+        a = np.clip(a, self.action_space.low, self.action_space.high)
         want = self._q + a
         q = np.clip(want, self.q_low, self.q_high)
         clipped = bool(np.any(q != want))
