@@ -37,6 +37,7 @@ unit and the allowed range (as canopen's ``SdoAbortedError`` carries the abort c
     │   ├── HeartbeatLostError                a drive stopped sending heartbeats
     │   └── EmergencyStopError                the robot is e-stopped; reset required
     ├── TrackerError                          the tracker is not running or misconfigured
+    ├── JobError                              a job of a population run failed (item, traceback)
     └── IgtlError                             the OpenIGTLink server cannot start or is misused
         └── IgtlProtocolError                 a peer sent bytes that break the protocol
 """
@@ -59,6 +60,7 @@ __all__ = [
     "IgtlError",
     "IgtlProtocolError",
     "InvalidValueError",
+    "JobError",
     "JointLimitError",
     "MotionAborted",
     "NeighbourhoodError",
@@ -266,3 +268,24 @@ class ViewNotFoundError(IcenavError, KeyError):
 
 class NeighbourhoodError(PlanningError):
     """A refinement set-point would leave the neighbourhood of the saved view."""
+
+
+class JobError(IcenavError):
+    """A job of a population run (:func:`icenav.eval.engine.run_jobs`) failed.
+
+    Attributes
+    ----------
+    item : object
+        The item whose job failed (e.g. the catheter seed).
+    index : int
+        Its position in the items.
+    remote_traceback : str
+        The traceback text from the worker that ran it ("" when it ran in this process;
+        the exception is then chained as ``__cause__``).
+    """
+
+    def __init__(self, message: str, *, item: object, index: int, remote_traceback: str = ""):
+        super().__init__(message)
+        self.item = item
+        self.index = index
+        self.remote_traceback = remote_traceback

@@ -1,0 +1,29 @@
+"""Fixtures shared across the test packages."""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from typing import Any
+
+import pytest
+
+
+@pytest.fixture(scope="session")
+def ray_local() -> Iterator[Any]:
+    """A local Ray instance with 2 CPUs on the loopback address, for the whole session
+    (started on first use, shut down at the end); skips when Ray cannot be imported."""
+    try:
+        import ray
+    except ImportError as exc:  # the optional extra icenav[cluster] is not installed
+        pytest.skip(f"ray cannot be imported on this Python: {exc}")
+    ray.init(
+        num_cpus=2,
+        include_dashboard=False,
+        configure_logging=False,
+        log_to_driver=False,
+        _node_ip_address="127.0.0.1",
+    )
+    try:
+        yield ray
+    finally:
+        ray.shutdown()
