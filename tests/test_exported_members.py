@@ -62,7 +62,6 @@ MODULES = [
     "icenav.sim.introducer",
     "icenav.sim.patient",
     "icenav.sim.physiology",
-
     "icenav.sim.families",
     "icenav.sim.families.base",
     "icenav.sim.families.distributed_friction",

@@ -209,9 +209,14 @@ class FieldDistortionTracker:
         return self._inner.config
 
     @property
-    def registration(self) -> Registration:
-        """The twin's true registration (as the default tracker's)."""
+    def registration(self) -> Registration | None:
+        """The registration tip poses are mapped through (the inner tracker's: the twin's
+        true one unless a lab's estimate was set; None: unregistered)."""
         return self._inner.registration
+
+    @registration.setter
+    def registration(self, value: Registration | None) -> None:
+        self._inner.registration = value
 
     @property
     def running(self) -> bool:
