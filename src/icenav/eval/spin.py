@@ -44,10 +44,8 @@ errors (their count is reported). The tables and plots are :mod:`icenav.eval.spi
 from __future__ import annotations
 
 import argparse
-import concurrent.futures
 import json
 import math
-import multiprocessing
 import sys
 import time
 from collections.abc import Sequence
@@ -74,7 +72,7 @@ from icenav.compensation.hysteresis import HysteresisCompensator
 from icenav.compensation.tendon_map import TendonKnobMap
 from icenav.compensation.tracker_bias import TrackerBias
 from icenav.control.servo import TipPoseServo
-from icenav.errors import InvalidValueError
+from icenav.errors import ConfigurationError, InvalidValueError, JobError
 from icenav.eval.spin_report import (
     BENDS_DEG,
     format_table,
@@ -599,35 +597,51 @@ def evaluate_catheter(
     )
 
 
-def _run_catheters(seeds: Sequence[int], jobs: int, **kwargs: Any) -> list[CatheterRun]:
-    """:func:`evaluate_catheter` for each seed, ``jobs`` at a time (processes), printing
-    progress as each catheter finishes; the runs come back in seed order."""
-    t0 = time.perf_counter()
-    runs: dict[int, CatheterRun] = {}
+def _evaluate(seed: int, *, first: int, **kwargs: Any) -> CatheterRun:
+    """One catheter for the engine (a module-level function: picklable)."""
+    return evaluate_catheter(seed, keep=seed == first, **kwargs)
 
-    def report(run: CatheterRun) -> None:
-        runs[run.seed] = run
+
+def _run_catheters(
+    seeds: Sequence[int],
+    jobs: int,
+    *,
+    engine: str = "local",
+    address: str | None = None,
+    **kwargs: Any,
+) -> list[CatheterRun]:
+    """:func:`evaluate_catheter` for each seed on an engine (:mod:`icenav.eval.engine`: the
+    local process pool, ``jobs`` at a time, or Ray), printing each catheter as it finishes;
+    the runs come back in seed order."""
+    from tqdm import tqdm
+
+    from icenav.eval.engine import run_jobs
+
+    t0 = time.perf_counter()
+    done = 0
+
+    def report(seed: int, run: CatheterRun) -> None:
+        nonlocal done
+        done += 1
         for line in run.calibration_text:
-            print(line)
-        print(
+            tqdm.write(line)
+        tqdm.write(
             f"  catheter {run.seed} done in {run.seconds:.0f} s "
-            f"({len(runs)}/{len(seeds)} catheters, {time.perf_counter() - t0:.0f} s elapsed)",
-            flush=True,
+            f"({done}/{len(seeds)} catheters, {time.perf_counter() - t0:.0f} s elapsed)"
         )
 
-    first = seeds[0]
-    if jobs <= 1 or len(seeds) == 1:
-        for seed in seeds:
-            report(evaluate_catheter(seed, keep=seed == first, **kwargs))
-    else:
-        ctx = multiprocessing.get_context("spawn")  # no fork of a threaded parent
-        with concurrent.futures.ProcessPoolExecutor(max_workers=jobs, mp_context=ctx) as pool:
-            futures = [
-                pool.submit(evaluate_catheter, seed, keep=seed == first, **kwargs) for seed in seeds
-            ]
-            for fut in concurrent.futures.as_completed(futures):
-                report(fut.result())
-    return [runs[s] for s in seeds]
+    runs: list[CatheterRun] = run_jobs(
+        _evaluate,
+        list(seeds),
+        engine=engine,
+        jobs=jobs,
+        address=address,
+        kwargs={"first": seeds[0], **kwargs},
+        on_result=report,
+        describe=lambda s: f"catheter {s}",
+        desc="catheters",
+    )
+    return runs
 
 
 def _write_plots(
@@ -677,6 +691,19 @@ def _parser() -> argparse.ArgumentParser:
     )
     p.add_argument(
         "--jobs", type=int, default=1, help="catheters evaluated in parallel (processes)"
+    )
+    p.add_argument(
+        "--engine",
+        choices=("local", "ray"),
+        default="local",
+        help="where the catheters run: the local process pool (default, --jobs at a time) "
+        "or Ray (pip install 'icenav[cluster]'; one CPU a catheter)",
+    )
+    p.add_argument(
+        "--address",
+        default=None,
+        help="with --engine ray: the address of an existing Ray cluster (default: start a "
+        "local one for this run)",
     )
     p.add_argument("--json", type=Path, help="write the records (a JSON list) to this file")
     p.add_argument(
@@ -751,15 +778,20 @@ def main(argv: Sequence[str] | None = None) -> int:
         + (" (the others for the curvature figure only)" if run_vessels != vessels else "")
         + f", bends {bends} deg, {len(conds)} condition(s), {args.samples} samples per spin"
     )
-    runs = _run_catheters(
-        seeds,
-        args.jobs,
-        vessels=run_vessels,
-        bends_deg=bends,
-        n_samples=args.samples,
-        conditions=conds,
-        in_situ=args.in_situ,
-    )
+    try:
+        runs = _run_catheters(
+            seeds,
+            args.jobs,
+            engine=args.engine,
+            address=args.address,
+            vessels=run_vessels,
+            bends_deg=bends,
+            n_samples=args.samples,
+            conditions=conds,
+            in_situ=args.in_situ,
+        )
+    except (ConfigurationError, JobError) as exc:
+        return _fail(str(exc))
     all_records = [r for run in runs for r in run.records]
     records = [r for r in all_records if r.vessel in vessels]
     print("\nspin RMSE (EM-tracked, the paper's protocol; the paper's Table I in parentheses)")

@@ -17,9 +17,9 @@ import time
 
 import numpy as np
 
+from icenav.control.commands import Command, GoToView, SaveView, Source, Stop
 from icenav.control.controller import Controller
-from icenav.control.state import Mode
-from icenav.errors import IgtlError
+from icenav.errors import IcenavError, IgtlError
 from icenav.io.igtl import (
     DEVICE_IMAGE,
     DEVICE_SENSOR_TO_TRACKER,
@@ -31,40 +31,47 @@ from icenav.io.igtl import (
     IgtlRequest,
 )
 
-__all__ = ["CommandForwarder", "IgtlStreamer", "attach_bridge", "handle_request"]
+__all__ = [
+    "DECISION_TIMEOUT_S",
+    "SOURCE",
+    "CommandForwarder",
+    "IgtlStreamer",
+    "attach_bridge",
+    "handle_request",
+    "to_command",
+]
 
 
 _CLIENT = "igtl"
 
 
-def handle_request(ctrl: Controller, request: IgtlRequest) -> IgtlReply:
-    """Forward one OpenIGTLink command to the controller and say what became of it.
+DECISION_TIMEOUT_S = 2.0
+"""How long a command waits for the controller's decision before the reply says so (s); the
+controller decides at its next cycle (10 ms at 100 Hz)."""
+SOURCE = Source("igtl", _CLIENT)
+"""The source of every OpenIGTLink command (authorization sees one OpenIGTLink client)."""
 
-    Until the controller answers commands itself (a ticket with the outcome), this checks
-    what the controller would refuse, from its latest state, before queueing the request:
-    a go-to-view while another client holds control, in ESTOP / FAULT, or to an unknown
-    view; a save under a name that exists. The check and the controller's own may
-    disagree only if the state changes between the two (the controller's message then
-    says so). Stop is never refused.
-    """
+
+def to_command(request: IgtlRequest) -> Command:
+    """The controller's command for an OpenIGTLink request (the one command set)."""
     if request.command is IgtlCommand.STOP:
-        ctrl.stop(_CLIENT)
-        return IgtlReply(IgtlOutcome.ACCEPTED)
-    state = ctrl.snapshot()
-    names = {v.name for v in state.views}
+        return Stop(source=SOURCE)
     if request.command is IgtlCommand.SAVE_VIEW:
-        if request.argument in names:
-            return IgtlReply(IgtlOutcome.REFUSED, f"a view named {request.argument!r} exists")
-        ctrl.save_view(request.argument, _CLIENT)
-        return IgtlReply(IgtlOutcome.ACCEPTED)
-    if state.mode in (Mode.ESTOP, Mode.FAULT):
-        return IgtlReply(IgtlOutcome.REFUSED, f"the robot is in {state.mode.value}: reset first")
-    if state.control_owner not in (None, _CLIENT):
-        return IgtlReply(IgtlOutcome.REFUSED, f"{state.control_owner} holds control")
-    if request.argument not in names:
-        return IgtlReply(IgtlOutcome.REFUSED, f"no view named {request.argument!r}")
-    ctrl.goto_view(request.argument, _CLIENT)
-    return IgtlReply(IgtlOutcome.ACCEPTED)
+        return SaveView(request.argument, source=SOURCE)
+    return GoToView(request.argument, source=SOURCE)
+
+
+def handle_request(
+    ctrl: Controller, request: IgtlRequest, timeout_s: float = DECISION_TIMEOUT_S
+) -> IgtlReply:
+    """Submit one OpenIGTLink command to the controller and reply with its true outcome:
+    the controller's own decision (accepted, or refused and why: not in control, in ESTOP,
+    no such view, ...), waited for on the server's command thread, never the I/O thread."""
+    try:
+        result = ctrl.submit(to_command(request)).result(timeout_s)
+    except IcenavError as exc:  # a malformed name, or no decision in time
+        return IgtlReply(IgtlOutcome.REFUSED, str(exc))
+    return IgtlReply(IgtlOutcome(result.outcome.value), result.reason)
 
 
 class CommandForwarder:
