@@ -32,10 +32,10 @@ from icenav.io.igtl import (
 )
 
 __all__ = [
-    "DECISION_TIMEOUT_S",
-    "SOURCE",
     "CommandForwarder",
+    "DECISION_TIMEOUT_S",
     "IgtlStreamer",
+    "SOURCE",
     "attach_bridge",
     "handle_request",
     "to_command",
