@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import logging
 import random
+import sys
 import threading
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -218,6 +219,10 @@ def run_random(
                 settle(ticket)
 
     threads = [threading.Thread(target=estopper), threading.Thread(target=script)]
+    # switch threads every 0.1 ms (Python's default is 5 ms): on an idle machine a cycle
+    # takes tens of microseconds, and the e-stopper and the script must meet the loop often
+    switch = sys.getswitchinterval()
+    sys.setswitchinterval(1e-4)
     for t in threads:
         t.start()
     last = ctrl.cycle
@@ -237,6 +242,7 @@ def run_random(
         first_cycle.set()
         for t in threads:
             t.join(timeout=30.0)
+        sys.setswitchinterval(switch)
         logger.removeHandler(deaths)
     # the last reset, with nobody pressing E-STOP: it must take effect
     final = ctrl.reset_fault() if ctrl.machine.halted else None
