@@ -175,7 +175,39 @@ class Jobs:
         return len(self._pending)
 
 
-class LoopThread:
+class _Worker:
+    """A daemon thread running ``_run`` between :meth:`start` and :meth:`stop` (the one
+    lifecycle of the loop, the supervisor and the imager); ``_stop`` is set to end it."""
+
+    _thread_name = "icenav-worker"
+
+    def __init__(self) -> None:
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+
+    @property
+    def running(self) -> bool:
+        """True while the thread runs."""
+        return self._thread is not None
+
+    def start(self) -> None:
+        if self._thread is not None:
+            return
+        self._stop.clear()
+        self._thread = threading.Thread(target=self._run, name=self._thread_name, daemon=True)
+        self._thread.start()
+
+    def stop(self, timeout_s: float = 5.0) -> None:
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(timeout=timeout_s)
+        self._thread = None
+
+    def _run(self) -> None:
+        raise NotImplementedError
+
+
+class LoopThread(_Worker):
     """Calls ``step()`` every ``period_s`` in a thread until :meth:`stop`.
 
     Parameters
@@ -191,11 +223,10 @@ class LoopThread:
     """
 
     def __init__(self, step: Callable[[], object], period_s: float, idle: Callable[[], bool]):
+        super().__init__()
         self._step = step
         self.period_s = float(period_s)
         self._idle = idle
-        self._running = threading.Event()
-        self._thread: threading.Thread | None = None
         self.cycle_starts: deque[float] = deque(maxlen=100_000)
         """perf_counter() at the start of the latest cycles (s), for jitter."""
         self.heartbeat = 0
@@ -203,28 +234,12 @@ class LoopThread:
         self.escaped = 0
         """Exceptions that escaped ``step()`` (should stay 0: the cycle catches its own)."""
 
-    @property
-    def running(self) -> bool:
-        """True while the thread runs."""
-        return self._thread is not None
-
-    def start(self) -> None:
-        if self._thread is not None:
-            return
-        self._running.set()
-        self._thread = threading.Thread(target=self._run, name="icenav-control", daemon=True)
-        self._thread.start()
-
-    def stop(self, timeout_s: float = 5.0) -> None:
-        self._running.clear()
-        if self._thread is not None:
-            self._thread.join(timeout=timeout_s)
-        self._thread = None
+    _thread_name = "icenav-control"
 
     def _run(self) -> None:
         period = self.period_s
         next_t = time.perf_counter()
-        while self._running.is_set():
+        while not self._stop.is_set():
             self.cycle_starts.append(time.perf_counter())
             try:
                 self._step()
@@ -242,7 +257,7 @@ class LoopThread:
                 next_t = time.perf_counter()
 
 
-class Supervisor:
+class Supervisor(_Worker):
     """E-stops the robot when the loop's heartbeat stops for ``stall_s`` (see the module
     docstring). ``on_stall(seconds)`` is called from the supervisor's thread, once per
     stall (again only after the loop advanced)."""
@@ -253,26 +268,14 @@ class Supervisor:
         on_stall: Callable[[float], None],
         stall_s: float,
     ) -> None:
+        super().__init__()
         self._heartbeat = heartbeat
         self._on_stall = on_stall
         self.stall_s = float(stall_s)
-        self._stop = threading.Event()
-        self._thread: threading.Thread | None = None
         self.stalls = 0
         """Stalls detected."""
 
-    def start(self) -> None:
-        if self._thread is not None:
-            return
-        self._stop.clear()
-        self._thread = threading.Thread(target=self._run, name="icenav-supervisor", daemon=True)
-        self._thread.start()
-
-    def stop(self) -> None:
-        self._stop.set()
-        if self._thread is not None:
-            self._thread.join(timeout=5.0)
-        self._thread = None
+    _thread_name = "icenav-supervisor"
 
     def _run(self) -> None:
         last = self._heartbeat()
@@ -293,33 +296,21 @@ class Supervisor:
                     logger.exception("the supervisor's e-stop raised")
 
 
-class ImagingThread:
+class ImagingThread(_Worker):
     """Calls ``render()`` at ``rate_hz`` until :meth:`stop`; an exception is handed to
     ``on_error`` (and rendering goes on at the same rate)."""
 
     def __init__(
         self, render: Callable[[], object], rate_hz: float, on_error: Callable[[Exception], None]
     ) -> None:
+        super().__init__()
         self._render = render
         self._period = 1.0 / float(rate_hz)
         self._on_error = on_error
-        self._stop = threading.Event()
-        self._thread: threading.Thread | None = None
         self.errors = 0
         """Renders that raised."""
 
-    def start(self) -> None:
-        if self._thread is not None:
-            return
-        self._stop.clear()
-        self._thread = threading.Thread(target=self._run, name="icenav-imager", daemon=True)
-        self._thread.start()
-
-    def stop(self) -> None:
-        self._stop.set()
-        if self._thread is not None:
-            self._thread.join(timeout=5.0)
-        self._thread = None
+    _thread_name = "icenav-imager"
 
     def _run(self) -> None:
         while True:
