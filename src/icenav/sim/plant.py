@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike
@@ -43,6 +44,7 @@ __all__ = [
     "PlantState",
     "elastic_tip2base",
     "elastic_tip2base_from_tensions",
+    "snapshot_state",
 ]
 
 MAX_SUBSTEP_RAD = 0.02
@@ -96,6 +98,39 @@ def _g_minus(x: float) -> float:
 
 def _clip(x: float, lo: float, hi: float) -> float:
     return lo if x < lo else hi if x > hi else x
+
+
+def snapshot_state(plant: Any) -> PlantState:
+    """The frozen :class:`PlantState` of a plant built on the twin's section (the default
+    twin and the plant families): its motor state ``_q``, pose ``_pose``, curvature ``_u``,
+    tensions ``_t``, pulls ``_d``, bending length ``_length``, ``geometry``, ``_roll``,
+    ``_twist`` and ``_trans``."""
+    ux, uy = plant._u
+    L = plant._length
+    k = plant.geometry.knob_ratio
+    arrays = [
+        np.array(plant._q),
+        plant._pose.copy(),
+        np.array(plant._u),
+        np.array(plant._t),
+        np.array(plant._d),
+        np.array([L * uy / k, -L * ux / k]),
+    ]
+    for a in arrays:
+        a.setflags(write=False)
+    return PlantState(
+        q_motor=arrays[0],
+        tip2base=arrays[1],
+        bend_angle=L * math.hypot(ux, uy),
+        bend_plane=math.atan2(-ux, uy),
+        curvature_per_mm=arrays[2],
+        tendon_tensions_n=arrays[3],
+        tendon_pulls_mm=arrays[4],
+        effective_knobs=arrays[5],
+        roll=plant._roll,
+        twist=plant._twist,
+        translation_mm=plant._trans,
+    )
 
 
 class CatheterPlant:
@@ -160,32 +195,7 @@ class CatheterPlant:
     @property
     def state(self) -> PlantState:
         """The current state (a frozen snapshot)."""
-        ux, uy = self._u
-        L = self._length
-        k = self.geometry.knob_ratio
-        arrays = [
-            np.array(self._q),
-            self._pose.copy(),
-            np.array(self._u),
-            np.array(self._t),
-            np.array(self._d),
-            np.array([L * uy / k, -L * ux / k]),
-        ]
-        for a in arrays:
-            a.setflags(write=False)
-        return PlantState(
-            q_motor=arrays[0],
-            tip2base=arrays[1],
-            bend_angle=L * math.hypot(ux, uy),
-            bend_plane=math.atan2(-ux, uy),
-            curvature_per_mm=arrays[2],
-            tendon_tensions_n=arrays[3],
-            tendon_pulls_mm=arrays[4],
-            effective_knobs=arrays[5],
-            roll=self._roll,
-            twist=self._twist,
-            translation_mm=self._trans,
-        )
+        return snapshot_state(self)
 
     # --- motion --------------------------------------------------------------------------
 

@@ -34,7 +34,7 @@ from icenav.errors import ConfigurationError, ShapeError
 from icenav.geometry.kinematics import DEFAULT_GEOMETRY, CatheterGeometry, forward
 from icenav.sim.bending import PAIR, PULL_SIGN, Section
 from icenav.sim.params import TOLERANCES, PlantParams, Vessel
-from icenav.sim.plant import MAX_SUBSTEP_RAD, PlantState
+from icenav.sim.plant import MAX_SUBSTEP_RAD, PlantState, snapshot_state
 
 __all__ = [
     "SectionPlant",
@@ -192,32 +192,7 @@ class SectionPlant:
     @property
     def state(self) -> PlantState:
         """The current state (a frozen snapshot; the same fields as the default twin's)."""
-        ux, uy = self._u
-        L = self._length
-        k = self.geometry.knob_ratio
-        arrays = [
-            np.array(self._q),
-            self._pose.copy(),
-            np.array(self._u),
-            np.array(self._t),
-            np.array(self._d),
-            np.array([L * uy / k, -L * ux / k]),
-        ]
-        for a in arrays:
-            a.setflags(write=False)
-        return PlantState(
-            q_motor=arrays[0],
-            tip2base=arrays[1],
-            bend_angle=L * math.hypot(ux, uy),
-            bend_plane=math.atan2(-ux, uy),
-            curvature_per_mm=arrays[2],
-            tendon_tensions_n=arrays[3],
-            tendon_pulls_mm=arrays[4],
-            effective_knobs=arrays[5],
-            roll=self._roll,
-            twist=self._twist,
-            translation_mm=self._trans,
-        )
+        return snapshot_state(self)
 
     def move(self, q_motor: ArrayLike) -> Array:
         """Move the motors to ``q_motor`` (4,) (rad, rad, rad, mm) along a straight joint path;
