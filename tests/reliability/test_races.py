@@ -7,6 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from icenav.control.controller import Controller
 from icenav.control.modes import Mode
 from icenav.devices.robot import RobotStatus
 from tests.support.races import EventLog, drive_away_and_save, make_controller, run_random
@@ -94,6 +95,33 @@ def test_a_reset_asked_before_an_estop_never_clears_it() -> None:
     result = reset.final(timeout=0)
     assert result.outcome.value == "refused" and "an e-stop came after" in result.reason
     assert ctrl.mode is Mode.ESTOP and "second" in ctrl.snapshot().message
+    again = ctrl.reset_fault()
+    ctrl.run_cycles(5)
+    assert again.final(timeout=0).outcome.value == "done" and ctrl.mode is Mode.IDLE
+
+
+def test_an_estop_between_the_robots_reset_and_enable_refuses_the_reset() -> None:
+    """An e-stop that lands after the robot was reset but before it was enabled (its first
+    step takes no lock): the reset lost the race and says so; it is not a failed reset."""
+    log = EventLog()
+    box: dict[str, object] = {}
+
+    def hook(point: str) -> None:
+        if point == "reset_fault.after" and box.pop("armed", False):
+            ctrl_ = box["ctrl"]
+            assert isinstance(ctrl_, Controller)
+            ctrl_.estop("late")
+
+    ctrl = make_controller(log, hook)
+    box["ctrl"] = ctrl
+    ctrl.estop("first")
+    box["armed"] = True
+    reset = ctrl.reset_fault()
+    ctrl.run_cycles(5)
+    result = reset.final(timeout=0)
+    assert result.outcome.value == "refused" and "an e-stop came after" in result.reason
+    assert ctrl.mode is Mode.ESTOP and ctrl.robot.status is RobotStatus.ESTOP
+    assert "late" in ctrl.snapshot().message
     again = ctrl.reset_fault()
     ctrl.run_cycles(5)
     assert again.final(timeout=0).outcome.value == "done" and ctrl.mode is Mode.IDLE

@@ -185,13 +185,21 @@ def run_random(
     rng = random.Random(seed)
     done = threading.Event()
     first_cycle = threading.Event()
+    # The harness's own bookkeeping is ordered with one lock: an e-stop and its
+    # "estop_returned" entry, and the asking of a reset, never interleave. Without it a reset
+    # asked after ``estop()`` returned (a legitimate one: it clears that e-stop) could be
+    # logged before the e-stopper thread got round to logging "estop_returned", and the
+    # commands after that reset would be miscounted as violations. The controller's threads
+    # (the loop, the e-stop's own steps) are not ordered by this lock.
+    books = threading.Lock()
 
     def estopper() -> None:
         r = random.Random(seed + 1)
         first_cycle.wait()
         while not done.wait(r.uniform(0.0, 0.002)):
-            ctrl.estop("estopper")
-            log.add("estop_returned")
+            with books:
+                ctrl.estop("estopper")
+                log.add("estop_returned")
             report.estops += 1
 
     def settle(ticket: Ticket) -> None:
@@ -210,7 +218,9 @@ def run_random(
         first_cycle.wait()
         while not done.is_set():
             if ctrl.machine.halted:
-                settle(ctrl.reset_fault())
+                with books:
+                    reset = ctrl.reset_fault()
+                settle(reset)
             else:
                 k += 1
                 ticket = ctrl.goto_view(names[k % 2]) if task == "goto" else ctrl.start_spin()

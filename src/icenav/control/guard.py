@@ -111,8 +111,16 @@ class RobotGuard:
             refused = self.machine.check(seq)
             if refused is not None:
                 return refused, None
-            self.robot.reset_fault()
-            self.robot.enable()
+            try:
+                self.robot.reset_fault()
+                self.robot.enable()
+            except IcenavError:
+                # an e-stop from another thread stopped the robot between the two calls
+                # (its step 1 takes no lock): the reset lost the race, it did not fail
+                refused = self.machine.check(seq)
+                if refused is None:
+                    raise
+                return refused, None
             q = np.array(self.robot.read_state().q, dtype=np.float64)
             refused = self.machine.reset(seq)
             if refused is not None:  # an e-stop came while the robot was reset
