@@ -25,7 +25,10 @@ from icenav.io.igtl import (
     DEVICE_STATUS,
     DEVICE_TIP_TO_BASE,
     IgtlBridge,
+    IgtlCommand,
     IgtlConfig,
+    IgtlOutcome,
+    IgtlReply,
     ServerLimits,
 )
 from icenav.io.igtl_server import ServerStats
@@ -389,3 +392,32 @@ def test_a_client_leaving_mid_image_is_a_counted_event_not_a_traceback(
     assert set(stats.closed) <= {"reset", "peer_closed"}
     assert not [r for r in caplog.records if r.exc_info or r.levelname == "ERROR"]
     assert "Traceback" not in capfd.readouterr().err  # pyigtl's server printed one here
+
+
+def test_the_close_of_a_peer_that_sent_commands_is_reported_after_its_commands() -> None:
+    """``on_disconnect(peer)`` comes once per commanding connection, after its last command
+    was handled; a peer that only listened (3D Slicer streaming) is not reported."""
+    seen: list[tuple[str, str]] = []
+    gone = threading.Event()
+
+    def on_command(request: Any) -> Any:
+        seen.append(("command", request.peer))
+        return IgtlReply(IgtlOutcome.ACCEPTED)
+
+    def on_disconnect(peer: str) -> None:
+        seen.append(("gone", peer))
+        gone.set()
+
+    config = IgtlConfig(port=0, limits=LIMITS, accepted_commands=frozenset(IgtlCommand))
+    with IgtlBridge(config, on_command=on_command, on_disconnect=on_disconnect) as b:
+        listener = raw_connection(b.port)
+        commander = raw_connection(b.port)
+        _wait_stats(b, lambda s: s.clients == 2)
+        commander.sendall(command_message("stop") + command_message("stop"))
+        read_until(commander, DEVICE_COMMAND_ACK)
+        peer = f"127.0.0.1:{commander.getsockname()[1]}"
+        commander.close()
+        assert gone.wait(TIMEOUT_S)
+        listener.close()
+        _wait_stats(b, lambda s: s.clients == 0)
+    assert seen == [("command", peer), ("command", peer), ("gone", peer)]

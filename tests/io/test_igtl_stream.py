@@ -3,6 +3,7 @@ status, and commands routed to the controller through the one adapter, with true
 
 from __future__ import annotations
 
+import time
 from collections.abc import Iterator
 from typing import Any
 
@@ -129,3 +130,59 @@ def test_no_decision_in_time_is_a_refusal_that_says_so() -> None:
 def test_a_forwarder_without_a_controller_refuses() -> None:
     reply = CommandForwarder()(IgtlRequest(IgtlCommand.STOP, "", 0.0))
     assert reply.outcome is IgtlOutcome.REFUSED and "not running" in reply.reason
+
+
+def _until(predicate: Any, timeout: float = 10.0) -> bool:
+    """Poll an observable condition of the controller's loop (it runs on its own thread)."""
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        if predicate():
+            return True
+        time.sleep(0.01)
+    return bool(predicate())
+
+
+def test_each_connection_is_its_own_client_and_its_close_stops_its_motion() -> None:
+    """Two Slicers: the first one's go to view takes control for that connection only, the
+    second is refused while it runs; when the first connection closes, its motion stops and
+    holds and control is free again."""
+    forwarder = CommandForwarder()
+    bridge = IgtlBridge(
+        IgtlConfig(port=0, accepted_commands=frozenset({IgtlCommand.GO_TO_VIEW})),
+        on_command=forwarder,
+        on_disconnect=forwarder.disconnected,
+    )
+    session = make_sim_controller(seed=104, imaging=False)
+    ctrl = session.controller
+    try:
+        ctrl.save_view("home")
+        ctrl.step()
+        for _ in range(400):  # far from home: the return takes seconds
+            ctrl.jog([1.0, -1.0, 1.0, 4.0], "knob")
+            ctrl.step()
+        ctrl.release_control("script")
+        forwarder.ctrl = ctrl
+        ctrl.start()
+        with connected_client(bridge) as first, connected_client(bridge, n_before=1) as second:
+            assert _command(first, "go_to_view home").startswith("accepted: go_to_view home")
+            holder = ctrl.authorization.holder
+            assert holder is not None and holder.startswith("igtl-127.0.0.1:")
+            refused = _command(second, "go_to_view home")
+            assert refused.startswith("refused: ") and f"{holder} holds control" in refused
+            assert ctrl.snapshot().mode.value == "goto_view"
+            start = ctrl.robot.read_state().q.copy()
+            assert _until(lambda: not np.allclose(ctrl.robot.read_state().q, start))
+            moving = ctrl.robot.read_state().q.copy()
+            first.close()
+            assert _until(lambda: ctrl.task is None)
+            assert _until(lambda: ctrl.snapshot().mode.value == "idle")
+            assert ctrl.authorization.holder is None
+            assert f"{holder} disconnected" in ctrl.snapshot().message
+            held = ctrl.robot.read_state().q.copy()
+            assert not np.allclose(held, start)  # it had moved, and stopped short of home
+            assert not np.allclose(held, ctrl.views.get("home").q, atol=1e-3)
+            assert not np.allclose(moving, ctrl.views.get("home").q, atol=1e-3)
+            assert _command(second, "go_to_view home").startswith("accepted: ")
+    finally:
+        session.close()
+        bridge.close()

@@ -261,7 +261,11 @@ def run_console(args: argparse.Namespace) -> int:
         from icenav.io.igtl_stream import CommandForwarder
 
         forwarder = CommandForwarder()
-        bridge = IgtlBridge(IgtlConfig(port=args.igtl_port), on_command=forwarder)
+        bridge = IgtlBridge(
+            IgtlConfig(port=args.igtl_port),
+            on_command=forwarder,
+            on_disconnect=forwarder.disconnected,
+        )
     gamepad = Sdl2Gamepad()
     session = make_sim_controller(
         seed=args.seed,

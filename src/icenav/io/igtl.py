@@ -240,6 +240,9 @@ class IgtlBridge:
         ``on_command(request) -> IgtlReply``, called on the server's command thread for each
         enabled command; its reply is sent to the client. Without it, enabled commands are
         refused ("no controller").
+    on_disconnect : callable, optional
+        ``on_disconnect(peer)`` when a client that sent commands is gone (on the command
+        thread, after its commands): the controller stops what that client started.
 
     Raises
     ------
@@ -251,6 +254,7 @@ class IgtlBridge:
         self,
         config: IgtlConfig | None = None,
         on_command: Callable[[IgtlRequest], IgtlReply] | None = None,
+        on_disconnect: Callable[[str], None] | None = None,
     ):
         self.config = config or IgtlConfig()
         self._on_command = on_command
@@ -269,6 +273,7 @@ class IgtlBridge:
             limits=self.config.limits,
             command_device=DEVICE_COMMAND,
             on_command=self._handle,
+            on_close=on_disconnect,
         )
 
     # ------------------------------------------------------------------ properties

@@ -26,6 +26,10 @@ Connections beyond ``max_clients`` are told so in a STRING on ``IcenavStatus`` a
 once. Pending output that makes no progress for ``send_stall_timeout_s`` (a peer that
 stopped reading) closes the connection; an idle peer that reads is served forever (3D
 Slicer sends nothing). A disconnect is a counted event, never a traceback.
+
+A peer that sent commands is reported to ``on_close(peer)`` when its connection ends, on
+the command thread after its last command was handled (so the controller can stop the
+motion that peer started: a client that is gone holds no control).
 """
 
 from __future__ import annotations
@@ -173,9 +177,17 @@ class _Client:
     refilled: float = 0.0
     mask: int = 0
     logged: set[str] = field(default_factory=set)
+    commanded: bool = False
 
     def has_output(self) -> bool:
         return self.inflight is not None or bool(self.replies) or bool(self.frames)
+
+
+@dataclass(frozen=True)
+class _Gone:
+    """A peer that sent commands has gone (queued behind its commands)."""
+
+    peer: str
 
 
 def _status_bytes(text: str) -> bytes:
@@ -198,6 +210,9 @@ class IgtlServer:
     on_command : callable, optional
         ``on_command(incoming) -> replies`` (packed messages) runs on the server's command
         thread for each message to ``command_device``; the replies go to that client only.
+    on_close : callable, optional
+        ``on_close(peer)`` runs on the command thread when a peer that sent at least one
+        command message is gone (after the replies to its commands were decided).
 
     Raises
     ------
@@ -212,10 +227,12 @@ class IgtlServer:
         limits: ServerLimits | None = None,
         command_device: str = "IcenavCommand",
         on_command: Callable[[Incoming], Sequence[bytes]] | None = None,
+        on_close: Callable[[str], None] | None = None,
     ) -> None:
         self.limits = limits or ServerLimits()
         self.command_device = command_device
         self._on_command = on_command
+        self._on_close = on_close
         self._listener = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
         # a restart may bind while old connections linger in TIME_WAIT; on Linux this
         # never lets two servers listen on one port (a port in use stays an error)
@@ -258,7 +275,7 @@ class IgtlServer:
         self._full_message = _status_bytes(
             f"refused: this icenav serves at most {self.limits.max_clients} OpenIGTLink clients"
         )
-        self._commands: queue.SimpleQueue[tuple[Incoming, int] | None] = queue.SimpleQueue()
+        self._commands: queue.SimpleQueue[tuple[Incoming | _Gone, int] | None] = queue.SimpleQueue()
         self._io = threading.Thread(target=self._run, name="icenav-igtl-io", daemon=True)
         self._worker = threading.Thread(target=self._work, name="icenav-igtl-cmd", daemon=True)
         self._io.start()
@@ -487,6 +504,7 @@ class IgtlServer:
                 self._faults["ignored"] += 1  # a valid message icenav does not read
             return
         c.pending += 1
+        c.commanded = True
         c.pending_bytes += len(body)
         self._commands.put((Incoming(c.id, c.peer, text, error, header.timestamp_s), len(body)))
 
@@ -585,6 +603,8 @@ class IgtlServer:
         with contextlib.suppress(OSError):
             c.sock.close()
         self._closed_by[reason] += 1
+        if c.commanded:  # after its commands, on the command thread (never under this lock)
+            self._commands.put((_Gone(c.peer), 0))
         self._event(c.peer, "closed", f"{reason}: {detail}" if detail else reason)
         self._changed.notify_all()
         if log:
@@ -611,6 +631,13 @@ class IgtlServer:
             if got is None:
                 return
             item, size = got
+            if isinstance(item, _Gone):
+                if self._on_close is not None:
+                    try:
+                        self._on_close(item.peer)
+                    except Exception:  # noqa: BLE001 - the handler's bug must not end the server
+                        logger.exception("OpenIGTLink close handler failed for %s", item.peer)
+                continue
             replies: Sequence[bytes] = ()
             if self._on_command is not None:
                 try:

@@ -38,6 +38,7 @@ __all__ = [
     "SOURCE",
     "attach_bridge",
     "handle_request",
+    "source_for",
     "to_command",
 ]
 
@@ -49,16 +50,24 @@ DECISION_TIMEOUT_S = 2.0
 """How long a command waits for the controller's decision before the reply says so (s); the
 controller decides at its next cycle (10 ms at 100 Hz)."""
 SOURCE = Source("igtl", _CLIENT)
-"""The source of every OpenIGTLink command (authorization sees one OpenIGTLink client)."""
+"""The source of an OpenIGTLink command whose peer is not known (a direct call)."""
+
+
+def source_for(peer: str) -> Source:
+    """The source of the commands of one OpenIGTLink connection (``host:port``): each
+    connection is its own client, so authorization tells two Slicers apart, and the close of
+    one ends the control it held and stops the motion it started."""
+    return Source("igtl", f"{_CLIENT}-{peer}") if peer else SOURCE
 
 
 def to_command(request: IgtlRequest) -> Command:
     """The controller's command for an OpenIGTLink request (the one command set)."""
+    source = source_for(request.peer)
     if request.command is IgtlCommand.STOP:
-        return Stop(source=SOURCE)
+        return Stop(source=source)
     if request.command is IgtlCommand.SAVE_VIEW:
-        return SaveView(request.argument, source=SOURCE)
-    return GoToView(request.argument, source=SOURCE)
+        return SaveView(request.argument, source=source)
+    return GoToView(request.argument, source=source)
 
 
 def handle_request(
@@ -75,8 +84,8 @@ def handle_request(
 
 
 class CommandForwarder:
-    """The bridge's ``on_command`` callback, bound to a controller once it exists (the
-    bridge must be created first, on the main thread)."""
+    """The bridge's ``on_command`` and ``on_disconnect`` callbacks, bound to a controller once
+    it exists (the bridge must be created first, on the main thread)."""
 
     def __init__(self) -> None:
         self.ctrl: Controller | None = None
@@ -85,6 +94,12 @@ class CommandForwarder:
         if self.ctrl is None:
             return IgtlReply(IgtlOutcome.REFUSED, "the controller is not running yet")
         return handle_request(self.ctrl, request)
+
+    def disconnected(self, peer: str) -> None:
+        """A connection that sent commands is gone: the controller releases the control it
+        held and stops (and holds) any automatic motion it started."""
+        if self.ctrl is not None:
+            self.ctrl.disconnect(source_for(peer))
 
 
 class IgtlStreamer:
