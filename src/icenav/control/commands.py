@@ -171,9 +171,10 @@ class Jog(Command):
                 f"jog takes frame 'knob' with 4 velocities (rad/s, rad/s, rad/s, mm/s) or "
                 f"'tip' with 6 (mm/s, rad/s); got frame {self.frame!r} and shape {v.shape}"
             )
-        if not np.all(np.isfinite(v)):
+        largest = float(np.max(np.abs(v)))  # one reduction: NaN and inf fail both tests
+        if not math.isfinite(largest):
             raise InvalidValueError(f"jog velocity must be finite, got {v}")
-        if np.any(np.abs(v) > JOG_ABS_MAX):
+        if largest > JOG_ABS_MAX:
             # commands are clipped to max_velocity anyway; this only keeps the arithmetic of
             # the tip-frame solve away from overflow (a gamepad gives at most a few units)
             raise InvalidValueError(

@@ -66,8 +66,10 @@ class Publisher:
         if self._image_error and self._image_error not in message:
             message = f"{message} | {self._image_error}" if message else self._image_error
         machine = ctrl.machine
+        if machine.mode not in HALTED:  # (the cause is read under the machine's lock)
+            return message
         cause = machine.cause
-        if machine.mode not in HALTED or not cause or message == cause or cause in message:
+        if not cause or message == cause or cause in message:
             return message
         return f"{cause} (then: {message})" if message else cause
 

@@ -148,6 +148,21 @@ def _c2_scalar(a: float) -> float:
     return 2.0 * h * h
 
 
+def _s1_c2(a: Array) -> tuple[Array, Array]:
+    """sin(a) / a and (1 - cos a) / a^2 for a >= 0 (n,), with the series near 0 (the drawing
+    of the backbone: one sine each, no sinc)."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        s1 = np.sin(a) / a
+        h = np.sin(0.5 * a) / a
+    c2 = 2.0 * h * h
+    small = a < _SERIES_BELOW
+    if small.any():
+        a2 = a[small] * a[small]
+        s1[small] = 1.0 - a2 / 6.0 + a2 * a2 / 120.0
+        c2[small] = 0.5 - a2 / 24.0 + a2 * a2 / 720.0
+    return s1, c2
+
+
 def _skew(w: Array) -> Array:
     """[w]x for w of shape (..., 3) -> (..., 3, 3)."""
     out = np.zeros((*w.shape[:-1], 3, 3))
@@ -562,16 +577,22 @@ def backbone(q: ArrayLike, geometry: CatheterGeometry = DEFAULT_GEOMETRY, n: int
         raise ShapeError(f"backbone takes one joint state of shape (4,), got {qa.shape}")
     if int(n) < 2:
         raise ConfigurationError(f"n must be an integer >= 2 points, got {n}")
-    frac = np.linspace(0.0, 1.0, int(n))
+    frac = np.arange(int(n), dtype=np.float64) / (int(n) - 1)
     k = g.knob_ratio
-    u = k * qa[0] * frac
-    v = k * qa[1] * frac
-    _, pos, _, _ = _tilt(u, v, g.bending_length)
-    pos = pos * frac[:, None]  # arc of length s = frac * L bends by frac * alpha
+    u0, v0 = k * qa[0], k * qa[1]
+    # the arc of length s = frac * L bends by frac * alpha (constant curvature): its end is
+    # s * (c2(a) u, c2(a) v, s1(a)) with (u, v) = frac * (u0, v0), a = frac * alpha (the
+    # position part of R_tilt / P_tilt, paper Sec. III-B; no rotation is needed to draw it)
+    a = frac * math.hypot(u0, v0)
+    s1, c2 = _s1_c2(a)
+    arc = g.bending_length * frac
     c, s = math.cos(qa[2]), math.sin(qa[2])
-    rz = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
-    pts = pos @ rz.T
-    pts[:, 2] += qa[3]
+    bx = arc * c2 * frac * u0  # bend-plane coordinates before the roll
+    by = arc * c2 * frac * v0
+    pts = np.empty((frac.size, 3))
+    pts[:, 0] = c * bx - s * by  # roll about the base z axis
+    pts[:, 1] = s * bx + c * by
+    pts[:, 2] = arc * s1 + qa[3]
     return Backbone(points_in_base=pts, tip2base=forward(qa, g, check=False))
 
 
