@@ -567,7 +567,9 @@ def test_dense_hysteresis_calibration_in_the_loop_installs_the_tendon_map() -> N
     from icenav.compensation.tendon_map import TendonKnobMap
 
     t = [0.0]
-    cfg = ControllerConfig(spin_feedback=False)
+    # 25 Hz: the same motions at the same speeds in a quarter of the cycles (the loop's rate
+    # is not what this test is about; the suite's time is)
+    cfg = ControllerConfig(spin_feedback=False, rate_hz=25.0)
     session = make_sim_controller(seed=105, imaging=False, config=cfg, clock=lambda: t[0])
     ctrl, plant = session.controller, session.plant
 
