@@ -445,7 +445,18 @@ def open_emulated_robot(
     name = channel or f"icenav-emulated-{uuid.uuid4().hex[:8]}"
     drives = EmulatedDriveSet(name)
     try:
-        robot = CANopenRobot(emulated_robot_config(name, mode=mode))
+        # the emulated drives are Python threads sharing the GIL with the controller, the
+        # console and the renderer: on a loaded 2-core machine their answer can take longer
+        # than a real drive's on the bus (0.1 s in examples/robot.toml), so the handshake
+        # gets 1 s and the heartbeat consumer 2 s here; a drive that does not answer still
+        # faults the robot
+        config = emulated_robot_config(
+            name,
+            mode=mode,
+            heartbeat=HeartbeatConfig(producer_ms=20, consumer_s=2.0),
+            handshake_timeout_s=1.0,
+        )
+        robot = CANopenRobot(config)
     except BaseException:
         drives.close()
         raise
