@@ -5,6 +5,12 @@ Ratio: the old controller (``benchmarks/_baseline_controller.py``, the pre-rebui
 verbatim but for moved imports) and the new one step the same jogging operator on the
 simulated robot, interleaved in blocks so that machine load hits both alike; the result is
 the median cycle of each. Also measured: the real-time loop at 100 and 500 Hz (2 s each).
+
+What differs in the work: the new controller decides every jog as a command (a ticket, the
+authorization, the event log: about 5 us more per jog than the old field write), and its
+published state computes the model's backbone (50 points for drawing, about 36 us) only when
+a reader first asks for it, where the old one drew it every cycle; the console reads it a few
+times per second. Both use today's kinematics.
 """
 
 from __future__ import annotations

@@ -12,6 +12,7 @@ in the control path (a calibration, the closed-loop spin) its errors are the tas
 from __future__ import annotations
 
 import dataclasses
+import functools
 from collections.abc import Callable
 from typing import TYPE_CHECKING
 
@@ -21,12 +22,17 @@ from numpy.typing import NDArray
 from icenav._typing import Array
 from icenav.control.modes import HALTED
 from icenav.control.state import ControllerState, ImageFrame, ViewSummary
-from icenav.geometry.kinematics import backbone, forward
+from icenav.geometry.kinematics import CatheterGeometry, backbone, forward
 
 if TYPE_CHECKING:
     from icenav.control.controller import Controller
 
 __all__ = ["Publisher"]
+
+
+def _points(q_model: Array, geometry: CatheterGeometry, n: int) -> Array:
+    """(n, 3) points of the model's bending section in the base frame (mm)."""
+    return backbone(q_model, geometry, n).points_in_base
 
 
 class Publisher:
@@ -80,9 +86,11 @@ class Publisher:
         q = ctrl._q  # noqa: SLF001
         q_model = ctrl.handlers.to_model(q)
         tip_model = forward(q_model, g, check=False)
-        bb_model = backbone(
-            np.clip(q_model, self._lo, self._hi), g, cfg.backbone_points
-        ).points_in_base
+        # the model's backbone is drawing data: computed when the console first reads it
+        # (the state is immutable and q_model a fresh array, so it is this cycle's shape)
+        bb_model = functools.partial(
+            _points, np.clip(q_model, self._lo, self._hi), g, cfg.backbone_points
+        )
         tip_true = bb_true = None
         if self._truth is not None:
             tip_true, bb_true = self._truth()

@@ -64,6 +64,28 @@ class ImageFrame:
     """(4, 4) pixel (i = column, j = row, k = 0) to tip frame (mm), to place it in 3-D."""
 
 
+class _Deferred:
+    """A field of a frozen dataclass that may be given as a function of no arguments and is
+    computed on first access (then kept): the loop publishes a state every cycle, but the
+    drawing data in it (the backbones, 50 points each) is read by the console at its own
+    rate, a few times per second at most. Given a value, it is that value."""
+
+    def __set_name__(self, owner: type, name: str) -> None:
+        self._slot = "_deferred_" + name
+
+    def __get__(self, obj: object, owner: type | None = None) -> Array | None:
+        if obj is None:
+            return None  # the dataclass's default
+        value = obj.__dict__[self._slot]
+        if callable(value):
+            value = value()
+            obj.__dict__[self._slot] = value  # (two threads may both compute it: same value)
+        return value
+
+    def __set__(self, obj: object, value: Array | Callable[[], Array | None] | None) -> None:
+        obj.__dict__[self._slot] = value
+
+
 @dataclass(frozen=True)
 class ControllerState:
     """Snapshot of the controller, published to listeners."""
@@ -84,10 +106,11 @@ class ControllerState:
     """(4, 4) tip pose predicted by the model (mm)."""
     tip2base_true: Array | None = None
     """(4, 4) true tip pose (digital twin only; None on hardware)."""
-    backbone_model: Array | None = None
-    """(n, 3) model shape of the bending section in the base frame (mm)."""
-    backbone_true: Array | None = None
-    """(n, 3) true shape from the twin (None on hardware)."""
+    backbone_model: _Deferred = _Deferred()
+    """(n, 3) model shape of the bending section in the base frame (mm), or None; computed
+    when first read (the publisher gives a function)."""
+    backbone_true: _Deferred = _Deferred()
+    """(n, 3) true shape from the twin (None on hardware); computed when first read."""
     sensor2base: Array | None = None
     """(4, 4) EM-tracked sensor pose mapped into the base frame, None when MISSING."""
     tracker_status: str = "none"
