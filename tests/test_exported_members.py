@@ -10,6 +10,10 @@ import icenav
 
 MODULES = [
     "icenav",
+    "icenav.apps.hardware",
+    "icenav.apps.options",
+    "icenav.apps.run",
+    "icenav.apps.serve",
     "icenav.apps.wiring",
     "icenav.calibration.plans",
     "icenav.calibration.catheter",
