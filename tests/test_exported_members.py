@@ -10,6 +10,8 @@ import icenav
 
 MODULES = [
     "icenav",
+    "icenav.apps.calibrate",
+    "icenav.apps.calibration_csv",
     "icenav.apps.hardware",
     "icenav.apps.options",
     "icenav.apps.run",

@@ -31,7 +31,7 @@ def test_headless_demo_runs_and_persists_its_session(tmp_path: Path) -> None:
     [
         (["--port", "-1"], "--port must be in"),
         (["--port", "70000"], "--port must be in"),
-        (["--seed", "-3"], "--seed must be >= 0"),
+        (["--seed", "-3"], "--seed must be an integer >= 0"),
         (["--headless", "--duration", "nan"], "--duration must be > 0"),
         (["--vessel", "twisty"], "invalid choice"),
     ],

@@ -29,10 +29,12 @@ __all__ = [
     "IGTL_COMMAND_NAMES",
     "TRACKERS",
     "VESSELS",
+    "add_calibration_option",
     "add_hardware_options",
     "add_igtl_options",
     "add_session_options",
     "add_twin_options",
+    "check_calibration_option",
     "check_duration",
     "check_hardware_options",
     "check_igtl_options",
@@ -104,6 +106,23 @@ def check_twin_options(args: argparse.Namespace, parser: argparse.ArgumentParser
             resolve_factory(args.plant, args.plant_family)
         except IcenavError as exc:
             parser.error(str(exc))
+
+
+def add_calibration_option(p: argparse.ArgumentParser) -> None:
+    """``--calibration CAL.json``: a calibration file to install at start."""
+    p.add_argument(
+        "--calibration",
+        type=Path,
+        default=None,
+        metavar="CAL.json",
+        help="install the compensation of this calibration file at start (as written by "
+        "icenav calibrate)",
+    )
+
+
+def check_calibration_option(args: argparse.Namespace, parser: argparse.ArgumentParser) -> None:
+    """Refuse a calibration file that does not exist."""
+    _check_file(parser, "--calibration", args.calibration)
 
 
 def add_hardware_options(p: argparse.ArgumentParser, *, required: bool) -> None:

@@ -50,6 +50,7 @@ def _parser() -> argparse.ArgumentParser:
     options.add_hardware_options(p, required=True)
     options.add_session_options(p)
     options.add_igtl_options(p)
+    options.add_calibration_option(p)
     p.add_argument(
         "--registration",
         choices=tuple(_REGISTRATION),
@@ -90,6 +91,7 @@ def check_args(args: argparse.Namespace, parser: argparse.ArgumentParser) -> Non
     options.check_igtl_options(args, parser)
     options.check_port(parser, "--port", args.port)
     options.check_duration(parser, args.duration, optional=True)
+    options.check_calibration_option(args, parser)
     if args.seed < 0:
         parser.error(f"--seed must be an integer >= 0, got {args.seed}")
     if args.host not in ("127.0.0.1", "localhost", "::1"):

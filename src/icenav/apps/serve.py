@@ -45,6 +45,7 @@ def _parser() -> argparse.ArgumentParser:
     options.add_hardware_options(p, required=False)
     options.add_session_options(p)
     options.add_igtl_options(p, always_on=True)
+    options.add_calibration_option(p)
     p.add_argument(
         "--duration",
         type=float,
@@ -72,6 +73,7 @@ def check_args(args: argparse.Namespace, parser: argparse.ArgumentParser) -> Non
     options.check_session_options(args, parser)
     options.check_igtl_options(args, parser)
     options.check_duration(parser, args.duration, optional=True)
+    options.check_calibration_option(args, parser)
     rate = args.image_rate_hz
     if not (1.0 <= rate <= 60.0):
         parser.error(f"--image-rate-hz must be in [1, 60] Hz, got {rate}")
@@ -90,6 +92,25 @@ def make_session(
     from icenav.control.controller import ControllerConfig
 
     config = ControllerConfig(image_rate_hz=getattr(args, "image_rate_hz", 20.0))
+    session = _make_session(args, input_source, config, register, report)
+    if getattr(args, "calibration", None) is not None:
+        from icenav.apps.wiring import install_calibration
+
+        try:
+            report(install_calibration(session.controller, args.calibration))
+        except BaseException:
+            session.close()
+            raise
+    return session
+
+
+def _make_session(
+    args: argparse.Namespace,
+    input_source: Any,
+    config: Any,
+    register: bool | None,
+    report: Callable[[str], None],
+) -> Any:
     if args.robot_config is not None:
         from icenav.apps.hardware import load_tracker_config, make_hardware_controller
 

@@ -30,6 +30,7 @@ __all__ = [
     "StoreRecorder",
     "anatomy_labels",
     "anatomy_meshes",
+    "install_calibration",
     "make_imager",
     "make_sim_controller",
 ]
@@ -176,6 +177,28 @@ def make_sim_controller(
         recorder = StoreRecorder(store, controller.roadmap, threaded=True)
         controller.set_recorder(recorder)
     return SimSession(controller, model, tracker, renderer, store, recorder, drives)
+
+
+def install_calibration(controller: Controller, path: str | Path) -> str:
+    """Load a calibration file (:class:`icenav.calibration.files.CalibrationFile`, as
+    ``icenav calibrate`` or the console write it), build the paper's compensation F on its
+    samples (:meth:`icenav.compensation.elasticity.ElasticityMap.build`) and install it on
+    ``controller`` (compensation on), before the controller starts. Returns what was loaded,
+    for the operator."""
+    from icenav.calibration.files import CalibrationFile
+    from icenav.compensation.elasticity import ElasticityMap
+
+    loaded = CalibrationFile.load(path)
+    cal = loaded.calibration
+    controller.compensation = ElasticityMap.build(cal, controller.config.geometry)
+    controller.compensation_enabled = True
+    controller.calibration = cal
+    text = f"compensation from {path}: {cal.n_samples} samples ({cal.method or 'unnamed'})"
+    if loaded.registration is not None:
+        text += (
+            f", recorded through a registration of {loaded.registration.rms_residual_mm:.2f} mm RMS"
+        )
+    return text
 
 
 def make_imager() -> tuple[Any, Callable[[Array, float], NDArray[np.uint8]], Array]:

@@ -1,0 +1,197 @@
+"""``icenav calibrate``: calibration files from CSV recordings of the twin."""
+
+from __future__ import annotations
+
+import io
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from icenav.apps.calibrate import main, replay_kind
+from icenav.apps.calibration_csv import CSV_COLUMNS, RecordingTracker, read_calibration_csv
+from icenav.calibration.files import CalibrationFile
+from icenav.calibration.procedure import run_procedure
+from icenav.calibration.procedures import make_procedure
+from icenav.errors import FileFormatError
+from icenav.sim import CatheterPlant, EMTracker
+
+SEED = 52  # a development seed (50-52): not one that tuned the twin, not a held-out one
+
+MOUNT_TOML = "[mount]\nsensor2tip = [[1,0,0,-1],[0,1,0,0],[0,0,1,-4],[0,0,0,1]]\n"
+
+
+@pytest.fixture(scope="module")
+def recorded(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A dense calibration (with the registration states first) recorded from the twin."""
+    path = tmp_path_factory.mktemp("rec") / "dense.csv"
+    assert main(["--record-twin", str(path), "--kind", "dense", "--seed", str(SEED)]) == 0
+    return path
+
+
+def test_a_twin_recording_gives_a_calibration_file_with_an_estimated_registration(
+    recorded: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    mount = tmp_path / "tracker.toml"
+    mount.write_text(MOUNT_TOML, encoding="utf-8")
+    out = tmp_path / "cal.json"
+    argv = ["--from-csv", str(recorded), "--out", str(out), "--tracker-config", str(mount)]
+    assert main(argv) == 0
+    text = capsys.readouterr().out
+    assert "dense: 361 of 361 states" in text
+    assert "five_point: not in the recording" in text  # a raster is no 5-point search
+    assert "dense+hysteresis: not in the recording (361 of" in text  # no sweeps recorded
+    loaded = CalibrationFile.load(out)
+    assert loaded.calibration.n_samples > 300
+    reg = loaded.registration
+    assert reg is not None and reg.n_points >= 30
+    truth = EMTracker(CatheterPlant(seed=SEED), seed=SEED).config.tracker2base
+    # estimated through the twin's field distortion: about a millimetre, not exact
+    assert np.linalg.norm(reg.tracker2base[:3, 3] - truth[:3, 3]) < 3.0
+    assert 0.1 < reg.rms_residual_mm < 1.5
+    # the file loads where a lab uses it: the controller's compensation
+    from icenav.apps.wiring import install_calibration, make_sim_controller
+
+    session = make_sim_controller(seed=SEED, imaging=False)
+    try:
+        note = install_calibration(session.controller, out)
+        ctrl = session.controller
+        assert ctrl.compensation_enabled and ctrl.calibration.n_samples == 361
+        q_motor = ctrl.compensation.model_to_motor(np.array([[0.5, 0.0, 0.0, 0.0]]))
+        assert not np.allclose(q_motor[0, :2], [0.5, 0.0])  # F is not the identity
+    finally:
+        session.close()
+    assert "361 samples" in note
+    # and a given registration (the file just written) replaces the estimate
+    out2 = tmp_path / "cal2.json"
+    argv = ["--from-csv", str(recorded), "--out", str(out2), "--registration", str(out)]
+    assert main([*argv, "--kind", "dense"]) == 0
+    assert CalibrationFile.load(out2).registration == reg
+
+
+@pytest.mark.parametrize("kind", ["five_point", "dense+hysteresis"])
+def test_replaying_a_recording_gives_the_procedure_what_it_measured(
+    kind: str, tmp_path: Path
+) -> None:
+    """The replay is exact: an adaptive procedure (5-point search) takes the same steps, a
+    long one (raster, sweeps, circles) reads the same poses, from the CSV alone."""
+    plant = CatheterPlant(seed=SEED)
+    t = [0.0]
+    tracker = EMTracker(plant, seed=SEED, clock=lambda: t[0])
+    out = io.StringIO()
+    rec = RecordingTracker(tracker, out, clock=lambda: t[0])
+
+    def move(q: np.ndarray) -> None:
+        plant.move(q)
+        rec.move(q)
+        t[0] += 0.5
+
+    measured = run_procedure(make_procedure(kind), move, rec)
+    path = tmp_path / "replay.csv"
+    path.write_text(out.getvalue(), encoding="utf-8")
+    samples = read_calibration_csv(path)
+    _, replayed, replay = replay_kind(kind, samples, tracker.registration, 1e-9)
+    assert replay.found == replay.asked > 0
+    np.testing.assert_array_equal(replayed.plan.q_motor, measured.plan.q_motor)
+    np.testing.assert_allclose(replayed.tip2base, measured.tip2base, atol=1e-9, equal_nan=True)
+
+
+def _csv(tmp_path: Path, rows: list[str]) -> Path:
+    path = tmp_path / "rec.csv"
+    path.write_text(",".join(CSV_COLUMNS) + "\n" + "\n".join(rows) + "\n", encoding="utf-8")
+    return path
+
+
+GOOD = "0.0,0,0,0,0,1,2,300,1,0,0,0,valid"
+
+
+def test_bad_rows_are_reported_by_line_number(tmp_path: Path) -> None:
+    path = _csv(
+        tmp_path,
+        [
+            GOOD,
+            "0.1,0,0,0,0,1,2,300,1,0,0,0,lost",  # line 3
+            "0.2,zero,0,0,0,1,2,300,1,0,0,0,valid",  # line 4
+            "0.3,0,0,0,0,1,2,300,2,0,0,0,valid",  # line 5: quaternion norm 2
+            "0.4,0,0,0,99,1,2,300,1,0,0,0,valid",  # line 6: d4 beyond +-50 mm
+            "0.5,0,0,0,0,1,2,300,1,0,0,0,missing",  # line 7: a pose with missing
+            "-0.5,0,0,0,0,,,,,,,,missing",  # line 8: time goes back
+            "0.6,0,0,0,0,1,2,300,1,0,0,0",  # line 9: 12 columns
+            "0.7,0,0,0,0,1,2,,1,0,0,0,valid",  # line 10: no z
+        ],
+    )
+    with pytest.raises(FileFormatError) as exc:
+        read_calibration_csv(path)
+    text = str(exc.value)
+    assert str(path) in text and "8 bad row(s)" in text
+    for needle in (
+        "line 3: status 'lost' is not one of valid, missing, out_of_volume",
+        "line 4: phi1_rad 'zero' is not a number",
+        "line 5: quaternion (qw, qx, qy, qz) has norm 2.0000, not 1",
+        "line 6: d4_mm 99 mm is outside [-50, 50] mm",
+        "line 7: a missing row must leave the pose columns empty",
+        "line 8: t_s -0.5 s is before the previous row's 0 s",
+        "line 9: 12 columns, expected 13",
+        "line 10: z_mm '' is not a number (status valid)",
+    ):
+        assert needle in text
+    samples = read_calibration_csv(path, skip_bad_rows=True)
+    assert samples.n == 1 and len(samples.skipped) == 8
+
+
+@pytest.mark.parametrize(
+    ("content", "message"),
+    [
+        ("", "empty: no header line"),
+        ("t,phi1\n", "line 1: the header must be t_s,phi1_rad"),
+        (",".join(CSV_COLUMNS) + "\n", "no data rows after the header"),
+        (b"\xff\xfe", "not a UTF-8 text (CSV) file"),
+    ],
+)
+def test_unreadable_recordings_are_refused(
+    content: str | bytes, message: str, tmp_path: Path
+) -> None:
+    path = tmp_path / "rec.csv"
+    if isinstance(content, bytes):
+        path.write_bytes(content)
+    else:
+        path.write_text(content, encoding="utf-8")
+    with pytest.raises(FileFormatError, match=message.replace("(", r"\(").replace(")", r"\)")):
+        read_calibration_csv(path)
+
+
+def test_the_cli_reports_what_it_cannot_do(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    path = _csv(tmp_path, [GOOD])
+    out = tmp_path / "cal.json"
+    assert main(["--from-csv", str(path), "--out", str(out)]) == 1
+    assert "give --registration FILE, or --tracker-config FILE" in capsys.readouterr().err
+    mount = tmp_path / "tracker.toml"
+    mount.write_text(MOUNT_TOML, encoding="utf-8")
+    argv = ["--from-csv", str(path), "--out", str(out), "--tracker-config", str(mount)]
+    assert main(argv) == 1
+    assert "the recording holds 1 of the 36 registration states" in capsys.readouterr().err
+    assert not out.exists()
+
+
+@pytest.mark.parametrize(
+    ("argv", "message"),
+    [
+        ([], "one of the arguments --from-csv --record-twin is required"),
+        (["--from-csv", "{csv}"], "--from-csv needs --out CAL.json"),
+        (["--from-csv", "/nonexistent.csv", "--out", "x.json"], "no such file"),
+        (["--from-csv", "{csv}", "--out", "x.json", "--joint-tol", "0"], "--joint-tol must be"),
+        (["--from-csv", "{csv}", "--out", "x.json", "--kind", "raster"], "invalid choice"),
+        (["--record-twin", "x.csv", "--seed", "-2"], "--seed must be an integer >= 0, got -2"),
+        (["--from-csv", "{csv}", "--out", "x.json", "--registration", "/no.json"], "no such"),
+    ],
+)
+def test_calibrate_refuses_bad_options(
+    argv: list[str], message: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    csv_path = _csv(tmp_path, [GOOD])
+    with pytest.raises(SystemExit) as exc:
+        main([a.replace("{csv}", str(csv_path)) for a in argv])
+    assert exc.value.code == 2
+    assert message in capsys.readouterr().err
