@@ -12,6 +12,7 @@ MODULES = [
     "icenav",
     "icenav.apps.calibrate",
     "icenav.apps.calibration_csv",
+    "icenav.apps.export_view",
     "icenav.apps.hardware",
     "icenav.apps.options",
     "icenav.apps.run",

@@ -183,7 +183,7 @@ def test_the_cli_reports_what_it_cannot_do(
         (["--from-csv", "/nonexistent.csv", "--out", "x.json"], "no such file"),
         (["--from-csv", "{csv}", "--out", "x.json", "--joint-tol", "0"], "--joint-tol must be"),
         (["--from-csv", "{csv}", "--out", "x.json", "--kind", "raster"], "invalid choice"),
-        (["--record-twin", "x.csv", "--seed", "-2"], "--seed must be an integer >= 0, got -2"),
+        (["--record-twin", "x.csv", "--seed", "-2"], "--seed must be >= 0 (an integer), got -2"),
         (["--from-csv", "{csv}", "--out", "x.json", "--registration", "/no.json"], "no such"),
     ],
 )

@@ -76,7 +76,7 @@ def test_serve_streams_pose_and_image_in_real_time_to_two_clients_until_sigterm(
         (["--duration", "nan"], "--duration must be finite and > 0 s"),
         (["--igtl-port", "70000"], "--igtl-port must be in [0, 65535], got 70000"),
         (["--igtl-commands", "stop,dance"], "unknown command(s) dance"),
-        (["--seed", "-1"], "--seed must be an integer >= 0, got -1"),
+        (["--seed", "-1"], "--seed must be >= 0 (an integer), got -1"),
         (["--image-rate-hz", "0"], "--image-rate-hz must be in [1, 60] Hz, got 0.0"),
         (["--plant", "nosuchmodule:make"], "nosuchmodule"),
         (["--plant-family", "rubber"], "rubber"),

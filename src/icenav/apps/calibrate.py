@@ -119,7 +119,7 @@ def _check(args: argparse.Namespace, parser: argparse.ArgumentParser) -> None:
     if not (math.isfinite(args.joint_tol) and 0 < args.joint_tol <= 0.1):
         parser.error(f"--joint-tol must be in (0, 0.1] rad or mm, got {args.joint_tol}")
     if args.seed < 0:
-        parser.error(f"--seed must be an integer >= 0, got {args.seed}")
+        parser.error(f"--seed must be >= 0 (an integer), got {args.seed}")
 
 
 def load_registration(path: Path) -> Any:

@@ -32,8 +32,8 @@ COMMANDS: dict[str, tuple[str, str]] = {
     ),
     "eval": ("icenav.eval", "run an evaluation that reproduces a table of the paper"),
     "export-view": (
-        "icenav.persistence.dicom",
-        "export a view's image clip (one heart beat) as DICOM",
+        "icenav.apps.export_view",
+        "export a saved view's image from a session file as ultrasound DICOM",
     ),
 }
 """command name -> (module with main(argv), one-line help)."""

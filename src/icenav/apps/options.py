@@ -94,7 +94,7 @@ def check_twin_options(args: argparse.Namespace, parser: argparse.ArgumentParser
     from icenav.errors import IcenavError
 
     if args.seed < 0:
-        parser.error(f"--seed must be an integer >= 0, got {args.seed}")
+        parser.error(f"--seed must be >= 0 (an integer), got {args.seed}")
     if args.plant is not None and args.plant_family is not None:
         parser.error("give --plant MODULE:FACTORY or --plant-family NAME, not both")
     if args.plant is not None or args.plant_family is not None:

@@ -93,7 +93,7 @@ def check_args(args: argparse.Namespace, parser: argparse.ArgumentParser) -> Non
     options.check_duration(parser, args.duration, optional=True)
     options.check_calibration_option(args, parser)
     if args.seed < 0:
-        parser.error(f"--seed must be an integer >= 0, got {args.seed}")
+        parser.error(f"--seed must be >= 0 (an integer), got {args.seed}")
     if args.host not in ("127.0.0.1", "localhost", "::1"):
         parser.error(f"--host {args.host}: icenav run serves the console on this machine only")
     if not args.headless and (args.duration is not None or args.calibrate is not None):
