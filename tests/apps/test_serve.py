@@ -15,7 +15,7 @@ from icenav.apps.serve import main
 from icenav.io.igtl import DEVICE_IMAGE, DEVICE_TIP_TO_BASE
 from tests.support.igtl import RecordingClient
 
-MEASURE_S = 3.0
+MEASURE_S = 2.0
 
 
 def _start_serve(*extra: str) -> tuple[subprocess.Popen[str], int]:

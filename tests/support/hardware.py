@@ -37,14 +37,16 @@ TRUE_SENSOR2TIP = np.array(
 
 
 def robot_toml(folder: Path, channel: str) -> Path:
-    """examples/robot.toml with its bus on the virtual channel ``channel`` and a heartbeat
-    consumer time of 0.5 s (the emulated drives' heartbeats come from Python threads of the
-    test process on a shared machine, not from drive firmware: 0.15 s is missed under load)."""
+    """examples/robot.toml with its bus on the virtual channel ``channel``, a heartbeat
+    consumer time of 0.5 s and a set-point handshake timeout of 0.5 s (the emulated drives
+    answer from Python threads of the test process on a shared machine, not from drive
+    firmware: 0.15 s and 0.1 s are missed under load)."""
     text = EXAMPLE_ROBOT.read_text(encoding="utf-8")
     for old, new in (
         ('interface = "socketcan"', 'interface = "virtual"'),
         ('channel = "can0"', f'channel = "{channel}"'),
         ("consumer_s = 0.15", "consumer_s = 0.5"),
+        ("handshake_timeout_s = 0.1", "handshake_timeout_s = 0.5"),
     ):
         assert old in text, f"examples/robot.toml no longer has {old!r}"
         text = text.replace(old, new, 1)
