@@ -200,6 +200,18 @@ def run_realtime(
     return code
 
 
+def _describe(args: argparse.Namespace) -> str:
+    """What runs, for the operator."""
+    if args.robot_config is not None:
+        return f"the drives of {args.robot_config}, tracker {args.tracker}"
+    text = f"the twin (catheter seed {args.seed}, {args.vessel} vessel"
+    if args.plant is not None or args.plant_family is not None:
+        text += f", plant {args.plant or args.plant_family}"
+    if args.robot != "sim":
+        text += ", emulated CiA 402 drives"
+    return text + ")"
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     parser = _parser()
     args = parser.parse_args(argv)
@@ -225,7 +237,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                 # polled here, before the control loop reads it from its own thread
                 pad = "connected" if gamepad.poll().connected else "none yet"
             session = make_session(args, gamepad)
-            what = "the drives of " + str(args.robot_config) if args.robot_config else "the twin"
+            what = _describe(args)
 
             def ready() -> None:
                 host = "127.0.0.1" if config.local_only else config.bind_address
