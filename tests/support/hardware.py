@@ -56,7 +56,7 @@ def robot_toml(folder: Path, channel: str) -> Path:
 
 
 @contextlib.contextmanager
-def emulated_bench(folder: Path, speed: float = 20.0) -> Iterator[tuple[Path, EmulatedDriveSet]]:
+def emulated_bench(folder: Path, speed: float = 50.0) -> Iterator[tuple[Path, EmulatedDriveSet]]:
     """Five emulated drives ticking ``speed`` times faster than the wall clock (the
     registration's 36 states take seconds, not half a minute) and their robot TOML."""
     channel = f"test-bench-{uuid.uuid4().hex[:8]}"
