@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import io
+import re
 from pathlib import Path
 
 import numpy as np
@@ -39,7 +40,7 @@ def test_a_twin_recording_gives_a_calibration_file_with_an_estimated_registratio
     assert main(argv) == 0
     text = capsys.readouterr().out
     assert "dense: 361 of 361 states" in text
-    assert "five_point: not in the recording" in text  # a raster is no 5-point search
+    assert "five_point: not icenav's search" in text  # the raster states nearest the targets
     assert "dense+hysteresis: not in the recording (361 of" in text  # no sweeps recorded
     loaded = CalibrationFile.load(out)
     assert loaded.calibration.n_samples > 300
@@ -183,6 +184,7 @@ def test_the_cli_reports_what_it_cannot_do(
         (["--from-csv", "/nonexistent.csv", "--out", "x.json"], "no such file"),
         (["--from-csv", "{csv}", "--out", "x.json", "--joint-tol", "0"], "--joint-tol must be"),
         (["--from-csv", "{csv}", "--out", "x.json", "--kind", "raster"], "invalid choice"),
+        (["--from-csv", "{csv}", "--out", "x.json", "--five-point-tol-mm", "-1"], "(0, 20] mm"),
         (["--record-twin", "x.csv", "--seed", "-2"], "--seed must be >= 0 (an integer), got -2"),
         (["--from-csv", "{csv}", "--out", "x.json", "--registration", "/no.json"], "no such"),
     ],
@@ -195,3 +197,47 @@ def test_calibrate_refuses_bad_options(
         main([a.replace("{csv}", str(csv_path)) for a in argv])
     assert exc.value.code == 2
     assert message in capsys.readouterr().err
+
+
+def test_five_points_reached_in_any_order_are_a_five_point_calibration(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """An operator's recording (not icenav's search): the five targets reached somewhere."""
+    plant = CatheterPlant(seed=SEED)
+    tracker = EMTracker(plant, seed=SEED)
+    out = io.StringIO()
+    rec = RecordingTracker(tracker, out, clock=lambda: 0.0)
+
+    def move(q: np.ndarray) -> None:
+        plant.move(q)
+        rec.move(q)
+
+    run_procedure(make_procedure("five_point"), move, rec)
+    header, *rows = out.getvalue().splitlines()
+    # the visits in reverse order, re-stamped: icenav's search cannot be replayed from it
+    blocks: list[list[str]] = []
+    for row in rows:
+        if blocks and row.split(",")[1:5] == blocks[-1][0].split(",")[1:5]:
+            blocks[-1].append(row)
+        else:
+            blocks.append([row])
+    shuffled = [r for block in reversed(blocks) for r in block]
+    restamped = [f"{0.1 * i!r}," + r.split(",", 1)[1] for i, r in enumerate(shuffled)]
+    path = tmp_path / "operator.csv"
+    path.write_text("\n".join([header, *restamped]) + "\n", encoding="utf-8")
+    registration = tmp_path / "reg.json"
+    import json
+
+    registration.write_text(json.dumps(tracker.registration.to_dict()), encoding="utf-8")
+    cal = tmp_path / "five.json"
+    argv = ["--from-csv", str(path), "--out", str(cal), "--registration", str(registration)]
+    assert main([*argv, "--kind", "five_point"]) == 0
+    text = capsys.readouterr().out
+    m = re.search(r"five_point: not icenav's search; (\d) of 5 targets reached within 5 mm", text)
+    assert m is not None and int(m.group(1)) >= 3
+    loaded = CalibrationFile.load(cal)
+    assert loaded.calibration.n_samples == int(m.group(1))
+    assert loaded.calibration.method == "five-point"
+    # a strict tolerance leaves too few: refused, naming the distances
+    assert main([*argv, "--kind", "five_point", "--five-point-tol-mm", "0.01"]) == 1
+    assert "targets reached within 0.01 mm (nearest tips" in capsys.readouterr().out

@@ -41,6 +41,11 @@ KINDS = ("dense", "five_point", "dense+hysteresis")
 """Calibration kinds fitted from a recording (``auto`` tries each)."""
 COVERAGE = 0.9
 """Share of a kind's states the recording must contain for the kind to be fitted."""
+FIVE_POINT_TOL_MM = 5.0
+"""Default of ``--five-point-tol-mm``: a recorded state stands for a 5-point target when its
+tracked tip is this close in (x, y) (mm). The 5-point procedure's own search stops at 1 mm
+but keeps its best state when it gets no closer in 8 steps (6 mm off on catheter 52), and
+F only needs five well-spread tracked pairs, not exact targets."""
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -89,6 +94,14 @@ def _parser() -> argparse.ArgumentParser:
         "(default 0.001; (0, 0.1])",
     )
     p.add_argument(
+        "--five-point-tol-mm",
+        type=float,
+        default=FIVE_POINT_TOL_MM,
+        help="a recording that is not icenav's 5-point search: a state stands for a target "
+        f"when its tracked tip is this close in (x, y) (default {FIVE_POINT_TOL_MM:g} mm; "
+        "(0, 20])",
+    )
+    p.add_argument(
         "--skip-bad-rows",
         action="store_true",
         help="leave bad rows out (listed) instead of refusing the file",
@@ -120,6 +133,9 @@ def _check(args: argparse.Namespace, parser: argparse.ArgumentParser) -> None:
         parser.error(f"--joint-tol must be in (0, 0.1] rad or mm, got {args.joint_tol}")
     if args.seed < 0:
         parser.error(f"--seed must be >= 0 (an integer), got {args.seed}")
+    tol = args.five_point_tol_mm
+    if not (math.isfinite(tol) and 0 < tol <= 20):
+        parser.error(f"--five-point-tol-mm must be in (0, 20] mm, got {tol}")
 
 
 def load_registration(path: Path) -> Any:
@@ -159,6 +175,46 @@ def replay_kind(kind: str, samples: Any, registration: Any, joint_tol: float, **
     replay = ReplayTracker(samples, joint_tol, registration)
     recording = run_procedure(procedure, replay.move, replay)
     return procedure, recording, replay
+
+
+def five_point_reached(
+    replay: Any, registration: Any, joint_tol: float, tol_mm: float = FIVE_POINT_TOL_MM
+) -> tuple[Any, str]:
+    """The paper's 5-point calibration from any recording: for each of the five target tips
+    (:func:`icenav.calibration.plans.five_point_targets`) the recorded state, knobs only
+    (roll and translation at zero), whose tracked tip comes closest in (x, y), kept when
+    within ``tol_mm`` (an operator who drove to the targets with the joystick recorded
+    them). Returns the :class:`~icenav.calibration.plans.Recording` of the five (None
+    when fewer than 3 were reached) and what was found, for the operator."""
+    from icenav.calibration.plans import MotionPlan, Recording, five_point_targets
+
+    q, sensor = replay.visits()
+    knobs_only = np.all(np.abs(q[:, 2:]) <= joint_tol, axis=1) & np.all(
+        np.isfinite(sensor[:, 0, 0])
+    )
+    _, targets = five_point_targets()
+    q5 = np.zeros((5, 4))  # the states that reached each target (zeros: not reached)
+    poses = np.full((5, 4, 4), np.nan)
+    notes = []
+    if np.any(knobs_only):
+        idx = np.flatnonzero(knobs_only)
+        tips = np.array([registration.tip2base(sensor[k]) for k in idx])
+        for i, xy in enumerate(targets):
+            d = np.linalg.norm(tips[:, :2, 3] - xy, axis=1)
+            j = int(np.argmin(d))
+            notes.append(f"{d[j]:.1f}")
+            if d[j] <= tol_mm:
+                q5[i] = q[idx[j]]
+                poses[i] = tips[j]
+    reached = int(np.sum(np.isfinite(poses[:, 0, 0])))
+    text = (
+        f"{reached} of 5 targets reached within {tol_mm:g} mm (nearest tips "
+        f"{', '.join(notes) or 'none'} mm)"
+    )
+    if reached < 3:
+        return None, text
+    plan = MotionPlan.make(q5, "five-point", n_average=1, retries=0)
+    return Recording(plan=plan, tip2base=poses, attempts=np.ones(5, dtype=np.int64)), text
 
 
 def _estimate_registration(samples: Any, tracker_config: Path, joint_tol: float) -> Any:
@@ -209,6 +265,15 @@ def _fit_from_csv(args: argparse.Namespace) -> int:
     for kind in kinds:
         procedure, recording, replay = replay_kind(kind, samples, registration, args.joint_tol)
         share = replay.found / max(replay.asked, 1)
+        if share < COVERAGE and kind == "five_point":
+            recording, text = five_point_reached(
+                replay, registration, args.joint_tol, args.five_point_tol_mm
+            )
+            print(f"five_point: not icenav's search; {text}")
+            if recording is not None:
+                fitted[kind] = outcome = procedure.fit(recording)
+                print(f"five_point: {outcome.quality.describe()}")
+            continue
         if share < COVERAGE:
             print(
                 f"{kind}: not in the recording ({replay.found} of {replay.asked} states found, "

@@ -275,6 +275,16 @@ class ReplayTracker:
         """Visits in the recording (runs of rows at one joint state)."""
         return len(self._spans)
 
+    def visits(self) -> tuple[Array, Array]:
+        """Every recorded visit: joint states (m, 4) and the mean valid sensor pose of each in
+        the tracker frame (m, 4, 4; NaN when none was valid)."""
+        poses = np.full((len(self._spans), 4, 4), np.nan)
+        for k, (a, b) in enumerate(self._spans):
+            pose = mean_sensor_pose_of(self.samples.sensor2tracker[a:b][self.samples.valid[a:b]])
+            if pose is not None:
+                poses[k] = pose
+        return self._q.copy(), poses
+
     def move(self, q_motor: Array) -> None:
         """The procedure goes to ``q_motor`` (4,)."""
         self._q_now = np.asarray(q_motor, dtype=np.float64)
