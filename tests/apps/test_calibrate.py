@@ -241,3 +241,20 @@ def test_five_points_reached_in_any_order_are_a_five_point_calibration(
     # a strict tolerance leaves too few: refused, naming the distances
     assert main([*argv, "--kind", "five_point", "--five-point-tol-mm", "0.01"]) == 1
     assert "targets reached within 0.01 mm (nearest tips" in capsys.readouterr().out
+
+
+def test_a_raster_recorded_in_another_order_is_still_the_dense_calibration(
+    recorded: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    lines = recorded.read_text(encoding="utf-8").splitlines()
+    header_at = next(i for i, ln in enumerate(lines) if ln.startswith("t_s,"))
+    rows = lines[header_at + 1 :]
+    shuffled = rows[::-1]  # the raster (and the registration) backwards
+    restamped = [f"{0.1 * i!r}," + r.split(",", 1)[1] for i, r in enumerate(shuffled)]
+    path = tmp_path / "backwards.csv"
+    path.write_text("\n".join([lines[header_at], *restamped]) + "\n", encoding="utf-8")
+    mount = tmp_path / "tracker.toml"
+    mount.write_text(MOUNT_TOML, encoding="utf-8")
+    argv = ["--from-csv", str(path), "--out", str(tmp_path / "c.json")]
+    assert main([*argv, "--tracker-config", str(mount), "--kind", "dense"]) == 0
+    assert "dense: 361 of 361 states" in capsys.readouterr().out

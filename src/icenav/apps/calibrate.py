@@ -166,7 +166,10 @@ def load_registration(path: Path) -> Any:
 
 
 def replay_kind(kind: str, samples: Any, registration: Any, joint_tol: float, **kw: Any) -> Any:
-    """Replay ``samples`` to ``make_procedure(kind)``: ``(procedure, recording, replay)``."""
+    """Replay ``samples`` to ``make_procedure(kind)``: ``(procedure, recording, replay)``.
+    The states are looked up in the recording's order; for the dense raster and the
+    registration (static states whose fits ignore the order) in any order when the ordered
+    replay finds too few."""
     from icenav.apps.calibration_csv import ReplayTracker
     from icenav.calibration.procedure import run_procedure
     from icenav.calibration.procedures import make_procedure
@@ -174,6 +177,9 @@ def replay_kind(kind: str, samples: Any, registration: Any, joint_tol: float, **
     procedure = make_procedure(kind, **kw)
     replay = ReplayTracker(samples, joint_tol, registration)
     recording = run_procedure(procedure, replay.move, replay)
+    if kind in ("dense", "registration") and replay.found < COVERAGE * replay.asked:
+        replay = ReplayTracker(samples, joint_tol, registration, ordered=False)
+        recording = run_procedure(procedure, replay.move, replay)
     return procedure, recording, replay
 
 

@@ -247,10 +247,19 @@ class ReplayTracker:
     rows of a visit beyond what the procedure reads are left unused.
     """
 
-    def __init__(self, samples: CsvSamples, joint_tol: float = 1e-3, registration: Any = None):
+    def __init__(
+        self,
+        samples: CsvSamples,
+        joint_tol: float = 1e-3,
+        registration: Any = None,
+        ordered: bool = True,
+    ):
         self.samples = samples
         self.registration = registration
         self.joint_tol = float(joint_tol)
+        self.ordered = bool(ordered)
+        """False: a state is looked up among all visits not used yet, in any order (a static
+        raster recorded in another order than the procedure's)."""
         q = samples.q_motor
         change = np.any(np.abs(np.diff(q, axis=0)) > 1e-12, axis=1)
         starts = np.concatenate([[0], np.flatnonzero(change) + 1])
@@ -258,6 +267,7 @@ class ReplayTracker:
         self._q = q[starts]
         self._spans = list(zip(starts.tolist(), ends.tolist(), strict=True))
         self._next = 0  # the first visit not used yet
+        self._used = np.zeros(len(self._spans), dtype=bool)
         self._run: int | None = None  # the visit being read
         self._cursor = 0  # its next row
         self._q_now: Array | None = None
@@ -301,11 +311,13 @@ class ReplayTracker:
             or not self._at(self._run)
             or self._cursor >= self._spans[self._run][1]
         ):
-            near = np.all(np.abs(self._q[self._next :] - self._q_now) <= self.joint_tol, axis=1)
-            hits = np.flatnonzero(near)
+            start = self._next if self.ordered else 0
+            near = np.all(np.abs(self._q[start:] - self._q_now) <= self.joint_tol, axis=1)
+            hits = np.flatnonzero(near & ~self._used[start:])
             if hits.size == 0:
                 return None
-            self._run = self._next + int(hits[0])
+            self._run = start + int(hits[0])
+            self._used[self._run] = True
             self._next = self._run + 1
             self._cursor = self._spans[self._run][0]
         a = self._cursor
