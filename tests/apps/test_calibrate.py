@@ -258,3 +258,17 @@ def test_a_raster_recorded_in_another_order_is_still_the_dense_calibration(
     argv = ["--from-csv", str(path), "--out", str(tmp_path / "c.json")]
     assert main([*argv, "--tracker-config", str(mount), "--kind", "dense"]) == 0
     assert "dense: 361 of 361 states" in capsys.readouterr().out
+
+
+def test_a_bad_calibration_file_is_refused_naming_it(tmp_path: Path) -> None:
+    from icenav.apps.wiring import install_calibration, make_sim_controller
+
+    bad = tmp_path / "cal.json"
+    bad.write_text('{"format": "icenav.calibration.plans", "version": 2', encoding="utf-8")
+    session = make_sim_controller(imaging=False)
+    try:
+        with pytest.raises(FileFormatError, match=r"cal\.json: not valid JSON"):
+            install_calibration(session.controller, bad)
+        assert session.controller.compensation is None
+    finally:
+        session.close()

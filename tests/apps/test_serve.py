@@ -84,6 +84,10 @@ def test_serve_streams_pose_and_image_in_real_time_to_two_clients_until_sigterm(
         (["--robot-config", "/nonexistent/robot.toml"], "no such file"),
         (["--tracker", "ndi"], "--tracker and --tracker-config need --robot-config"),
         (["--new-session"], "--new-session needs --session FILE"),
+        (
+            ["--calibration", "/nonexistent/cal.json"],
+            "--calibration /nonexistent/cal.json: no such",
+        ),
     ],
 )
 def test_serve_refuses_bad_options(
