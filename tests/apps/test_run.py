@@ -150,3 +150,69 @@ def test_run_without_a_session_registration_refuses_registration_session(
         )
     assert code == 1
     assert "the session holds no registration" in capsys.readouterr().err
+
+
+def test_a_stop_during_the_registration_ends_it_and_the_robot_holds(tmp_path: Path) -> None:
+    """Ctrl-C / SIGTERM set the stop event: the registration's next wait raises and the
+    drives hold where they are (no further state is commanded)."""
+    import threading
+
+    from icenav.apps.hardware import FollowingTwin, guided_registration
+    from icenav.devices.canopen.config import load_robot_config
+    from icenav.devices.canopen.robot import CANopenRobot
+    from icenav.errors import MotionAborted
+
+    stop = threading.Event()
+    lines: list[str] = []
+
+    def report(text: str) -> None:
+        lines.append(text)
+        if "registration state 3:" in text:
+            stop.set()  # the operator presses Ctrl-C after the third state
+
+    with emulated_bench(tmp_path) as (robot_toml, _):
+        robot = CANopenRobot(load_robot_config(robot_toml))
+        try:
+            robot.home()
+            twin = FollowingTwin(robot, 101, "straight", clock=lambda: 0.0)
+            twin.tracker.start()
+            mount = twin.tracker.config.sensor2tip
+            with pytest.raises(MotionAborted, match="Ctrl-C or SIGTERM"):
+                guided_registration(robot, twin.tracker, mount, report=report, stop=stop)
+            held = robot.read_state().q
+        finally:
+            robot.close()
+    assert [ln for ln in lines if "registration state" in ln][-1].startswith(
+        "  registration state 3:"
+    )
+    assert twin.tracker.registration is None  # nothing half-done is installed
+    # held at the third state (roll 120 deg at -30 mm): the fourth was never commanded
+    np.testing.assert_allclose(held, [0.0, 0.0, np.radians(120.0), -30.0], atol=2e-3)
+
+
+def test_a_stop_during_a_move_holds_the_robot_where_it_is() -> None:
+    import threading
+    from types import SimpleNamespace
+
+    from icenav.apps.hardware import move_and_wait
+    from icenav.devices.robot import RobotStatus
+    from icenav.errors import MotionAborted
+
+    stop = threading.Event()
+    calls: list[str] = []
+
+    class Robot:
+        def command_position(self, q: np.ndarray) -> None:
+            calls.append("command")
+
+        def read_state(self) -> SimpleNamespace:
+            calls.append("read")
+            stop.set()  # Ctrl-C arrives while the robot is still on its way
+            return SimpleNamespace(q=np.zeros(4), status=RobotStatus.ENABLED)
+
+        def stop(self) -> None:
+            calls.append("stop")
+
+    with pytest.raises(MotionAborted, match="the robot holds"):
+        move_and_wait(Robot(), np.array([0.0, 0.0, 0.0, 40.0]), stop=stop)
+    assert calls == ["command", "read", "stop"]

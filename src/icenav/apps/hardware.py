@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import threading
 import time
 import tomllib
 from collections.abc import Callable, Mapping
@@ -39,6 +40,7 @@ from icenav.errors import (
     FileFormatError,
     HardwareError,
     IcenavError,
+    MotionAborted,
     RegistrationError,
 )
 from icenav.persistence.recorder import StoreRecorder
@@ -202,16 +204,23 @@ def move_and_wait(
     tolerance: float = 2e-3,
     timeout_s: float = 60.0,
     poll_s: float = 0.005,
+    stop: threading.Event | None = None,
 ) -> Array:
     """Command ``q`` (rad, rad, rad, mm) and wait until every joint is within ``tolerance``
     (rad or mm) of it; the measured state (4,). HardwareError naming the joints after
-    ``timeout_s`` or when the robot leaves ENABLED."""
+    ``timeout_s`` or when the robot leaves ENABLED; MotionAborted (the robot told to hold
+    where it is) as soon as ``stop`` is set (Ctrl-C, SIGTERM)."""
     from icenav.devices.robot import RobotStatus
 
     target = np.asarray(q, dtype=np.float64)
+    if stop is not None and stop.is_set():
+        raise MotionAborted("stopped before the move (Ctrl-C or SIGTERM)")
     robot.command_position(target)
     deadline = time.monotonic() + timeout_s
     while True:
+        if stop is not None and stop.is_set():
+            robot.stop()  # hold where it is
+            raise MotionAborted("the motion was stopped (Ctrl-C or SIGTERM): the robot holds")
         state = robot.read_state()
         err = np.abs(np.asarray(state.q) - target)
         if np.all(err <= tolerance):
@@ -236,6 +245,7 @@ def guided_registration(
     settle_s: float = 0.3,
     twin: FollowingTwin | None = None,
     report: Callable[[str], None] = print,
+    stop: threading.Event | None = None,
 ) -> Registration:
     """Register the tracker to the robot base (the control core's ``registration``
     procedure): the straight catheter translated and rolled, the sensor averaged over
@@ -243,7 +253,8 @@ def guided_registration(
 
     Reports each state and the residual through ``report``; sets ``tracker.registration``.
     RegistrationError when the RMS residual exceeds ``max_residual_mm`` (a wrong mount, a
-    moved field generator) or too few states were tracked. The catheter ends at q = 0.
+    moved field generator) or too few states were tracked; MotionAborted when ``stop`` is set
+    (the robot holds where it is). The catheter ends at q = 0.
     """
     from icenav.calibration.procedure import run_procedure
     from icenav.calibration.procedures import RegistrationProcedure, make_procedure
@@ -253,9 +264,9 @@ def guided_registration(
     procedure = dataclasses.replace(made, n_average=int(n_average))
 
     def move(q: Array) -> None:
-        move_and_wait(robot, q)
-        if settle_s > 0:
-            time.sleep(settle_s)  # the catheter settles (not a synchronisation)
+        move_and_wait(robot, q, stop=stop)
+        if settle_s > 0:  # the catheter settles; a stop ends the wait (the next move raises)
+            (stop or threading.Event()).wait(settle_s)
         if twin is not None:
             twin.sync()
 
@@ -270,6 +281,8 @@ def guided_registration(
     report(f"registration: {procedure.label}; keep the catheter free and the sensor in the field")
     try:
         outcome = procedure.fit(run_procedure(procedure, move, tracker, progress=progress))
+    except MotionAborted:
+        raise
     except IcenavError as exc:
         raise RegistrationError(f"registration failed: {exc}") from exc
     reg: Registration = outcome.details
@@ -328,6 +341,7 @@ def make_hardware_controller(
     register: bool | None = None,
     report: Callable[[str], None] = print,
     clock: Callable[[], float] = time.monotonic,
+    stop: threading.Event | None = None,
 ) -> SimSession:
     """The controller on the drives of ``robot_config`` and a tracker.
 
@@ -336,6 +350,7 @@ def make_hardware_controller(
     the session); False uses the session's stored one (RegistrationError when it has none);
     None (default) uses the stored one when there is one, else runs the step. With
     ``tracker="sim"`` the twin's plant follows the encoders and renders the ICE image.
+    ``stop`` set (Ctrl-C, SIGTERM) ends the registration at once (MotionAborted).
     """
     from icenav.devices.canopen.config import load_robot_config
     from icenav.devices.canopen.robot import CANopenRobot
@@ -379,6 +394,7 @@ def make_hardware_controller(
                     settle_s=settings.settle_s if tracker != "sim" else 0.0,
                     twin=twin,
                     report=report,
+                    stop=stop,
                 )
                 if store is not None:
                     store.save_registration(reg, clock())

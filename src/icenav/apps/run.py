@@ -148,7 +148,9 @@ def main(argv: Sequence[str] | None = None) -> int:
 
                 gamepad = Sdl2Gamepad()
             args.image_rate_hz = 20.0
-            session = make_session(args, gamepad, register=_REGISTRATION[args.registration])
+            session = make_session(
+                args, gamepad, register=_REGISTRATION[args.registration], stop=stop
+            )
             ctrl = session.controller
 
             def ready() -> None:

@@ -85,6 +85,7 @@ def make_session(
     *,
     register: bool | None = None,
     report: Callable[[str], None] = print,
+    stop: threading.Event | None = None,
 ) -> Any:
     """The controller the checked options ask for: the drives of ``--robot-config`` with
     their tracker (:func:`icenav.apps.hardware.make_hardware_controller`), else the twin
@@ -92,7 +93,7 @@ def make_session(
     from icenav.control.controller import ControllerConfig
 
     config = ControllerConfig(image_rate_hz=getattr(args, "image_rate_hz", 20.0))
-    session = _make_session(args, input_source, config, register, report)
+    session = _make_session(args, input_source, config, register, report, stop)
     if getattr(args, "calibration", None) is not None:
         from icenav.apps.wiring import install_calibration
 
@@ -110,6 +111,7 @@ def _make_session(
     config: Any,
     register: bool | None,
     report: Callable[[str], None],
+    stop: threading.Event | None,
 ) -> Any:
     if args.robot_config is not None:
         from icenav.apps.hardware import load_tracker_config, make_hardware_controller
@@ -125,6 +127,7 @@ def _make_session(
             vessel=args.vessel,
             register=register,
             report=report,
+            stop=stop,
         )
     from icenav.apps.wiring import make_sim_controller
 
@@ -236,7 +239,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                 gamepad = Sdl2Gamepad()
                 # polled here, before the control loop reads it from its own thread
                 pad = "connected" if gamepad.poll().connected else "none yet"
-            session = make_session(args, gamepad)
+            session = make_session(args, gamepad, stop=stop)
             what = _describe(args)
 
             def ready() -> None:
