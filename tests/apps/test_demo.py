@@ -147,6 +147,11 @@ def test_the_console_keeps_its_session_in_the_default_file_and_says_where(
     assert default_session_path() == tmp_path / "data" / "icenav" / "demo.sqlite"
     console = argparse.Namespace(session=None, no_session=False, headless=False)
     assert resolve_session(console) == tmp_path / "data" / "icenav" / "demo.sqlite"
+    from icenav.apps.demo import export_dir_for
+
+    console.session = resolve_session(console)
+    console.session_is_default, console.export_dir = True, None
+    assert export_dir_for(console) == Path.cwd().absolute() / "exports"  # not the data folder
     assert (tmp_path / "data" / "icenav").is_dir()
     given = argparse.Namespace(session=tmp_path / "mine.sqlite", no_session=False, headless=False)
     assert resolve_session(given) == tmp_path / "mine.sqlite"

@@ -118,10 +118,12 @@ def resolve_session(args: argparse.Namespace) -> Path | None:
 
 def export_dir_for(args: argparse.Namespace) -> Path:
     """The console's export directory: ``--export-dir``, else ``exports/`` beside the
-    session file, else ``exports/`` in the current directory (absolute)."""
+    session file given with ``--session``, else ``exports/`` in the current directory
+    (absolute; also with the default session, whose folder a user does not look into)."""
     if args.export_dir is not None:
         return Path(args.export_dir).expanduser().absolute()
-    base = Path(args.session).expanduser().parent if args.session is not None else Path.cwd()
+    given = args.session is not None and not getattr(args, "session_is_default", False)
+    base = Path(args.session).expanduser().parent if given else Path.cwd()
     return base.absolute() / "exports"
 
 
@@ -346,6 +348,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = parser.parse_args(argv)
     _check_args(args, parser)
     try:
+        args.session_is_default = args.session is None and not args.headless
         args.session = resolve_session(args)
         start_new_session(args)
         return run_headless(args) if args.headless else run_console(args)
