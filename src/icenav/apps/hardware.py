@@ -376,7 +376,7 @@ def make_hardware_controller(
                 if stored is None:
                     raise RegistrationError(
                         "the session holds no registration: run the registration step "
-                        "(icenav run without --skip-registration)"
+                        "(icenav run --registration new)"
                     )
                 trk.registration = stored
                 report(
