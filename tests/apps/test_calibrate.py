@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from icenav.apps.calibrate import main, replay_kind
+from icenav.apps.calibrate import load_registration, main, replay_kind
 from icenav.apps.calibration_csv import CSV_COLUMNS, RecordingTracker, read_calibration_csv
 from icenav.calibration.files import CalibrationFile
 from icenav.calibration.procedure import run_procedure
@@ -63,11 +63,9 @@ def test_a_twin_recording_gives_a_calibration_file_with_an_estimated_registratio
     finally:
         session.close()
     assert "361 samples" in note
-    # and a given registration (the file just written) replaces the estimate
-    out2 = tmp_path / "cal2.json"
-    argv = ["--from-csv", str(recorded), "--out", str(out2), "--registration", str(out)]
-    assert main([*argv, "--kind", "dense"]) == 0
-    assert CalibrationFile.load(out2).registration == reg
+    # and the file just written can give the registration of the next recording
+    # (--registration; the registration JSON form is used in the 5-point test)
+    assert load_registration(out) == reg
 
 
 @pytest.mark.parametrize("kind", ["five_point", "dense+hysteresis"])
@@ -272,3 +270,30 @@ def test_a_bad_calibration_file_is_refused_naming_it(tmp_path: Path) -> None:
         assert session.controller.compensation is None
     finally:
         session.close()
+
+
+def test_the_registration_comes_from_a_session_a_calibration_file_or_its_json(
+    tmp_path: Path,
+) -> None:
+    import json
+
+    from icenav.devices.registration import Registration
+    from icenav.errors import RegistrationError
+    from icenav.persistence.store import SessionStore
+
+    t2b = np.eye(4)
+    t2b[:3, 3] = (1.0, 2.0, 3.0)
+    reg = Registration(t2b, 0.4, 0.7, 36)
+    session = tmp_path / "lab.sqlite"
+    with SessionStore(session) as store:
+        store.save_registration(reg, 0.0)
+    assert load_registration(session) == reg
+    (tmp_path / "reg.json").write_text(json.dumps(reg.to_dict()), encoding="utf-8")
+    assert load_registration(tmp_path / "reg.json") == reg
+    with SessionStore(tmp_path / "empty.sqlite") as store:
+        pass
+    with pytest.raises(RegistrationError, match="the session holds no registration"):
+        load_registration(tmp_path / "empty.sqlite")
+    (tmp_path / "other.json").write_text("{}", encoding="utf-8")
+    with pytest.raises(RegistrationError, match="holds no registration"):
+        load_registration(tmp_path / "other.json")
