@@ -10,6 +10,13 @@ import icenav
 
 MODULES = [
     "icenav",
+    "icenav.apps.calibrate",
+    "icenav.apps.calibration_csv",
+    "icenav.apps.export_view",
+    "icenav.apps.hardware",
+    "icenav.apps.options",
+    "icenav.apps.run",
+    "icenav.apps.serve",
     "icenav.apps.wiring",
     "icenav.calibration.plans",
     "icenav.calibration.catheter",

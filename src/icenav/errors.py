@@ -37,6 +37,7 @@ unit and the allowed range (as canopen's ``SdoAbortedError`` carries the abort c
     │   ├── HeartbeatLostError                a drive stopped sending heartbeats
     │   └── EmergencyStopError                the robot is e-stopped; reset required
     ├── TrackerError                          the tracker is not running or misconfigured
+    │   └── RegistrationError                 no registration, or one whose residual is too large
     ├── JobError                              a job of a population run failed (item, traceback)
     └── IgtlError                             the OpenIGTLink server cannot start or is misused
         └── IgtlProtocolError                 a peer sent bytes that break the protocol
@@ -67,6 +68,7 @@ __all__ = [
     "NonFiniteError",
     "PlanningError",
     "PluginError",
+    "RegistrationError",
     "RoadmapFullError",
     "SessionLockedError",
     "ShapeError",
@@ -219,6 +221,11 @@ class EmergencyStopError(HardwareError):
 
 class TrackerError(IcenavError):
     """The tracker is not running, or is misconfigured."""
+
+
+class RegistrationError(TrackerError):
+    """The tracker's registration to the robot base is missing, failed, or its residual
+    exceeds the allowed limit (mm)."""
 
 
 class ExportError(IcenavError):

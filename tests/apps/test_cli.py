@@ -10,7 +10,17 @@ from icenav.apps.cli import main
 def test_help_lists_commands(capsys: pytest.CaptureFixture[str]) -> None:
     assert main(["--help"]) == 0
     out = capsys.readouterr().out
-    assert "demo" in out and "eval" in out
+    for command in ("demo", "serve", "run", "calibrate", "eval", "export-view"):
+        assert f"  {command} " in out
+
+
+@pytest.mark.parametrize("command", ["serve", "run", "calibrate", "export-view"])
+def test_every_new_command_has_help(command: str, capsys: pytest.CaptureFixture[str]) -> None:
+    with pytest.raises(SystemExit) as exc:
+        main([command, "--help"])
+    assert exc.value.code == 0
+    out = capsys.readouterr().out
+    assert out.startswith(f"usage: icenav {command}") and len(out.splitlines()) > 8
 
 
 def test_unknown_command_fails_with_usage(capsys: pytest.CaptureFixture[str]) -> None:

@@ -133,3 +133,37 @@ def test_new_session_starts_a_session_in_an_empty_file_and_never_overwrites(
         assert store.load_views().names() == []
     with pytest.raises(StoreError, match="never written over"):
         start_new_session(args)
+
+
+def test_the_console_keeps_its_session_in_the_default_file_and_says_where(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    import argparse
+
+    from icenav.apps.demo import resolve_session
+    from icenav.apps.options import default_session_path
+
+    monkeypatch.setenv("XDG_DATA_HOME", str(tmp_path / "data"))
+    assert default_session_path() == tmp_path / "data" / "icenav" / "demo.sqlite"
+    console = argparse.Namespace(session=None, no_session=False, headless=False)
+    assert resolve_session(console) == tmp_path / "data" / "icenav" / "demo.sqlite"
+    from icenav.apps.demo import export_dir_for
+
+    console.session = resolve_session(console)
+    console.session_is_default, console.export_dir = True, None
+    assert export_dir_for(console) == Path.cwd().absolute() / "exports"  # not the data folder
+    assert (tmp_path / "data" / "icenav").is_dir()
+    given = argparse.Namespace(session=tmp_path / "mine.sqlite", no_session=False, headless=False)
+    assert resolve_session(given) == tmp_path / "mine.sqlite"
+    assert (
+        resolve_session(argparse.Namespace(session=None, no_session=True, headless=False)) is None
+    )
+    # the scripted headless run keeps nothing unless asked
+    assert (
+        resolve_session(argparse.Namespace(session=None, no_session=False, headless=True)) is None
+    )
+    monkeypatch.setenv("XDG_DATA_HOME", "relative/dir")  # not absolute: ignored (XDG spec)
+    monkeypatch.setenv("HOME", str(tmp_path / "home"))
+    assert (
+        default_session_path() == tmp_path / "home" / ".local" / "share" / "icenav" / "demo.sqlite"
+    )

@@ -18,10 +18,22 @@ COMMANDS: dict[str, tuple[str, str]] = {
         "icenav.apps.demo",
         "start the console on the simulated robot (headless: a scripted run)",
     ),
+    "serve": (
+        "icenav.apps.serve",
+        "run the controller in real time without a browser, streaming to 3D Slicer",
+    ),
+    "run": (
+        "icenav.apps.run",
+        "the console on CiA 402 drives and a tracker, with the guided registration",
+    ),
+    "calibrate": (
+        "icenav.apps.calibrate",
+        "a calibration file from a recorded CSV of joint states and tracked poses",
+    ),
     "eval": ("icenav.eval", "run an evaluation that reproduces a table of the paper"),
     "export-view": (
-        "icenav.persistence.dicom",
-        "export a view's image clip (one heart beat) as DICOM",
+        "icenav.apps.export_view",
+        "export a saved view's image from a session file as ultrasound DICOM",
     ),
 }
 """command name -> (module with main(argv), one-line help)."""

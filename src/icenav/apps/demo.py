@@ -2,16 +2,19 @@
 
 ::
 
-    icenav demo [--host 127.0.0.1] [--port 8080] [--session FILE [--new-session]] [--seed N]
-                [--vessel straight|moderate|steep] [--igtl [--igtl-port 18944]]
-                [--export-dir DIR]
+    icenav demo [--host 127.0.0.1] [--port 8080] [--session FILE [--new-session] | --no-session]
+                [--seed N] [--vessel straight|moderate|steep] [--robot sim|emulated-canopen]
+                [--plant MODULE:FACTORY | --plant-family NAME] [--calibration CAL.json]
+                [--igtl [--igtl-port 18944]] [--export-dir DIR]
     icenav demo --headless --duration S    # scripted operator, no browser; exit 0 if all well
 
 The console binds to 127.0.0.1 unless ``--host`` says otherwise; ``--port 0`` picks a free
-port (printed), a port in use is an error naming it. With ``--session`` the roadmap, the
-views and the event log are kept in an SQLite file and resumed from it; one process writes
-a session at a time; an empty (0-byte) file becomes a new session only with
-``--new-session``.
+port (printed), a port in use is an error naming it. The roadmap, the views and the event
+log are kept in an SQLite session file and resumed from it: ``--session FILE``, or by
+default ``$XDG_DATA_HOME/icenav/demo.sqlite`` (``~/.local/share/icenav/demo.sqlite``),
+printed at start; ``--no-session`` keeps nothing (the headless run keeps nothing without
+``--session``). One process writes a session at a time; an empty (0-byte) file becomes a
+new session only with ``--new-session``.
 The console's Export DICOM button writes into ``--export-dir`` (default: ``exports/`` beside
 the session file, or in the current directory without ``--session``), with file names made
 by the program.
@@ -30,9 +33,10 @@ from pathlib import Path
 
 import numpy as np
 
+from icenav.apps import options
 from icenav.errors import IcenavError
 
-__all__ = ["export_dir_for", "main", "run_headless", "start_new_session"]
+__all__ = ["export_dir_for", "main", "resolve_session", "run_headless", "start_new_session"]
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -49,11 +53,13 @@ def _parser() -> argparse.ArgumentParser:
         action="store_true",
         help="required with a --host other than loopback: expose the console on the network",
     )
-    p.add_argument("--session", type=Path, default=None, help="SQLite session file to resume")
+    options.add_session_options(
+        p, default_note="default (console): $XDG_DATA_HOME/icenav/demo.sqlite, printed"
+    )
     p.add_argument(
-        "--new-session",
+        "--no-session",
         action="store_true",
-        help="start a new session in --session, which must not exist or be empty (0 bytes)",
+        help="console: keep nothing (no session file; views are lost on exit)",
     )
     p.add_argument(
         "--export-dir",
@@ -62,20 +68,8 @@ def _parser() -> argparse.ArgumentParser:
         help="directory of the console's DICOM exports (default: exports/ beside the "
         "session file, or in the current directory)",
     )
-    p.add_argument("--seed", type=int, default=100, help="catheter seed of the twin (>= 0)")
-    p.add_argument(
-        "--vessel",
-        choices=("straight", "moderate", "steep"),
-        default="straight",
-        help="vessel curvature condition of the twin",
-    )
-    p.add_argument(
-        "--robot",
-        choices=("sim", "emulated-canopen"),
-        default="sim",
-        help="robot backend: the simulated robot, or emulated CiA 402 drives on a virtual "
-        "CAN bus (the code path of real drives)",
-    )
+    options.add_twin_options(p)
+    options.add_calibration_option(p)
     p.add_argument("--headless", action="store_true", help="scripted operator, no browser")
     p.add_argument(
         "--duration",
@@ -83,10 +77,7 @@ def _parser() -> argparse.ArgumentParser:
         default=20.0,
         help="headless: simulated seconds to run (> 0, default 20)",
     )
-    p.add_argument("--igtl", action="store_true", help="stream to 3D Slicer over OpenIGTLink")
-    p.add_argument(
-        "--igtl-port", type=int, default=18944, help="OpenIGTLink port (default 18944; 0: free)"
-    )
+    options.add_igtl_options(p)
     return p
 
 
@@ -101,24 +92,38 @@ def _check_args(args: argparse.Namespace, parser: argparse.ArgumentParser) -> No
         )
     if args.export_dir is not None and args.export_dir.exists() and not args.export_dir.is_dir():
         parser.error(f"--export-dir {args.export_dir} exists and is not a directory")
-    if args.new_session and args.session is None:
-        parser.error("--new-session needs --session FILE")
-    if not 0 <= args.port <= 65535:
-        parser.error(f"--port must be in [0, 65535], got {args.port}")
-    if not 0 <= args.igtl_port <= 65535:
-        parser.error(f"--igtl-port must be in [0, 65535], got {args.igtl_port}")
-    if args.seed < 0:
-        parser.error(f"--seed must be >= 0, got {args.seed}")
+    if args.no_session and args.session is not None:
+        parser.error("--no-session and --session FILE are exclusive")
+    options.check_session_options(args, parser)
+    options.check_port(parser, "--port", args.port)
+    options.check_igtl_options(args, parser)
+    options.check_twin_options(args, parser)
+    options.check_calibration_option(args, parser)
     if not (math.isfinite(args.duration) and args.duration > 0):
         parser.error(f"--duration must be > 0 s, got {args.duration}")
 
 
+def resolve_session(args: argparse.Namespace) -> Path | None:
+    """The session file of the console: ``--session``, none with ``--no-session`` (or
+    headless without ``--session``: the scripted operator keeps nothing), else the default
+    :func:`icenav.apps.options.default_session_path` (its folder made)."""
+    if args.session is not None:
+        return Path(args.session).expanduser()
+    if args.no_session or args.headless:
+        return None
+    path = options.default_session_path()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    return path
+
+
 def export_dir_for(args: argparse.Namespace) -> Path:
     """The console's export directory: ``--export-dir``, else ``exports/`` beside the
-    session file, else ``exports/`` in the current directory (absolute)."""
+    session file given with ``--session``, else ``exports/`` in the current directory
+    (absolute; also with the default session, whose folder a user does not look into)."""
     if args.export_dir is not None:
         return Path(args.export_dir).expanduser().absolute()
-    base = Path(args.session).expanduser().parent if args.session is not None else Path.cwd()
+    given = args.session is not None and not getattr(args, "session_is_default", False)
+    base = Path(args.session).expanduser().parent if given else Path.cwd()
     return base.absolute() / "exports"
 
 
@@ -176,11 +181,21 @@ def run_headless(args: argparse.Namespace) -> int:
         vessel=args.vessel,
         session=args.session,
         robot=args.robot,
+        plant=args.plant,
+        plant_family=args.plant_family,
         input_source=script,
         clock=clock,
         config=ControllerConfig(image_rate_hz=2.0),  # faster than real time: fewer images
     )
     ctrl = session.controller
+    if args.calibration is not None:
+        from icenav.apps.wiring import install_calibration
+
+        try:
+            print(install_calibration(ctrl, args.calibration))
+        except BaseException:
+            session.close()
+            raise
     dt = ctrl.config.dt
     failures: list[str] = []
     # the simulated robot runs faster than real time; emulated drives move in real time
@@ -257,12 +272,12 @@ def run_console(args: argparse.Namespace) -> int:
 
     bridge = streamer = forwarder = None
     if args.igtl:
-        from icenav.io.igtl import IgtlBridge, IgtlConfig
+        from icenav.io.igtl import IgtlBridge
         from icenav.io.igtl_stream import CommandForwarder
 
         forwarder = CommandForwarder()
         bridge = IgtlBridge(
-            IgtlConfig(port=args.igtl_port),
+            options.igtl_config(args),
             on_command=forwarder,
             on_disconnect=forwarder.disconnected,
         )
@@ -273,8 +288,20 @@ def run_console(args: argparse.Namespace) -> int:
         session=args.session,
         input_source=gamepad,
         robot=args.robot,
+        plant=args.plant,
+        plant_family=args.plant_family,
     )
     ctrl = session.controller
+    if args.session is not None:
+        print(f"session: {args.session} (views and roadmap kept; --session FILE for another)")
+    if args.calibration is not None:
+        from icenav.apps.wiring import install_calibration
+
+        try:
+            print(install_calibration(ctrl, args.calibration))
+        except BaseException:
+            session.close()
+            raise
     if bridge is not None:
         from icenav.io.igtl_stream import attach_bridge
 
@@ -321,6 +348,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = parser.parse_args(argv)
     _check_args(args, parser)
     try:
+        args.session_is_default = args.session is None and not args.headless
+        args.session = resolve_session(args)
         start_new_session(args)
         return run_headless(args) if args.headless else run_console(args)
     except IcenavError as exc:

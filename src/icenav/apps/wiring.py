@@ -30,6 +30,8 @@ __all__ = [
     "StoreRecorder",
     "anatomy_labels",
     "anatomy_meshes",
+    "install_calibration",
+    "make_imager",
     "make_sim_controller",
 ]
 
@@ -56,9 +58,14 @@ class SimSession:
         finally:
             if self.store is not None:
                 self.store.close()
-        self.controller.robot.close()
-        if self.drives is not None:
-            self.drives.close()
+        try:
+            self.controller.robot.close()
+            if self.drives is not None:
+                self.drives.close()
+        finally:
+            stop = getattr(self.tracker, "stop", None)
+            if callable(stop):  # an NDI Aurora releases its serial port
+                stop()
 
 
 def make_sim_controller(
@@ -72,6 +79,8 @@ def make_sim_controller(
     robot: str = "sim",
     clock: Callable[[], float] = time.monotonic,
     roadmap_config: RoadmapConfig | None = None,
+    plant: str | None = None,
+    plant_family: str | None = None,
 ) -> SimSession:
     """A controller on the digital twin.
 
@@ -94,15 +103,35 @@ def make_sim_controller(
     roadmap_config : RoadmapConfig, optional
         Settings of a new roadmap (epsilon, vertex budget, ...); a resumed session keeps
         the settings stored in its file.
+    plant, plant_family : str, optional
+        A plant plug-in ``MODULE:FACTORY`` or a plant family name
+        (:func:`icenav.sim.plugins.resolve_factory`) instead of the default twin (with
+        ``robot="sim"``); its own tracker comes with it.
     """
     from icenav.devices.sim_robot import SimulatedRobot
     from icenav.sim import CatheterPlant, EMTracker
 
-    plant = CatheterPlant(seed=seed, vessel=vessel)
+    tracker: Any
+    if plant is not None or plant_family is not None:
+        if robot != "sim":
+            raise ConfigurationError("a plant plug-in or family runs on robot 'sim' only")
+        from icenav.sim.plugins import make_plant, resolve_factory
+
+        # the clock goes to the factory only when it is not the wall clock (the factories'
+        # default): a headless run drives a simulated one
+        model, tracker = make_plant(
+            resolve_factory(plant, plant_family),
+            seed,
+            vessel,
+            clock=None if clock is time.monotonic else clock,
+        )
+    else:
+        model = CatheterPlant(seed=seed, vessel=vessel)
+        tracker = EMTracker(model, seed=seed, clock=clock)
     drives: Any = None
     backend: Any
     if robot == "sim":
-        backend = SimulatedRobot(plant, clock=clock, on_excess="clip")
+        backend = SimulatedRobot(model, clock=clock, on_excess="clip")
         backend.record_commands = False
     elif robot == "emulated-canopen":
         from icenav.devices.canopen.emulated_drive import open_emulated_robot
@@ -111,7 +140,6 @@ def make_sim_controller(
         backend.home()
     else:
         raise ConfigurationError(f"robot must be 'sim' or 'emulated-canopen', got {robot!r}")
-    tracker = EMTracker(plant, seed=seed, clock=clock)
     tracker.start()
     store = recorder = None
     roadmap = views = None
@@ -122,32 +150,16 @@ def make_sim_controller(
         views = store.load_views()
     elif roadmap_config is not None:
         roadmap = Roadmap(config=roadmap_config)
-    renderer = None
-    imager = None
+    renderer = imager = ijk2tip = None
     if imaging:
-        from icenav.sim.anatomy import BASE2ANATOMY
-        from icenav.sim.ultrasound import UltrasoundRenderer
-
-        renderer = UltrasoundRenderer()
-        px = renderer.config.pixel_mm
-        n = renderer.config.image_size
-        # pixel (i = column, j = row): x = (row + 0.5) px, z = (col + 0.5 - n / 2) px, y = 0
-        ijk2tip = np.array(
-            [
-                [0.0, px, 0.0, 0.5 * px],
-                [0.0, 0.0, px, 0.0],
-                [px, 0.0, 0.0, (0.5 - n / 2) * px],
-                [0.0, 0.0, 0.0, 1.0],
-            ]
-        )
-
-        def imager(tip2base: Array, t: float) -> NDArray[np.uint8]:
-            return renderer.render(BASE2ANATOMY @ tip2base, t, check=False).image
+        renderer, imager, ijk2tip = make_imager()
 
     def truth() -> tuple[Array, Array]:
         if drives is not None:  # the twin follows the emulated drives' encoders
-            plant.move(backend.read_state().q)
-        return plant.state.tip2base, plant.backbone(30)
+            model.move(backend.read_state().q)
+        backbone = getattr(model, "backbone", None)  # optional for plug-ins
+        points = backbone(30) if callable(backbone) else model.state.tip2base[None, :3, 3]
+        return model.state.tip2base, points
 
     controller = Controller(
         backend,
@@ -158,13 +170,60 @@ def make_sim_controller(
         truth=truth,
         tracker=tracker,
         imager=imager,
-        image_ijk2tip=None if renderer is None else ijk2tip,
+        image_ijk2tip=ijk2tip,
         clock=clock,
     )
     if store is not None:
         recorder = StoreRecorder(store, controller.roadmap, threaded=True)
         controller.set_recorder(recorder)
-    return SimSession(controller, plant, tracker, renderer, store, recorder, drives)
+    return SimSession(controller, model, tracker, renderer, store, recorder, drives)
+
+
+def install_calibration(controller: Controller, path: str | Path) -> str:
+    """Load a calibration file (:class:`icenav.calibration.files.CalibrationFile`, as
+    ``icenav calibrate`` or the console write it), build the paper's compensation F on its
+    samples (:meth:`icenav.compensation.elasticity.ElasticityMap.build`) and install it on
+    ``controller`` (compensation on), before the controller starts. Returns what was loaded,
+    for the operator."""
+    from icenav.calibration.files import CalibrationFile
+    from icenav.compensation.elasticity import ElasticityMap
+
+    loaded = CalibrationFile.load(path)
+    cal = loaded.calibration
+    controller.compensation = ElasticityMap.build(cal, controller.config.geometry)
+    controller.compensation_enabled = True
+    controller.calibration = cal
+    text = f"compensation from {path}: {cal.n_samples} samples ({cal.method or 'unnamed'})"
+    if loaded.registration is not None:
+        text += (
+            f", recorded through a registration of {loaded.registration.rms_residual_mm:.2f} mm RMS"
+        )
+    return text
+
+
+def make_imager() -> tuple[Any, Callable[[Array, float], NDArray[np.uint8]], Array]:
+    """The twin's ICE renderer, the controller's ``imager(tip2base_true, t)`` on the beating
+    heart phantom, and the image's ``ijk2tip`` (4, 4) (pixel i = column, j = row, mm)."""
+    from icenav.sim.anatomy import BASE2ANATOMY
+    from icenav.sim.ultrasound import UltrasoundRenderer
+
+    renderer = UltrasoundRenderer()
+    px = renderer.config.pixel_mm
+    n = renderer.config.image_size
+    # pixel (i = column, j = row): x = (row + 0.5) px, z = (col + 0.5 - n / 2) px, y = 0
+    ijk2tip = np.array(
+        [
+            [0.0, px, 0.0, 0.5 * px],
+            [0.0, 0.0, px, 0.0],
+            [px, 0.0, 0.0, (0.5 - n / 2) * px],
+            [0.0, 0.0, 0.0, 1.0],
+        ]
+    )
+
+    def imager(tip2base: Array, t: float) -> NDArray[np.uint8]:
+        return renderer.render(BASE2ANATOMY @ tip2base, t, check=False).image
+
+    return renderer, imager, ijk2tip
 
 
 _CHAMBER_RGB = {

@@ -51,7 +51,7 @@ from typing import Any
 import numpy as np
 
 from icenav._typing import Array
-from icenav.errors import ConfigurationError
+from icenav.errors import ConfigurationError, IcenavError
 from icenav.eval.recovery_bench import DT, Bench
 from icenav.eval.recovery_report import (
     RecoveryRecord,
@@ -401,6 +401,16 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--quick", action="store_true", help="2 rounds, 6 frames per beat, small budgets (tests)"
     )
+    p.add_argument(
+        "--engine", choices=("local", "ray"), default="local",
+        help="where the runs go: this process (default) or Ray (pip install 'icenav[cluster]'; "
+        "one CPU a run); a progress bar counts them",
+    )  # fmt: skip
+    p.add_argument(
+        "--address", default=None,
+        help="with --engine ray: the address of an existing Ray cluster (default: start a "
+        "local one for this run)",
+    )  # fmt: skip
     return p
 
 
@@ -443,6 +453,11 @@ def _pairs(args: argparse.Namespace) -> list[tuple[int, int]]:
     return list(zip(seeds, patients, strict=True))
 
 
+def _run_pair(pair: tuple[int, int], args: argparse.Namespace) -> RecoveryRun:
+    """One (catheter, patient) run for the engine (module level: picklable)."""
+    return run_recovery(config_from_args(args, *pair))
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """``icenav eval recovery [--seed N] [--condition C --patient P] [--rounds 16] ...``."""
     args = _parser().parse_args(list(argv or []))
@@ -454,11 +469,23 @@ def main(argv: Sequence[str] | None = None) -> int:
     except ConfigurationError as exc:
         print(f"icenav eval recovery: {exc}", file=sys.stderr)
         return 2
+    if args.address is not None and args.engine != "ray":
+        print("icenav eval recovery: --address needs --engine ray", file=sys.stderr)
+        return 2
+    from icenav.eval.engine import run_jobs
+
+    try:
+        runs = run_jobs(
+            _run_pair, pairs, engine=args.engine, address=args.address, kwargs={"args": args},
+            describe=lambda p: f"catheter {p[0]}, patient {p[1]}", desc="runs",
+        )  # fmt: skip
+    except IcenavError as exc:  # a run failed (named), or Ray cannot start
+        print(f"icenav eval recovery: {exc}", file=sys.stderr)
+        return 1
     all_records: list[RecoveryRecord] = []
     total = 0.0
-    for i, (seed, patient) in enumerate(pairs):
-        cfg = config_from_args(args, seed, patient)
-        run = run_recovery(cfg)
+    for i, ((_, patient), run) in enumerate(zip(pairs, runs, strict=True)):
+        cfg = run.config
         total += run.seconds
         where = "" if cfg.condition == "none" else f", condition {cfg.condition}, patient {patient}"
         off = f" (without {', '.join(cfg.disable)})" if cfg.disable else ""
