@@ -27,6 +27,7 @@ from unittest import mock
 import numpy as np
 
 from icenav.eval import spin as eval_spin
+from icenav.eval.spin_cli import parse_seeds
 from icenav.sim.families import FAMILIES, family
 from icenav.sim.plugins import make_plant
 
@@ -72,7 +73,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     p.add_argument("--families", default="all", help="comma-separated names or 'all'")
     p.add_argument("--conditions", default="none", help="eval spin conditions (default none)")
     args = p.parse_args(argv)
-    seeds = eval_spin.parse_seeds(args.seeds)
+    seeds = parse_seeds(args.seeds)
     names = list(FAMILIES) if args.families == "all" else args.families.split(",")
     conditions = [c.strip() for c in args.conditions.split(",") if c.strip()]
     print(f"families {names}; seeds {seeds}; conditions {conditions}")

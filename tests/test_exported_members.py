@@ -36,6 +36,7 @@ MODULES = [
     "icenav.eval.recovery_plots",
     "icenav.eval.recovery_report",
     "icenav.eval.spin",
+    "icenav.eval.spin_cli",
     "icenav.eval.spin_report",
     "icenav.control.servo",
     "icenav.refinement.gating",
