@@ -113,11 +113,11 @@ def test_closed_loop_spin_returns_poses_and_bounded_commands(cal52: spin.Calibra
     from icenav.geometry.trajectories import spin_trajectory
 
     cal = cal52
-    plant, tracker = spin._make_plant(52, "moderate")
+    rig, tracker = spin.make_rig(52, "moderate")
     sp = spin_trajectory([math.radians(40.0), 0.0, 0.0, 0.0], 24, include_end=True)
     limit = (0.05, 0.05, 0.05, 1.0)
     servo = TipPoseServo(PoseServoConfig(max_correction=limit))
-    true, em, cmd = spin.run_spin_closed_loop(plant, tracker, sp.q_model, cal, servo)
+    true, em, cmd = spin.run_spin_closed_loop(rig, tracker, sp.q_model, cal, servo)
     n = sp.q_model.shape[0]
     assert true.shape == em.shape == (n, 4, 4) and cmd.shape == (n, 4)
     assert servo.n_updates + servo.n_missing == spin.SETTLE_UPDATES + n

@@ -46,11 +46,12 @@ from __future__ import annotations
 
 import math
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from icenav._typing import Array
 from icenav.calibration.catheter import CatheterCalibration
@@ -69,6 +70,7 @@ from icenav.compensation.hysteresis import HysteresisCompensator
 from icenav.compensation.tendon_map import TendonKnobMap
 from icenav.compensation.tracker_bias import TrackerBias
 from icenav.control.servo import TipPoseServo
+from icenav.devices.sim_robot import SimulatedRobot
 from icenav.errors import InvalidValueError
 from icenav.eval.spin_report import BENDS_DEG
 from icenav.geometry.kinematics import DEFAULT_GEOMETRY, forward
@@ -80,11 +82,15 @@ __all__ = [
     "CONDITIONS",
     "Calibrations",
     "CatheterRun",
+    "PlantSpec",
+    "Rig",
     "SpinRecord",
     "calibrate",
     "evaluate_catheter",
     "identify_in_situ",
     "knob_map_commands",
+    "make_rig",
+    "plant_name",
     "run_calibration",
     "run_spin",
     "run_spin_closed_loop",
@@ -139,6 +145,8 @@ class SpinRecord:
     in_situ: bool = False
     """True: this condition's plays were re-identified in the (curved) test vessel before
     the spin (``--in-situ``, ``dense+hysteresis`` only); False: as calibrated straight."""
+    plant: str = "default"
+    """The plant the catheter is (:func:`plant_name`: ``default``, a family, a plug-in)."""
 
 
 @dataclass(frozen=True, eq=False)
@@ -189,12 +197,58 @@ class Calibrations:
         return cs
 
 
-def _make_plant(seed: int, vessel: str) -> tuple[Any, Any]:
-    from icenav.sim import CatheterPlant, EMTracker
+PlantSpec = str | Callable[..., tuple[Any, Any]] | None
+"""Which plant the evaluation runs on: None (the default twin), a family name
+(:func:`icenav.sim.families.family`, e.g. ``"rate-dependent"``), a plug-in spec
+``MODULE:FACTORY`` (:func:`icenav.sim.plugins.load_factory`) or a factory itself
+(picklable, for ``--jobs``)."""
 
-    plant = CatheterPlant(seed=seed, vessel=vessel)
-    tracker = EMTracker(plant, seed=seed)
-    return plant, tracker
+
+def plant_name(plant: PlantSpec) -> str:
+    """The name a plant spec is reported under: ``default``, the family name, the plug-in
+    spec, or the factory's ``name`` / qualified name."""
+    if plant is None:
+        return "default"
+    if isinstance(plant, str):
+        return plant
+    return str(getattr(plant, "name", None) or getattr(plant, "__qualname__", repr(plant)))
+
+
+class Rig:
+    """A catheter on the simulated robot backend, and its tracker: what the evaluation drives.
+
+    The plant (any plant of the plug-in protocol, :mod:`icenav.sim.plugins`) is wrapped in
+    :class:`icenav.devices.sim_robot.SimulatedRobot`, so the calibrations and spins command
+    it as the product commands a robot (``command_position``, joint limits checked;
+    ``home`` relaxes it at zero) and read only the robot's reported tip pose and the
+    tracker; nothing reads the plant's parameters.
+    """
+
+    def __init__(self, plant: Any, tracker: Any) -> None:
+        self.robot = SimulatedRobot(plant)
+        self.robot.record_commands = False
+        self.robot.enable()
+        self.tracker = tracker
+
+    def move(self, q_motor: ArrayLike) -> Array:
+        """Command the motor joint state (4,) (rad, rad, rad, mm); the true tip2base (4, 4)
+        the catheter settles at (mm)."""
+        self.robot.command_position(q_motor)
+        return self.robot.tip2base
+
+    def reset(self) -> None:
+        """Home the robot: the catheter relaxed at q = 0."""
+        self.robot.home()
+
+
+def make_rig(seed: int, vessel: str, plant: PlantSpec = None) -> tuple[Rig, Any]:
+    """Catheter ``seed`` of ``plant`` (:data:`PlantSpec`) in ``vessel`` on the simulated robot,
+    and its tracker; the plant and tracker are checked against the plug-in protocol
+    (:func:`icenav.sim.plugins.make_plant`; PluginError naming what is missing)."""
+    from icenav.sim.plugins import make_plant
+
+    made, tracker = make_plant("default" if plant is None else plant, seed, vessel)
+    return Rig(made, tracker), tracker
 
 
 def run_calibration(kind: str, plant: Any, tracker: Any) -> CalibrationOutcome:
@@ -206,20 +260,24 @@ def run_calibration(kind: str, plant: Any, tracker: Any) -> CalibrationOutcome:
     return procedure.fit(run_procedure(procedure, plant.move, tracker))
 
 
-def calibrate(seed: int) -> Calibrations:
-    """Calibrate catheter ``seed`` in the straight vessel with the console's procedures:
-    ``dense``, ``five_point`` and ``dense+hysteresis``, one after the other on one plant and
-    tracker (each from rest)."""
+def calibrate(seed: int, plant: PlantSpec = None) -> Calibrations:
+    """Calibrate catheter ``seed`` of ``plant`` in the straight vessel with the console's
+    procedures: ``dense``, ``five_point`` and ``dense+hysteresis``, one after the other on one
+    robot and tracker (each from rest)."""
     t0 = time.perf_counter()
-    plant, tracker = _make_plant(seed, "straight")
-    dense = run_calibration("dense", plant, tracker)
-    five = run_calibration("five_point", plant, tracker)
-    ours = run_calibration("dense+hysteresis", plant, tracker)
+    rig, tracker = make_rig(seed, "straight", plant)
+    dense = run_calibration("dense", rig, tracker)
+    five = run_calibration("five_point", rig, tracker)
+    ours = run_calibration("dense+hysteresis", rig, tracker)
     cat: CatheterCalibration = ours.details
     # the ablation: F on the per-joint model's effective knobs along the raster (from rest)
     comp = cat.hysteresis.compensator
     raster = raster_grid()
     eff = comp.effective_path(np.vstack([np.zeros(4), raster]))[1:]
+    # a play's centre offset can put an effective knob past the limit F is defined on
+    # (out-of-tolerance catheters): clip it there, as the raster's own limit samples are
+    lim = DEFAULT_GEOMETRY.knob_limit
+    eff[:, :2] = np.clip(eff[:, :2], -lim, lim)
     keep = [int(np.argmin(np.max(np.abs(raster - q), axis=1))) for q in cat.dense.q_motor]
     unbiased = cat.tracker_bias.correct_calibration(cat.dense)
     dense_eff = unbiased.with_motor_knobs(eff[keep, :2], method="dense-raster-effective")
@@ -232,18 +290,20 @@ def calibrate(seed: int) -> Calibrations:
     )
 
 
-def identify_in_situ(seed: int, vessel: str, cal: Calibrations) -> TendonKnobMap:
+def identify_in_situ(
+    seed: int, vessel: str, cal: Calibrations, plant: PlantSpec = None
+) -> TendonKnobMap:
     """Our compensation with its plays re-identified on catheter ``seed`` in the test
     ``vessel`` (opt-in ``--in-situ``): the hysteresis sweeps and the knob circles there
     (about 1,700 small moves, no raster; a robot with a tip sensor can run them before a
     procedure), fitted with F and G kept from the straight vessel (the section's elasticity
     does not change with the vessel, the shaft's friction does)."""
-    plant, tracker = _make_plant(seed, vessel)
-    plant.reset()
+    rig, tracker = make_rig(seed, vessel, plant)
+    rig.reset()
     hplan = hysteresis_plan()
-    roll = fit_hysteresis(hplan, run_visits(plan_visits(hplan.plan), plant.move, tracker))
-    plant.reset()
-    rec = run_visits(plan_visits(circle_plan()), plant.move, tracker)
+    roll = fit_hysteresis(hplan, run_visits(plan_visits(hplan.plan), rig.move, tracker))
+    rig.reset()
+    rec = run_visits(plan_visits(circle_plan()), rig.move, tracker)
     circles = motion_from(rec, KNOB_CIRCLES, tracker_bias=cal.tracker_bias)
     transmission = reidentify_in_situ(cal.catheter.transmission, circles, roll.compensator)
     return TendonKnobMap(transmission)
@@ -409,6 +469,7 @@ def run_vessel(
     keep_commands: dict[tuple[int, str], Array] | None = None,
     keep_tips: dict[tuple[int, str], Array] | None = None,
     in_situ: bool = False,
+    plant: PlantSpec = None,
 ) -> list[SpinRecord]:
     """The spins of one catheter in one vessel: a record per bend and condition.
 
@@ -424,8 +485,8 @@ def run_vessel(
     situ_map = None
     if in_situ:
         assert cal is not None
-        situ_map = identify_in_situ(seed, vessel, cal)
-    plant, tracker = _make_plant(seed, vessel)
+        situ_map = identify_in_situ(seed, vessel, cal, plant)
+    rig, tracker = make_rig(seed, vessel, plant)
     records = []
     for bend in bends_deg:
         sp = spin_trajectory([math.radians(bend), 0.0, 0.0, 0.0], n_samples, include_end=True)
@@ -433,14 +494,14 @@ def run_vessel(
         for cond in conditions:
             if cond == CLOSED_LOOP:
                 assert cal is not None  # checked above
-                true, em, cmd = run_spin_closed_loop(plant, tracker, sp.q_model, cal)
+                true, em, cmd = run_spin_closed_loop(rig, tracker, sp.q_model, cal)
                 if keep_commands is not None:
                     keep_commands[(bend, cond)] = cmd
             else:
                 cmd = _commands(cond, sp.q_model, cal, situ_map if cond == OURS else None)
                 if keep_commands is not None:
                     keep_commands[(bend, cond)] = cmd[APPROACH_STEPS:]
-                true, em = run_spin(plant, tracker, cmd)
+                true, em = run_spin(rig, tracker, cmd)
             if keep_tips is not None:
                 keep_tips[(bend, cond)] = true[:, :3, 3]
             ok = np.all(np.isfinite(em.reshape(len(em), -1)), axis=1)
@@ -459,6 +520,7 @@ def run_vessel(
                     n_samples=n_samples,
                     em_missing=int(np.sum(~ok)),
                     in_situ=in_situ and cond == OURS,
+                    plant=plant_name(plant),
                 )
             )
     return records
@@ -470,6 +532,8 @@ class CatheterRun:
 
     seed: int
     """Catheter seed."""
+    plant: str
+    """The plant's name (:func:`plant_name`)."""
     records: list[SpinRecord]
     """One record per vessel, bend and condition."""
     calibration_text: list[str]
@@ -524,13 +588,15 @@ def evaluate_catheter(
     conditions: Sequence[str] = CONDITIONS,
     in_situ: bool = False,
     keep: bool = False,
+    plant: PlantSpec = None,
 ) -> CatheterRun:
     """Calibrate catheter ``seed`` in the straight vessel once, then run the spins in each of
     ``vessels`` (:func:`run_vessel`). With ``keep`` the commands and true tips are kept (for
-    the plots). A module-level function, so ``--jobs`` can run catheters in processes."""
+    the plots). ``plant`` (:data:`PlantSpec`) is the catheter's plant (default: the twin).
+    A module-level function, so ``--jobs`` can run catheters in processes."""
     t0 = time.perf_counter()
     needs_calibration = any(c != "none" for c in conditions)
-    cal = calibrate(seed) if needs_calibration else None
+    cal = calibrate(seed, plant) if needs_calibration else None
     records: list[SpinRecord] = []
     commands: dict[tuple[str, int, str], Array] = {}
     tips: dict[tuple[str, int, str], Array] = {}
@@ -547,11 +613,13 @@ def evaluate_catheter(
             keep_commands=kc if keep else None,
             keep_tips=kt if keep else None,
             in_situ=in_situ,
+            plant=plant,
         )
         commands.update({(vessel, *k): v for k, v in kc.items()})
         tips.update({(vessel, *k): v for k, v in kt.items()})
     return CatheterRun(
         seed=seed,
+        plant=plant_name(plant),
         records=records,
         calibration_text=_describe_calibration(seed, cal),
         commands=commands,

@@ -30,6 +30,7 @@ from icenav.eval.spin import (
     evaluate_catheter,
 )
 from icenav.eval.spin_report import (
+    format_family_matrix,
     format_table,
     format_vessel_effect,
     plot_commands,
@@ -37,6 +38,8 @@ from icenav.eval.spin_report import (
     plot_tip,
 )
 from icenav.geometry.kinematics import forward
+from icenav.sim.families import FAMILIES, family
+from icenav.sim.plugins import load_factory
 
 __all__ = ["main", "parse_seeds"]
 
@@ -63,13 +66,24 @@ def parse_seeds(text: str) -> list[int]:
     return sorted(seeds)
 
 
-def _evaluate(seed: int, *, first: int, **kwargs: Any) -> CatheterRun:
-    """One catheter for the engine (a module-level function: picklable)."""
-    return evaluate_catheter(seed, keep=seed == first, **kwargs)
+Job = tuple[str | None, int]
+"""One catheter of the run: (plant spec or None for the default twin, seed)."""
+
+
+def _evaluate(job: Job, *, first: Job, **kwargs: Any) -> CatheterRun:
+    """One catheter for the engine (a module-level function: picklable). The plant is
+    passed by its spec (a family name or ``MODULE:FACTORY``), resolved in the worker."""
+    plant, seed = job
+    return evaluate_catheter(seed, keep=job == first, plant=plant, **kwargs)
+
+
+def _job_name(job: Job) -> str:
+    plant, seed = job
+    return f"catheter {seed}" + ("" if plant is None else f" of {plant}")
 
 
 def _run_catheters(
-    seeds: Sequence[int],
+    jobs_to_run: Sequence[Job],
     jobs: int,
     *,
     engine: str = "local",
@@ -78,7 +92,7 @@ def _run_catheters(
 ) -> list[CatheterRun]:
     """:func:`evaluate_catheter` for each seed on an engine (:mod:`icenav.eval.engine`: the
     local process pool, ``jobs`` at a time, or Ray), printing each catheter as it finishes;
-    the runs come back in seed order."""
+    the runs come back in the order of ``jobs_to_run``."""
     from tqdm import tqdm
 
     from icenav.eval.engine import run_jobs
@@ -86,25 +100,25 @@ def _run_catheters(
     t0 = time.perf_counter()
     done = 0
 
-    def report(seed: int, run: CatheterRun) -> None:
+    def report(job: Job, run: CatheterRun) -> None:
         nonlocal done
         done += 1
         for line in run.calibration_text:
             tqdm.write(line)
         tqdm.write(
-            f"  catheter {run.seed} done in {run.seconds:.0f} s "
-            f"({done}/{len(seeds)} catheters, {time.perf_counter() - t0:.0f} s elapsed)"
+            f"  {_job_name(job)} done in {run.seconds:.0f} s "
+            f"({done}/{len(jobs_to_run)} catheters, {time.perf_counter() - t0:.0f} s elapsed)"
         )
 
     runs: list[CatheterRun] = run_jobs(
         _evaluate,
-        list(seeds),
+        list(jobs_to_run),
         engine=engine,
         jobs=jobs,
         address=address,
-        kwargs={"first": seeds[0], **kwargs},
+        kwargs={"first": jobs_to_run[0], **kwargs},
         on_result=report,
-        describe=lambda s: f"catheter {s}",
+        describe=_job_name,
         desc="catheters",
     )
     return runs
@@ -195,7 +209,41 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--study", action="store_true", help="also print the calibration-size / interpolant study"
     )
+    plant = p.add_mutually_exclusive_group()
+    plant.add_argument(
+        "--plant",
+        metavar="MODULE:FACTORY",
+        help="run on a plant plug-in: an importable module or a .py file and a factory "
+        "(seed, vessel) -> (plant, tracker) (docs/digital-twin.md, 'Plant plug-ins')",
+    )
+    plant.add_argument(
+        "--plant-family",
+        metavar="NAME|all",
+        help="run on plant families (comma-separated names, PLANT+TRACKER, or 'all': "
+        + ", ".join(FAMILIES)
+        + "); prints a table per family and the family x condition x bend matrix",
+    )
     return p
+
+
+def _plants(plant: str | None, plant_family: str | None) -> list[str | None]:
+    """The plant specs of the run (None: the default twin), each checked here, before any
+    catheter runs (PluginError / ConfigurationError naming the bad one)."""
+    if plant is not None:
+        load_factory(plant)
+        return [plant]
+    if plant_family is None:
+        return [None]
+    names = (
+        list(FAMILIES)
+        if plant_family.strip() == "all"
+        else [n.strip() for n in plant_family.split(",") if n.strip()]
+    )
+    if not names:
+        raise ConfigurationError(f"--plant-family names no family: {plant_family!r}")
+    for name in names:
+        family(name)
+    return list(dict.fromkeys(names))
 
 
 def _fail(text: str) -> int:
@@ -204,7 +252,8 @@ def _fail(text: str) -> int:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """``icenav eval spin [--seed N | --seeds A-B] [--vessel V[,V]] [--json F] [--plots D]``."""
+    """``icenav eval spin [--seed N | --seeds A-B] [--vessel V[,V]] [--plant MODULE:FACTORY |
+    --plant-family NAME|all] [--json F] [--plots D]``."""
     args = _parser().parse_args(list(argv or []))
     try:
         bends = [int(b) for b in args.bends.split(",") if b.strip()]
@@ -235,18 +284,24 @@ def main(argv: Sequence[str] | None = None) -> int:
         return _fail(f"--seed must be >= 0, got {args.seed}")
     if not 1 <= args.jobs <= 64:
         return _fail(f"--jobs must be in [1, 64] processes, got {args.jobs}")
+    try:
+        plants = _plants(args.plant, args.plant_family)
+    except ConfigurationError as exc:
+        return _fail(str(exc))
     t0 = time.perf_counter()
     run_vessels = vessels
     if args.plots is not None and len(vessels) == 1:
         run_vessels = list(vessel_names)  # Fig. 7 needs every vessel; the table keeps one
     print(
-        f"icenav eval spin: {len(seeds)} catheter(s), vessels {', '.join(run_vessels)}"
+        f"icenav eval spin: {len(seeds)} catheter(s)"
+        + ("" if plants == [None] else f" of {', '.join(map(str, plants))}")
+        + f", vessels {', '.join(run_vessels)}"
         + (" (the others for the curvature figure only)" if run_vessels != vessels else "")
         + f", bends {bends} deg, {len(conds)} condition(s), {args.samples} samples per spin"
     )
     try:
         runs = _run_catheters(
-            seeds,
+            [(plant, seed) for plant in plants for seed in seeds],
             args.jobs,
             engine=args.engine,
             address=args.address,
@@ -261,7 +316,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     all_records = [r for run in runs for r in run.records]
     records = [r for r in all_records if r.vessel in vessels]
     print("\nspin RMSE (EM-tracked, the paper's protocol; the paper's Table I in parentheses)")
-    print(format_table(records))
+    for name in dict.fromkeys(r.plant for r in records):
+        if plants != [None]:
+            print(f"\nplant {name}")
+        print(format_table([r for r in records if r.plant == name]))
+    if len(plants) > 1:
+        print("\n" + format_family_matrix(records))
     effect = format_vessel_effect(records)
     if effect:
         print("\n" + effect)
