@@ -44,6 +44,7 @@ MODULES = [
     "icenav.devices.robot",
     "icenav.devices.canopen.robot",
     "icenav.devices.sim_robot",
+    "icenav.compensation.bend_play",
     "icenav.compensation.hysteresis",
     "icenav.io.igtl",
     "icenav.io.igtl_stream",

@@ -576,6 +576,11 @@ def _describe_calibration(seed: int, cal: Calibrations | None) -> list[str]:
         f"{c.twist_play_per_bend:.3f}; knob play per rad of the other knob "
         f"{c.knob_play_per_bend:.3f}"
     )
+    if c.roll_play is not None and c.twist_play is not None:
+        lines.append(
+            f"  against the bend: roll play {c.roll_play.describe()}; twist play "
+            f"{c.twist_play.describe()}"
+        )
     return lines
 
 
