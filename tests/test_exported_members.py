@@ -37,6 +37,7 @@ MODULES = [
     "icenav.eval.recovery_report",
     "icenav.eval.spin",
     "icenav.eval.spin_cli",
+    "icenav.eval.spin_cost",
     "icenav.eval.spin_report",
     "icenav.control.servo",
     "icenav.refinement.gating",

@@ -270,7 +270,7 @@ class HysteresisPlan:
 def hysteresis_plan(
     *,
     amplitude: float = math.radians(60.0),
-    step: float = math.radians(1.5),
+    step: float = math.radians(3.0),
     roll_amplitude: float = math.radians(60.0),
     roll_bend: float = math.radians(50.0),
     more_roll_bends: Sequence[float] = (math.radians(25.0), math.radians(75.0)),

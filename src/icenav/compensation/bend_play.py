@@ -34,7 +34,7 @@ from numpy.typing import ArrayLike
 from icenav._typing import Array
 from icenav.errors import ConfigurationError
 
-__all__ = ["BEND_PLAY_FORMS", "MAX_EXTRA", "BendPlay", "select_bend_play"]
+__all__ = ["BEND_PLAY_FORMS", "BendPlay", "MAX_EXTRA", "select_bend_play"]
 
 BEND_PLAY_FORMS = ("linear", "quadratic", "table")
 """The forms, simplest first (the order that breaks a tie of residuals)."""

@@ -209,6 +209,12 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--study", action="store_true", help="also print the calibration-size / interpolant study"
     )
+    p.add_argument(
+        "--costs",
+        action="store_true",
+        help="print the robot time and moves of each calibration at the controller's speeds "
+        "and exit",
+    )
     plant = p.add_mutually_exclusive_group()
     plant.add_argument(
         "--plant",
@@ -255,6 +261,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     """``icenav eval spin [--seed N | --seeds A-B] [--vessel V[,V]] [--plant MODULE:FACTORY |
     --plant-family NAME|all] [--json F] [--plots D]``."""
     args = _parser().parse_args(list(argv or []))
+    if args.costs:
+        from icenav.eval.spin_cost import calibration_costs, format_costs
+
+        print(format_costs(calibration_costs()))
+        return 0
     try:
         bends = [int(b) for b in args.bends.split(",") if b.strip()]
     except ValueError:
