@@ -114,9 +114,11 @@ class BendPlay:
         return self.at(b) / b
 
     def describe(self) -> str:
-        """One line: the form, and the extra play at the measured bends (deg)."""
+        """One line: the form, and at each measured bend the measured extra play -> the
+        law's (deg)."""
         pts = ", ".join(
-            f"{math.degrees(self.at(b)):.2f} at {math.degrees(b):.0f}" for b in self.bends
+            f"{math.degrees(e):.2f}->{math.degrees(self.at(b)):.2f} at {math.degrees(b):.0f}"
+            for b, e in zip(self.bends, self.extra, strict=True)
         )
         loo = "" if math.isnan(self.loo_rms) else f", LOO {math.degrees(self.loo_rms):.2f} deg"
         return f"{self.form} ({pts} deg{loo})" if pts else f"{self.form} k={self.slope:.3f}"
