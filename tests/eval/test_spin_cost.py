@@ -9,7 +9,7 @@ import pytest
 from icenav.calibration.catheter import catheter_plan
 from icenav.control.config import ControllerConfig
 from icenav.eval import spin_cli
-from icenav.eval.spin_cost import calibration_costs, format_costs
+from icenav.eval.spin_cost import calibration_costs, format_costs, short_calibration_cost
 
 
 def test_the_costs_count_the_procedures_visits_and_time_them_at_the_stated_speeds() -> None:
@@ -30,3 +30,11 @@ def test_the_command_line_prints_them(capsys: pytest.CaptureFixture[str]) -> Non
     assert spin_cli.main(["--costs"]) == 0
     out = capsys.readouterr().out
     assert "five_point" in out and "min" in out
+
+
+def test_the_short_calibration_is_the_5_points_and_at_most_100_moves() -> None:
+    (five,) = calibration_costs(("five_point",))
+    short = short_calibration_cost()
+    assert five.n_readings == 10  # the paper's 5 points, two readings each on the model
+    assert 0 < short.n_moves - five.n_moves <= 100
+    assert five.robot_s < short.robot_s < 0.2 * calibration_costs(("dense+hysteresis",))[0].robot_s

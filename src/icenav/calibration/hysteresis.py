@@ -38,6 +38,7 @@ __all__ = [
     "fit_hysteresis",
     "hysteresis_plan",
     "identify",
+    "short_hysteresis_plan",
     "sweep_path",
 ]
 
@@ -362,6 +363,19 @@ def _bent_roll_play(
         true_bend,
         bent.model.backlash - straight_play,
         frame.model.backlash - bent.model.backlash,
+    )
+
+
+def short_hysteresis_plan() -> HysteresisPlan:
+    """The short calibration's sweeps (78 moves): the roll only, 0 -> +-30 deg in 5 deg
+    steps, straight and with the AP knob at 50 deg (the roll's play and the twist's, as
+    two-point lines; no knob sweeps, no further bends). With the 5-point search (11 moves)
+    it stays within the 5 points plus 100 moves of a short calibration."""
+    return hysteresis_plan(
+        joints=(2,),
+        roll_amplitude=math.radians(30.0),
+        step=math.radians(5.0),
+        more_roll_bends=(),
     )
 
 

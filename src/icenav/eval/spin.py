@@ -55,7 +55,11 @@ from numpy.typing import ArrayLike
 
 from icenav._typing import Array
 from icenav.calibration.catheter import CatheterCalibration
-from icenav.calibration.hysteresis import fit_hysteresis, hysteresis_plan
+from icenav.calibration.hysteresis import (
+    fit_hysteresis,
+    hysteresis_plan,
+    short_hysteresis_plan,
+)
 from icenav.calibration.plans import raster_grid
 from icenav.calibration.procedure import CalibrationOutcome, run_procedure, run_visits
 from icenav.calibration.procedures import make_procedure, plan_visits
@@ -105,7 +109,11 @@ CLOSED_LOOP = "dense+hysteresis+em"
 """The closed-loop condition's name."""
 CONDITIONS = ("none", "dense", "simplified", OURS, KNOB_HYSTERESIS, CLOSED_LOOP)
 """The conditions, in the order of the table (the paper's three, then ours)."""
-ALL_CONDITIONS = CONDITIONS
+SHORT = "short"
+"""The short calibration (not in the default set): the paper's 5-point F and the roll's and
+the twist's play from two short roll sweeps (:func:`short_hysteresis_plan`; 89 moves in all),
+no knob play, no tracker bias."""
+ALL_CONDITIONS = (*CONDITIONS, SHORT)
 """Every condition ``--conditions`` accepts."""
 SETTLE_UPDATES = 10
 """Closed loop: tracker updates at the start pose before the spin starts (1/8 s at 80 Hz)."""
@@ -167,6 +175,8 @@ class Calibrations:
     in the per-joint model's effective knob angles."""
     seconds: float
     """Wall time of the calibration (s)."""
+    short: HysteresisCompensator | None = None
+    """The short calibration's roll and twist plays (with ``simplified``'s F), if run."""
 
     @property
     def catheter(self) -> CatheterCalibration:
@@ -260,15 +270,22 @@ def run_calibration(kind: str, plant: Any, tracker: Any) -> CalibrationOutcome:
     return procedure.fit(run_procedure(procedure, plant.move, tracker))
 
 
-def calibrate(seed: int, plant: PlantSpec = None) -> Calibrations:
+def calibrate(seed: int, plant: PlantSpec = None, *, short: bool = False) -> Calibrations:
     """Calibrate catheter ``seed`` of ``plant`` in the straight vessel with the console's
     procedures: ``dense``, ``five_point`` and ``dense+hysteresis``, one after the other on one
-    robot and tracker (each from rest)."""
+    robot and tracker (each from rest); with ``short`` also the short calibration's roll
+    sweeps (:func:`short_hysteresis_plan`)."""
     t0 = time.perf_counter()
     rig, tracker = make_rig(seed, "straight", plant)
     dense = run_calibration("dense", rig, tracker)
     five = run_calibration("five_point", rig, tracker)
     ours = run_calibration("dense+hysteresis", rig, tracker)
+    short_comp = None
+    if short:
+        rig.reset()
+        splan = short_hysteresis_plan()
+        rec = run_visits(plan_visits(splan.plan), rig.move, tracker)
+        short_comp = fit_hysteresis(splan, rec).compensator
     cat: CatheterCalibration = ours.details
     # the ablation: F on the per-joint model's effective knobs along the raster (from rest)
     comp = cat.hysteresis.compensator
@@ -287,6 +304,7 @@ def calibrate(seed: int, plant: PlantSpec = None) -> Calibrations:
         ours=ours,
         dense_effective=ElasticityMap.build(dense_eff),
         seconds=time.perf_counter() - t0,
+        short=short_comp,
     )
 
 
@@ -354,6 +372,24 @@ def _effective_path(q_model: Array, cal: Calibrations) -> tuple[Array, Array]:
     return eff, bends
 
 
+def _short_commands(q_model: Array, cal: Calibrations) -> Array:
+    """The short calibration's commands (APPROACH_STEPS + n, 4): the twist pre-shaped, the
+    5-point F, the roll's play inverse at the intended bend (knobs without play model)."""
+    comp = cal.short
+    if comp is None:
+        raise InvalidValueError(f"condition {SHORT!r} needs the short calibration")
+    path = _approach_path(q_model)
+    lim = DEFAULT_GEOMETRY.knob_limit
+    model = comp.preshape_model(path)
+    model[:, :2] = np.clip(model[:, :2], -lim, lim)
+    eff = np.asarray(cal.simplified.knob_map.model_to_motor(model, check=False), np.float64)
+    bends = DEFAULT_GEOMETRY.knob_ratio * np.hypot(path[:, 0], path[:, 1])
+    comp.reset(np.zeros(4))
+    cmd = comp.command_path(eff, bends=bends)
+    cmd[:, :2] = np.clip(cmd[:, :2], -lim, lim)
+    return cmd
+
+
 def _fresh_map(cal: Calibrations, condition: str, knob_map: Any = None) -> Any:
     """The knob map of a condition as the controller installs it after the calibration:
     a stateful map relaxed at rest (a new one per spin), F as it is."""
@@ -376,6 +412,8 @@ def _commands(
         return path
     if cal is None:
         raise InvalidValueError(f"condition {condition!r} needs the calibrations")
+    if condition == SHORT:
+        return _short_commands(q_model, cal)
     if condition == KNOB_HYSTERESIS:
         eff, bends = _effective_path(q_model, cal)
         comp = cal.compensator
@@ -601,7 +639,7 @@ def evaluate_catheter(
     A module-level function, so ``--jobs`` can run catheters in processes."""
     t0 = time.perf_counter()
     needs_calibration = any(c != "none" for c in conditions)
-    cal = calibrate(seed, plant) if needs_calibration else None
+    cal = calibrate(seed, plant, short=SHORT in conditions) if needs_calibration else None
     records: list[SpinRecord] = []
     commands: dict[tuple[str, int, str], Array] = {}
     tips: dict[tuple[str, int, str], Array] = {}

@@ -262,9 +262,13 @@ def main(argv: Sequence[str] | None = None) -> int:
     --plant-family NAME|all] [--json F] [--plots D]``."""
     args = _parser().parse_args(list(argv or []))
     if args.costs:
-        from icenav.eval.spin_cost import calibration_costs, format_costs
+        from icenav.eval.spin_cost import (
+            calibration_costs,
+            format_costs,
+            short_calibration_cost,
+        )
 
-        print(format_costs(calibration_costs()))
+        print(format_costs([*calibration_costs(), short_calibration_cost()]))
         return 0
     try:
         bends = [int(b) for b in args.bends.split(",") if b.strip()]

@@ -19,11 +19,20 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from icenav.calibration.procedures import make_procedure
+from icenav.calibration.hysteresis import short_hysteresis_plan
+from icenav.calibration.procedure import CalibrationOutcome, VisitGenerator
+from icenav.calibration.procedures import make_procedure, plan_visits
 from icenav.control.calibration_runner import preview
 from icenav.control.config import ControllerConfig
+from icenav.errors import ConfigurationError
 
-__all__ = ["CALIBRATION_KINDS", "CalibrationCost", "calibration_costs", "format_costs"]
+__all__ = [
+    "CALIBRATION_KINDS",
+    "CalibrationCost",
+    "calibration_costs",
+    "format_costs",
+    "short_calibration_cost",
+]
 
 CALIBRATION_KINDS = ("dense", "five_point", "dense+hysteresis")
 """The calibrations ``eval spin`` runs: the paper's dense and 5-point, and ours."""
@@ -67,6 +76,46 @@ def calibration_costs(
         v = tuple(float(x) * speed_scale for x in cfg.max_velocity)
         out.append(CalibrationCost(kind, p.n_visits, p.n_readings, p.duration_s, v))
     return out
+
+
+@dataclass(frozen=True)
+class _RollSweeps:
+    """The short calibration's roll sweeps as a procedure, for the runner's preview."""
+
+    kind: str = "short roll sweeps"
+    label: str = "short calibration: roll sweeps"
+
+    def visits(self) -> VisitGenerator:
+        return plan_visits(short_hysteresis_plan().plan)
+
+    def fit(self, recording: object) -> CalibrationOutcome:
+        raise ConfigurationError(  # pragma: no cover - only previewed
+            "the short roll sweeps are fitted by icenav.eval.spin.calibrate(short=True)"
+        )
+
+
+def short_calibration_cost(config: ControllerConfig | None = None) -> CalibrationCost:
+    """The short calibration (``eval spin`` condition ``short``): the 5-point search and the
+    short roll sweeps (:func:`icenav.calibration.hysteresis.short_hysteresis_plan`), each
+    from rest, added up."""
+    cfg = ControllerConfig() if config is None else config
+    (five,) = calibration_costs(("five_point",), cfg)
+    p = preview(
+        _RollSweeps(),
+        np.zeros(4),
+        np.asarray(cfg.max_velocity),
+        settle_s=cfg.plan_settle_s,
+        ramp_s=cfg.calibration_ramp_s,
+        dt=cfg.dt,
+        geometry=cfg.geometry,
+    )
+    return CalibrationCost(
+        "short",
+        five.n_moves + p.n_visits,
+        five.n_readings + p.n_readings,
+        five.robot_s + p.duration_s,
+        five.max_velocity,
+    )
 
 
 def format_costs(costs: Sequence[CalibrationCost]) -> str:

@@ -55,6 +55,7 @@ _CONDITION_ORDER = (
     "dense+hysteresis",
     "dense+knob-hysteresis",
     "dense+hysteresis+em",
+    "short",
 )
 
 
