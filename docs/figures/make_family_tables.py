@@ -1,6 +1,6 @@
 """Markdown tables of docs/results.md (plant families) from the records of ``icenav eval spin``.
 
-The held-out records are made by ONE run (methods frozen at commit b41cbd4; about 70 minutes
+The held-out records are made by ONE run (methods frozen at commit b41cbd4; 32 minutes
 on a busy 2-core machine):
 
     nice icenav eval spin --plant-family all --seeds 300-304 --jobs 2 \\
