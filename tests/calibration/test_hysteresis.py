@@ -110,3 +110,31 @@ def test_the_sweeps_identify_the_synthetic_catheters_plays() -> None:
     assert m1.dead_zone == pytest.approx(2 * DEG, abs=0.3 * DEG)
     assert m3.backlash == pytest.approx(1.5 * DEG, abs=0.3 * DEG)
     assert m3.dead_zone == 0.0
+
+
+def test_the_roll_play_law_is_measured_on_a_plant_of_another_form() -> None:
+    """Data from the nonlinear-play family (roll play growing with bend x tension, about the
+    bend squared, not our model's form): the law chosen by held-out residual predicts the
+    plant's own play at bends between and beyond the sweeps, where the two-point line of
+    the straight and the 50 deg sweep misses it."""
+    from icenav.compensation.bend_play import BendPlay
+    from icenav.sim.families import NonlinearPlayPlant
+    from icenav.sim.tracker import EMTracker
+
+    plant = NonlinearPlayPlant(seed=210)
+    hplan = hysteresis_plan(joints=(2,))
+    plant.reset()
+    comp = fit_hysteresis(
+        hplan, run_visits(plan_visits(hplan.plan), plant.move, EMTracker(plant, seed=210))
+    ).compensator
+    assert comp.roll_play is not None and comp.roll_play.form != "linear"
+    line = BendPlay.linear(comp.roll_play_per_bend)
+    plant.reset()
+    straight = plant.roll_play()
+    for knob in (40.0, 60.0):
+        pose = plant.move([math.radians(knob), 0.0, 0.0, 0.0])
+        bend = math.acos(float(pose[2, 2]))
+        truth = plant.roll_play() - straight
+        err = abs(comp.roll_play.at(bend) - truth)
+        assert err < math.radians(1.0)
+        assert err < 0.5 * abs(line.at(bend) - truth)

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-from icenav.eval import spin
+from icenav.eval import spin, spin_cli
 from icenav.eval.spin_report import format_table
 
 KEYS = {
@@ -31,7 +31,7 @@ def cal52() -> spin.Calibrations:
 @pytest.fixture(scope="module")
 def records(tmp_path_factory: pytest.TempPathFactory) -> list[dict[str, object]]:
     out = tmp_path_factory.mktemp("spin") / "spin.json"
-    code = spin.main(["--seed", "101", "--samples", "72", "--bends", "40", "--json", str(out)])
+    code = spin_cli.main(["--seed", "101", "--samples", "72", "--bends", "40", "--json", str(out)])
     assert code == 0
     data = json.loads(out.read_text())
     assert isinstance(data, list)
@@ -113,11 +113,11 @@ def test_closed_loop_spin_returns_poses_and_bounded_commands(cal52: spin.Calibra
     from icenav.geometry.trajectories import spin_trajectory
 
     cal = cal52
-    plant, tracker = spin._make_plant(52, "moderate")
+    rig, tracker = spin.make_rig(52, "moderate")
     sp = spin_trajectory([math.radians(40.0), 0.0, 0.0, 0.0], 24, include_end=True)
     limit = (0.05, 0.05, 0.05, 1.0)
     servo = TipPoseServo(PoseServoConfig(max_correction=limit))
-    true, em, cmd = spin.run_spin_closed_loop(plant, tracker, sp.q_model, cal, servo)
+    true, em, cmd = spin.run_spin_closed_loop(rig, tracker, sp.q_model, cal, servo)
     n = sp.q_model.shape[0]
     assert true.shape == em.shape == (n, 4, 4) and cmd.shape == (n, 4)
     assert servo.n_updates + servo.n_missing == spin.SETTLE_UPDATES + n
@@ -148,15 +148,15 @@ def test_table_prints_the_papers_numbers(records: list[dict[str, object]]) -> No
 def test_bad_options_are_refused_with_the_value_and_the_range(
     argv: list[str], message: str, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    assert spin.main(argv) == 2
+    assert spin_cli.main(argv) == 2
     assert message in capsys.readouterr().err
 
 
 def test_seed_lists_and_ranges() -> None:
-    assert spin.parse_seeds("110") == [110]
-    assert spin.parse_seeds("112, 110-111,111") == [110, 111, 112]
+    assert spin_cli.parse_seeds("110") == [110]
+    assert spin_cli.parse_seeds("112, 110-111,111") == [110, 111, 112]
     with pytest.raises(ValueError, match="no seed"):
-        spin.parse_seeds(" , ")
+        spin_cli.parse_seeds(" , ")
 
 
 def test_many_catheters_in_processes_give_the_same_records_as_one_by_one(
@@ -165,10 +165,10 @@ def test_many_catheters_in_processes_give_the_same_records_as_one_by_one(
     common = ["--seeds", "110-111", "--vessel", "straight,steep", "--conditions", "none"]
     common += ["--samples", "24", "--bends", "40"]
     a, b = tmp_path / "a.json", tmp_path / "b.json"
-    assert spin.main([*common, "--jobs", "2", "--json", str(a), "--plots", str(tmp_path)]) == 0
+    assert spin_cli.main([*common, "--jobs", "2", "--json", str(a), "--plots", str(tmp_path)]) == 0
     out = capsys.readouterr().out
     assert "2/2 catheters" in out and "what the curved vessel adds" in out
-    assert spin.main([*common, "--json", str(b)]) == 0
+    assert spin_cli.main([*common, "--json", str(b)]) == 0
     ra, rb = json.loads(a.read_text()), json.loads(b.read_text())
     assert ra == rb and len(ra) == 4
     assert {(r["seed"], r["vessel"]) for r in ra} == {
@@ -214,7 +214,8 @@ def test_plots_of_one_vessel_run_the_others_for_the_curvature_figure(
     out = tmp_path / "one.json"
     argv = ["--seed", "110", "--conditions", "none", "--samples", "24", "--bends", "40"]
     assert (
-        spin.main([*argv, "--vessel", "steep", "--json", str(out), "--plots", str(tmp_path)]) == 0
+        spin_cli.main([*argv, "--vessel", "steep", "--json", str(out), "--plots", str(tmp_path)])
+        == 0
     )
     assert "the others for the curvature figure only" in capsys.readouterr().out
     records = json.loads(out.read_text())

@@ -25,6 +25,7 @@ from scipy.optimize import least_squares
 from icenav._typing import Array
 from icenav._validation import check_finite
 from icenav.calibration.plans import MotionPlan, Recording, _check_counts
+from icenav.compensation.bend_play import BendPlay, select_bend_play
 from icenav.compensation.hysteresis import HysteresisCompensator, JointHysteresis, _play
 from icenav.errors import ConfigurationError
 from icenav.geometry.kinematics import DEFAULT_GEOMETRY, CatheterGeometry
@@ -37,6 +38,7 @@ __all__ = [
     "fit_hysteresis",
     "hysteresis_plan",
     "identify",
+    "short_hysteresis_plan",
     "sweep_path",
 ]
 
@@ -260,23 +262,36 @@ class HysteresisPlan:
     """Joints swept (0, 1, 2: phi1, phi2, phi3)."""
     bend: float
     """Knob angle of the bent sweeps (rad; 0: none)."""
+    more_bends: tuple[float, ...] = ()
+    """Further AP knob angles (rad) of roll sweeps (segments ``sweep phi3, phi1 bent N``
+    and ``bend check N``, N in deg), for the roll's and the twist's play against the bend
+    (:func:`icenav.compensation.bend_play.select_bend_play`)."""
 
 
 def hysteresis_plan(
     *,
     amplitude: float = math.radians(60.0),
-    step: float = math.radians(1.5),
+    step: float = math.radians(3.0),
     roll_amplitude: float = math.radians(60.0),
     roll_bend: float = math.radians(50.0),
+    more_roll_bends: Sequence[float] = (math.radians(25.0), math.radians(75.0)),
     joints: Sequence[int] = (0, 1, 2),
     retries: int = 10,
 ) -> HysteresisPlan:
     """The sweeps: each joint of ``joints`` 0 -> +A -> -A -> +A -> 0 with the others at 0,
     one tracker sample per step; phi1 again with phi2 at ``roll_bend``, phi3 again with phi1
-    at ``roll_bend`` and then a 5-sample reading of the bend there (0: no bent sweeps). The
-    robot starts and ends at zeros (unread moves)."""
+    at ``roll_bend`` and then a 5-sample reading of the bend there (0: no bent sweeps), and
+    likewise phi3 at each of ``more_roll_bends`` (rad, AP knob; the play against the bend
+    is measured at every bent sweep). The robot starts and ends at zeros (unread moves)."""
     _check_counts(retries, 1)
     js = tuple(int(j) for j in joints)
+    more = tuple(float(b) for b in more_roll_bends) if roll_bend > 0.0 else ()
+    for b in more:
+        if not (0.0 < b <= DEFAULT_GEOMETRY.knob_limit) or b == roll_bend:
+            raise ConfigurationError(
+                f"more_roll_bends must be in (0, {math.degrees(DEFAULT_GEOMETRY.knob_limit):.0f}]"
+                f" deg and differ from roll_bend, got {math.degrees(b):.1f} deg"
+            )
     for j in js:
         if j not in (0, 1, 2):
             raise ConfigurationError(f"joints must be among 0, 1, 2 (phi1..phi3), got {j}")
@@ -306,6 +321,16 @@ def hysteresis_plan(
                 swept(path, 2, base, "sweep phi3, phi1 bent"),
                 MotionPlan.make(base[None, :], "bend check", n_average=5, retries=retries),
             ]
+            for b in more:
+                base = np.array([b, 0.0, 0.0, 0.0])
+                tag = f"{math.degrees(b):.0f}"
+                parts += [
+                    unread(base, "to zero"),
+                    swept(path, 2, base, f"sweep phi3, phi1 bent {tag}"),
+                    MotionPlan.make(
+                        base[None, :], f"bend check {tag}", n_average=5, retries=retries
+                    ),
+                ]
     parts.append(unread(zero, "to zero"))
     return HysteresisPlan(
         plan=MotionPlan.concat(parts),
@@ -313,6 +338,44 @@ def hysteresis_plan(
         roll_sweep=roll_sweep,
         joints=js,
         bend=float(roll_bend),
+        more_bends=more,
+    )
+
+
+def _bent_roll_play(
+    observed: Any, recording: Recording, straight_play: float, knob: float, tag: str
+) -> tuple[float, float, float]:
+    """One bent roll sweep (segment ``sweep phi3, phi1 bent{tag}``): the true bend there
+    (rad, from the 5-sample ``bend check{tag}``; the AP knob angle ``knob`` when it was not
+    tracked), the roll play's extra half-width over the straight ``straight_play`` and the
+    twist play's half-width (the image frame's extra lag over the section's) (rad)."""
+    x, y, y_frame = observed(f"sweep phi3, phi1 bent{tag}", 2)
+    wide = math.radians(30.0)
+    bent = identify(x, y, cubic=False, with_dead_zone=False, max_slope=0.0, max_width=wide)
+    frame = identify(x, y_frame, cubic=False, with_dead_zone=False, max_slope=0.0, max_width=wide)
+    _, check = recording.part(f"bend check{tag}")
+    pose = check[0]
+    true_bend = (
+        knob if not np.all(np.isfinite(pose)) else math.acos(max(-1.0, min(1.0, float(pose[2, 2]))))
+    )
+    true_bend = max(true_bend, math.radians(1.0))
+    return (
+        true_bend,
+        bent.model.backlash - straight_play,
+        frame.model.backlash - bent.model.backlash,
+    )
+
+
+def short_hysteresis_plan() -> HysteresisPlan:
+    """The short calibration's sweeps (78 moves): the roll only, 0 -> +-30 deg in 5 deg
+    steps, straight and with the AP knob at 50 deg (the roll's play and the twist's, as
+    two-point lines; no knob sweeps, no further bends). With the 5-point search (11 moves)
+    it stays within the 5 points plus 100 moves of a short calibration."""
+    return hysteresis_plan(
+        joints=(2,),
+        roll_amplitude=math.radians(30.0),
+        step=math.radians(5.0),
+        more_roll_bends=(),
     )
 
 
@@ -328,7 +391,10 @@ def fit_hysteresis(
     dead-zone). The roll's second sweep with the AP knob bent gives ``roll_play_per_bend``
     (the growth of its play per rad of tracked bend) and, from the extra lag of the image
     frame over the base, ``twist_play_per_bend``; the AP knob's second sweep with the RL knob
-    bent gives ``knob_play_per_bend``."""
+    bent gives ``knob_play_per_bend``. With ``hplan.more_bends``, the roll's and the twist's
+    play are measured at every bent sweep and their law against the bend is chosen by
+    held-out residual (:func:`icenav.compensation.bend_play.select_bend_play`: linear,
+    quadratic or a table); ``*_per_bend`` keep the slope of the ``roll_bend`` sweep."""
     if recording.plan is not hplan.plan and recording.plan.segments != hplan.plan.segments:
         raise ConfigurationError("the recording is not of this hysteresis plan")
     models: list[Any] = [None, None, None, None]
@@ -336,7 +402,10 @@ def fit_hysteresis(
     per_bend = 0.0
     knob_per_bend = 0.0
     twist_per_bend = 0.0
+    roll_play: BendPlay | None = None
+    twist_play: BendPlay | None = None
     bend = hplan.bend
+    more = hplan.more_bends
 
     def observed(phase: str, joint: int) -> tuple[Array, Array, Array]:
         q, poses = recording.part(phase)
@@ -361,31 +430,25 @@ def fit_hysteresis(
             w_straight = fit.model.backlash + fit.model.backlash_slope * mean_abs
             knob_per_bend = min(max(0.0, (w_bent - w_straight) / bend), 0.5)
         if roll and bend > 0.0:
-            x, y, y_frame = observed("sweep phi3, phi1 bent", 2)
-            wide = math.radians(30.0)
-            bent = identify(x, y, cubic=False, with_dead_zone=False, max_slope=0.0, max_width=wide)
-            frame = identify(
-                x, y_frame, cubic=False, with_dead_zone=False, max_slope=0.0, max_width=wide
-            )
-            # the true bend during that sweep, from the tracked poses
-            _, check = recording.part("bend check")
-            pose = check[0]
-            true_bend = (
-                bend
-                if not np.all(np.isfinite(pose))
-                else math.acos(max(-1.0, min(1.0, float(pose[2, 2]))))
-            )
-            per_bend = min(max(0.0, (bent.model.backlash - fit.model.backlash) / true_bend), 0.5)
-            # the image frame lags further than the base: the distal twist play
-            twist_per_bend = min(
-                max(0.0, (frame.model.backlash - bent.model.backlash) / true_bend), 0.5
-            )
+            points = [
+                _bent_roll_play(observed, recording, fit.model.backlash, knob, tag)
+                for knob, tag in [(bend, ""), *((b, f" {math.degrees(b):.0f}") for b in more)]
+            ]
+            true_bend, extra, twist = points[0]
+            per_bend = min(max(0.0, extra / true_bend), 0.5)
+            twist_per_bend = min(max(0.0, twist / true_bend), 0.5)
+            if more:
+                b_all = [p[0] for p in points]
+                roll_play = select_bend_play(b_all, [p[1] for p in points])
+                twist_play = select_bend_play(b_all, [p[2] for p in points])
     return HysteresisIdentification(
         compensator=HysteresisCompensator(
             models,
             roll_play_per_bend=per_bend,
             knob_play_per_bend=knob_per_bend,
             twist_play_per_bend=twist_per_bend,
+            roll_play=roll_play,
+            twist_play=twist_play,
         ),
         fits=tuple(fits),
         n_moves=hplan.plan.n,

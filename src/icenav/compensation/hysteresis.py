@@ -41,6 +41,7 @@ from numpy.typing import ArrayLike
 
 from icenav._typing import Array
 from icenav._validation import check_finite
+from icenav.compensation.bend_play import BendPlay
 from icenav.errors import ConfigurationError
 
 __all__ = [
@@ -157,6 +158,9 @@ class HysteresisCompensator:
         knob_play_per_bend: float = 0.0,
         twist_play_per_bend: float = 0.0,
         reversal_threshold: float = 0.0,
+        *,
+        roll_play: BendPlay | None = None,
+        twist_play: BendPlay | None = None,
     ) -> None:
         if len(joints) != 4:
             raise ConfigurationError(f"joints must have 4 entries (phi1..d4), got {len(joints)}")
@@ -192,6 +196,11 @@ class HysteresisCompensator:
         self.twist_play_per_bend = float(twist_play_per_bend)
         """Distal twist play per rad of bend (rad/rad): the image frame lags the roll about
         its own axis without moving the tip; see :meth:`preshape_model`."""
+        self.roll_play = roll_play
+        """The roll's extra play against the bend (:class:`BendPlay`, measured at several
+        bends); None: ``roll_play_per_bend * bend``."""
+        self.twist_play = twist_play
+        """The twist play against the bend; None: ``twist_play_per_bend * bend``."""
         self._p = [0.0, 0.0, 0.0, 0.0]
         self._dir = [0.0, 0.0, 0.0, 0.0]
         self._ext = [0.0, 0.0, 0.0, 0.0]
@@ -219,7 +228,21 @@ class HysteresisCompensator:
             knob_play_per_bend=self.knob_play_per_bend,
             twist_play_per_bend=self.twist_play_per_bend,
             reversal_threshold=delta,
+            roll_play=self.roll_play,
+            twist_play=self.twist_play,
         )
+
+    def roll_extra(self, bend: ArrayLike) -> Array:
+        """Extra half-width of the roll's play (rad) at ``bend`` (rad, any shape)."""
+        if self.roll_play is not None:
+            return self.roll_play(bend)
+        return self.roll_play_per_bend * np.abs(np.asarray(bend, dtype=np.float64))
+
+    def twist_extra(self, bend: ArrayLike) -> Array:
+        """Half-width of the distal twist play (rad) at ``bend`` (rad, any shape)."""
+        if self.twist_play is not None:
+            return self.twist_play(bend)
+        return self.twist_play_per_bend * np.abs(np.asarray(bend, dtype=np.float64))
 
     @property
     def direction(self) -> Array:
@@ -243,7 +266,7 @@ class HysteresisCompensator:
             self._p[j] = p
             if j == 2:
                 b = math.hypot(z[0], z[1]) if bend is None else float(bend)
-                extra = self.roll_play_per_bend * b
+                extra = float(self.roll_extra(b))
             elif j < 2:
                 extra = self.knob_play_per_bend * abs(float(z[1 - j]))
             else:
@@ -288,7 +311,7 @@ class HysteresisCompensator:
         if path.ndim != 2 or path.shape[1] != 4:
             raise ConfigurationError(f"q_model_path must have shape (n, 4), got {path.shape}")
         out = path.copy()
-        if self.twist_play_per_bend == 0.0:
+        if self.twist_play is None and self.twist_play_per_bend == 0.0:
             return out
         direction = 0.0
         for i in range(path.shape[0]):
@@ -299,7 +322,7 @@ class HysteresisCompensator:
                 elif d3 < -1e-12:
                     direction = -1.0
             a, b = float(path[i, 0]), float(path[i, 1])
-            delta = direction * self.twist_play_per_bend * math.hypot(a, b)
+            delta = direction * float(self.twist_extra(math.hypot(a, b)))
             c, s_ = math.cos(delta), math.sin(delta)
             out[i, 0] = c * a + s_ * b  # bending plane turned by -delta
             out[i, 1] = -s_ * a + c * b
@@ -335,7 +358,7 @@ class HysteresisCompensator:
                 out[:, j] = m.simulate(path[:, j], p0=float(start[j]))
         m = self.joints[2]
         if m is not None:
-            extra = self.roll_play_per_bend * np.hypot(out[:, 0], out[:, 1])
+            extra = self.roll_extra(np.hypot(out[:, 0], out[:, 1]))
             out[:, 2] = m.simulate(path[:, 2], p0=float(start[2]), extra_width=extra)
         return out
 

@@ -56,8 +56,9 @@ class TendonKnobMap:
         procedure) or
         :func:`~icenav.compensation.transmission.build_transmission`, with the roll's per-joint
         model
-        (``calibration.compensator.roll``: its play, ``roll_play_per_bend`` and
-        ``twist_play_per_bend``); without one the roll passes through.
+        (``calibration.compensator.roll``: its play, and the roll's and the twist's play
+        against the bend, :meth:`~icenav.compensation.hysteresis.HysteresisCompensator.roll_extra`
+        and ``twist_extra``); without one the roll passes through.
     q_motor : array-like, shape (4,)
         Motor joint state the catheter rests at now (rad, rad, rad, mm): the state is a
         relaxed transmission there.
@@ -90,8 +91,7 @@ class TendonKnobMap:
         )
         roll = old.roll
         self._roll: JointHysteresis | None = None if roll is None else roll.joints[2]
-        self._roll_per_bend = 0.0 if roll is None else roll.roll_play_per_bend
-        self._twist_per_bend = 0.0 if roll is None else roll.twist_play_per_bend
+        self._plays = roll  # the roll's and the twist's play against the bend
         self._x3 = 0.0  # last motor roll (rad)
         self._p3 = 0.0  # the roll's play output: the section's roll (rad)
         self._i = 0.0  # the image frame's roll after the distal twist play (rad)
@@ -119,10 +119,16 @@ class TendonKnobMap:
             return
         bend = self._model_bend()
         m = self._roll
-        w = m.backlash + m.backlash_slope * abs(x3) + self._roll_per_bend * bend
+        w = m.backlash + m.backlash_slope * abs(x3) + self._roll_extra(bend)
         self._p3 = min(max(self._p3, x3 - w), x3 + w)
-        h = self._twist_per_bend * bend
+        h = self._twist_extra(bend)
         self._i = min(max(self._i, self._p3 - h), self._p3 + h)
+
+    def _roll_extra(self, bend: float) -> float:
+        return 0.0 if self._plays is None else float(self._plays.roll_extra(bend))
+
+    def _twist_extra(self, bend: float) -> float:
+        return 0.0 if self._plays is None else float(self._plays.twist_extra(bend))
 
     def _model_bend(self) -> float:
         """Model bend (rad) of the present effective knobs."""
@@ -159,7 +165,7 @@ class TendonKnobMap:
         else:
             # the image must move: the section leads it by the twist play (it pushes at the
             # play's edge); else the twist stays as it is
-            h = self._twist_per_bend * self.geometry.knob_ratio * math.hypot(a, b)
+            h = self._twist_extra(self.geometry.knob_ratio * math.hypot(a, b))
             t = (
                 -h
                 if phi3 > self._i + 1e-12
@@ -175,7 +181,7 @@ class TendonKnobMap:
         if self._roll is not None:
             m = self._roll
             p = float(m.dead_zone_inverse(float(eff[2])))
-            extra = self._roll_per_bend * self.geometry.knob_ratio * math.hypot(a, b)
+            extra = self._roll_extra(self.geometry.knob_ratio * math.hypot(a, b))
             if p > self._p3 + 1e-12:
                 out[2] = m.play_inverse(p, 1.0, extra)
             elif p < self._p3 - 1e-12:

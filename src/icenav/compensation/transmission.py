@@ -327,6 +327,8 @@ class TendonCompensator:
                 roll_play_per_bend=roll.roll_play_per_bend,
                 twist_play_per_bend=roll.twist_play_per_bend,
                 reversal_threshold=roll.reversal_threshold,
+                roll_play=roll.roll_play,
+                twist_play=roll.twist_play,
             )
         )
         """Per-joint compensator for phi3 and d4 (knobs pass through), or None."""

@@ -13,7 +13,7 @@ __all__ = ["EVALUATIONS", "main"]
 
 EVALUATIONS: dict[str, tuple[str, str]] = {
     "spin": (
-        "icenav.eval.spin",
+        "icenav.eval.spin_cli",
         "image spinning with elasticity/hysteresis compensation (Table I, Figs. 5 and 7)",
     ),
     "recovery": (

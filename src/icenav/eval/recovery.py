@@ -97,6 +97,9 @@ class RecoveryConfig:
     """Vessel of the shaft: straight, moderate or steep."""
     condition: str = "none"
     """Disturbances: none (today's twin), phantom or in-vivo."""
+    plant: str | None = None
+    """Plant plug-in ``MODULE:FACTORY`` or family name (:func:`icenav.sim.plugins.make_plant`;
+    the factory must take ``clock=``); None: today's twin."""
     patient: int = 0
     """Patient seed (anatomy, rhythm, breathing) under a condition."""
     disable: tuple[str, ...] = ()
@@ -394,6 +397,10 @@ def _parser() -> argparse.ArgumentParser:
         "--disable", action="append", default=[], choices=DISTURBANCES,
         help="switch a disturbance of the condition off (repeatable)",
     )  # fmt: skip
+    p.add_argument(
+        "--plant", metavar="MODULE:FACTORY",
+        help="plant plug-in (or family name) whose factory takes clock= (docs/digital-twin.md)",
+    )  # fmt: skip
     p.add_argument("--rounds", type=int, default=16, help="returns per target and mode")
     p.add_argument("--json", type=Path, help="write the records (a JSON list) to this file")
     p.add_argument("--plots", type=Path, help="write recovery_*.png here (first run)")
@@ -424,6 +431,7 @@ def config_from_args(args: argparse.Namespace, seed: int | None = None,
         condition=args.condition,
         patient=args.patient[0] if patient is None else patient,
         disable=tuple(args.disable),
+        plant=args.plant,
     )
     if args.quick:
         cfg = replace(

@@ -21,6 +21,7 @@ from icenav.sim.conditions import Twin, build_twin, condition
 from icenav.sim.disturbed import mean_pose
 from icenav.sim.operator import ScriptedOperator
 from icenav.sim.plant import CatheterPlant
+from icenav.sim.plugins import make_plant
 from icenav.sim.tracker import EMTracker
 from icenav.sim.ultrasound import ProbeConfig, UltrasoundRenderer
 
@@ -80,9 +81,14 @@ class Bench:
             image_size=cfg.image_size, n_beams=cfg.n_beams, n_samples=cfg.n_samples, seed=cfg.seed
         )
         self.twin: Twin | None = None
+        made: tuple[Any, Any] = (None, None)
+        if getattr(cfg, "plant", None) is not None:
+            made = make_plant(cfg.plant, cfg.seed, cfg.vessel, clock=self.clock.now)
         if cfg.condition == "none":
-            self.plant: Any = CatheterPlant(seed=cfg.seed, vessel=cfg.vessel)
-            self.tracker: Any = EMTracker(self.plant, seed=cfg.seed, clock=self.clock.now)
+            self.plant: Any = made[0] or CatheterPlant(seed=cfg.seed, vessel=cfg.vessel)
+            self.tracker: Any = made[1] or EMTracker(
+                self.plant, seed=cfg.seed, clock=self.clock.now
+            )
             self.renderer = UltrasoundRenderer(default_phantom(), probe)
             self.imager: SimulatedBeatImager = SimulatedBeatImager(
                 self.plant, self.renderer, self.clock.now, cfg.frames_per_beat
@@ -95,7 +101,8 @@ class Bench:
             self.views: dict[str, tuple[float, float, float, float]] = dict(EXAMPLE_VIEWS)
         else:
             cond = condition(cfg.condition).without(*cfg.disable)
-            twin = build_twin(cond, cfg.seed, cfg.patient, self.clock.now, vessel=cfg.vessel)
+            twin = build_twin(cond, cfg.seed, cfg.patient, self.clock.now, vessel=cfg.vessel,
+                              plant=made[0], tracker=made[1])  # fmt: skip
             self.twin = twin
             self.plant = twin.plant
             self.tracker = twin.tracker

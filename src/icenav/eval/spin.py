@@ -38,26 +38,28 @@ Errors: position RMSE = RMS distance between the measured tip and the intended t
 model tip at the start; the model keeps it fixed); rotation RMSE = RMS angle of the rotation
 between the intended orientation ``forward(q_model(t))`` (which includes the intended roll of
 the image plane) and the measured one. Missing tracker samples are left out of the EM
-errors (their count is reported). The tables and plots are :mod:`icenav.eval.spin_report`.
+errors (their count is reported). The tables and plots are :mod:`icenav.eval.spin_report`,
+the command line (options, many catheters, printing) :mod:`icenav.eval.spin_cli`.
 """
 
 from __future__ import annotations
 
-import argparse
-import json
 import math
-import sys
 import time
-from collections.abc import Sequence
-from dataclasses import asdict, dataclass
-from pathlib import Path
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from icenav._typing import Array
 from icenav.calibration.catheter import CatheterCalibration
-from icenav.calibration.hysteresis import fit_hysteresis, hysteresis_plan
+from icenav.calibration.hysteresis import (
+    fit_hysteresis,
+    hysteresis_plan,
+    short_hysteresis_plan,
+)
 from icenav.calibration.plans import raster_grid
 from icenav.calibration.procedure import CalibrationOutcome, run_procedure, run_visits
 from icenav.calibration.procedures import make_procedure, plan_visits
@@ -72,15 +74,9 @@ from icenav.compensation.hysteresis import HysteresisCompensator
 from icenav.compensation.tendon_map import TendonKnobMap
 from icenav.compensation.tracker_bias import TrackerBias
 from icenav.control.servo import TipPoseServo
-from icenav.errors import ConfigurationError, InvalidValueError, JobError
-from icenav.eval.spin_report import (
-    BENDS_DEG,
-    format_table,
-    format_vessel_effect,
-    plot_commands,
-    plot_curvature,
-    plot_tip,
-)
+from icenav.devices.sim_robot import SimulatedRobot
+from icenav.errors import InvalidValueError
+from icenav.eval.spin_report import BENDS_DEG
 from icenav.geometry.kinematics import DEFAULT_GEOMETRY, forward
 from icenav.geometry.se3 import rotation_angle
 from icenav.geometry.trajectories import savgol_smooth, spin_trajectory
@@ -90,13 +86,15 @@ __all__ = [
     "CONDITIONS",
     "Calibrations",
     "CatheterRun",
+    "PlantSpec",
+    "Rig",
     "SpinRecord",
     "calibrate",
     "evaluate_catheter",
     "identify_in_situ",
     "knob_map_commands",
-    "main",
-    "parse_seeds",
+    "make_rig",
+    "plant_name",
     "run_calibration",
     "run_spin",
     "run_spin_closed_loop",
@@ -111,7 +109,11 @@ CLOSED_LOOP = "dense+hysteresis+em"
 """The closed-loop condition's name."""
 CONDITIONS = ("none", "dense", "simplified", OURS, KNOB_HYSTERESIS, CLOSED_LOOP)
 """The conditions, in the order of the table (the paper's three, then ours)."""
-ALL_CONDITIONS = CONDITIONS
+SHORT = "short"
+"""The short calibration (not in the default set): the paper's 5-point F and the roll's and
+the twist's play from two short roll sweeps (:func:`short_hysteresis_plan`; 89 moves in all),
+no knob play, no tracker bias."""
+ALL_CONDITIONS = (*CONDITIONS, SHORT)
 """Every condition ``--conditions`` accepts."""
 SETTLE_UPDATES = 10
 """Closed loop: tracker updates at the start pose before the spin starts (1/8 s at 80 Hz)."""
@@ -151,6 +153,8 @@ class SpinRecord:
     in_situ: bool = False
     """True: this condition's plays were re-identified in the (curved) test vessel before
     the spin (``--in-situ``, ``dense+hysteresis`` only); False: as calibrated straight."""
+    plant: str = "default"
+    """The plant the catheter is (:func:`plant_name`: ``default``, a family, a plug-in)."""
 
 
 @dataclass(frozen=True, eq=False)
@@ -171,6 +175,8 @@ class Calibrations:
     in the per-joint model's effective knob angles."""
     seconds: float
     """Wall time of the calibration (s)."""
+    short: HysteresisCompensator | None = None
+    """The short calibration's roll and twist plays (with ``simplified``'s F), if run."""
 
     @property
     def catheter(self) -> CatheterCalibration:
@@ -201,12 +207,58 @@ class Calibrations:
         return cs
 
 
-def _make_plant(seed: int, vessel: str) -> tuple[Any, Any]:
-    from icenav.sim import CatheterPlant, EMTracker
+PlantSpec = str | Callable[..., tuple[Any, Any]] | None
+"""Which plant the evaluation runs on: None (the default twin), a family name
+(:func:`icenav.sim.families.family`, e.g. ``"rate-dependent"``), a plug-in spec
+``MODULE:FACTORY`` (:func:`icenav.sim.plugins.load_factory`) or a factory itself
+(picklable, for ``--jobs``)."""
 
-    plant = CatheterPlant(seed=seed, vessel=vessel)
-    tracker = EMTracker(plant, seed=seed)
-    return plant, tracker
+
+def plant_name(plant: PlantSpec) -> str:
+    """The name a plant spec is reported under: ``default``, the family name, the plug-in
+    spec, or the factory's ``name`` / qualified name."""
+    if plant is None:
+        return "default"
+    if isinstance(plant, str):
+        return plant
+    return str(getattr(plant, "name", None) or getattr(plant, "__qualname__", repr(plant)))
+
+
+class Rig:
+    """A catheter on the simulated robot backend, and its tracker: what the evaluation drives.
+
+    The plant (any plant of the plug-in protocol, :mod:`icenav.sim.plugins`) is wrapped in
+    :class:`icenav.devices.sim_robot.SimulatedRobot`, so the calibrations and spins command
+    it as the product commands a robot (``command_position``, joint limits checked;
+    ``home`` relaxes it at zero) and read only the robot's reported tip pose and the
+    tracker; nothing reads the plant's parameters.
+    """
+
+    def __init__(self, plant: Any, tracker: Any) -> None:
+        self.robot = SimulatedRobot(plant)
+        self.robot.record_commands = False
+        self.robot.enable()
+        self.tracker = tracker
+
+    def move(self, q_motor: ArrayLike) -> Array:
+        """Command the motor joint state (4,) (rad, rad, rad, mm); the true tip2base (4, 4)
+        the catheter settles at (mm)."""
+        self.robot.command_position(q_motor)
+        return self.robot.tip2base
+
+    def reset(self) -> None:
+        """Home the robot: the catheter relaxed at q = 0."""
+        self.robot.home()
+
+
+def make_rig(seed: int, vessel: str, plant: PlantSpec = None) -> tuple[Rig, Any]:
+    """Catheter ``seed`` of ``plant`` (:data:`PlantSpec`) in ``vessel`` on the simulated robot,
+    and its tracker; the plant and tracker are checked against the plug-in protocol
+    (:func:`icenav.sim.plugins.make_plant`; PluginError naming what is missing)."""
+    from icenav.sim.plugins import make_plant
+
+    made, tracker = make_plant("default" if plant is None else plant, seed, vessel)
+    return Rig(made, tracker), tracker
 
 
 def run_calibration(kind: str, plant: Any, tracker: Any) -> CalibrationOutcome:
@@ -218,20 +270,31 @@ def run_calibration(kind: str, plant: Any, tracker: Any) -> CalibrationOutcome:
     return procedure.fit(run_procedure(procedure, plant.move, tracker))
 
 
-def calibrate(seed: int) -> Calibrations:
-    """Calibrate catheter ``seed`` in the straight vessel with the console's procedures:
-    ``dense``, ``five_point`` and ``dense+hysteresis``, one after the other on one plant and
-    tracker (each from rest)."""
+def calibrate(seed: int, plant: PlantSpec = None, *, short: bool = False) -> Calibrations:
+    """Calibrate catheter ``seed`` of ``plant`` in the straight vessel with the console's
+    procedures: ``dense``, ``five_point`` and ``dense+hysteresis``, one after the other on one
+    robot and tracker (each from rest); with ``short`` also the short calibration's roll
+    sweeps (:func:`short_hysteresis_plan`)."""
     t0 = time.perf_counter()
-    plant, tracker = _make_plant(seed, "straight")
-    dense = run_calibration("dense", plant, tracker)
-    five = run_calibration("five_point", plant, tracker)
-    ours = run_calibration("dense+hysteresis", plant, tracker)
+    rig, tracker = make_rig(seed, "straight", plant)
+    dense = run_calibration("dense", rig, tracker)
+    five = run_calibration("five_point", rig, tracker)
+    ours = run_calibration("dense+hysteresis", rig, tracker)
+    short_comp = None
+    if short:
+        rig.reset()
+        splan = short_hysteresis_plan()
+        rec = run_visits(plan_visits(splan.plan), rig.move, tracker)
+        short_comp = fit_hysteresis(splan, rec).compensator
     cat: CatheterCalibration = ours.details
     # the ablation: F on the per-joint model's effective knobs along the raster (from rest)
     comp = cat.hysteresis.compensator
     raster = raster_grid()
     eff = comp.effective_path(np.vstack([np.zeros(4), raster]))[1:]
+    # a play's centre offset can put an effective knob past the limit F is defined on
+    # (out-of-tolerance catheters): clip it there, as the raster's own limit samples are
+    lim = DEFAULT_GEOMETRY.knob_limit
+    eff[:, :2] = np.clip(eff[:, :2], -lim, lim)
     keep = [int(np.argmin(np.max(np.abs(raster - q), axis=1))) for q in cat.dense.q_motor]
     unbiased = cat.tracker_bias.correct_calibration(cat.dense)
     dense_eff = unbiased.with_motor_knobs(eff[keep, :2], method="dense-raster-effective")
@@ -241,21 +304,24 @@ def calibrate(seed: int) -> Calibrations:
         ours=ours,
         dense_effective=ElasticityMap.build(dense_eff),
         seconds=time.perf_counter() - t0,
+        short=short_comp,
     )
 
 
-def identify_in_situ(seed: int, vessel: str, cal: Calibrations) -> TendonKnobMap:
+def identify_in_situ(
+    seed: int, vessel: str, cal: Calibrations, plant: PlantSpec = None
+) -> TendonKnobMap:
     """Our compensation with its plays re-identified on catheter ``seed`` in the test
     ``vessel`` (opt-in ``--in-situ``): the hysteresis sweeps and the knob circles there
     (about 1,700 small moves, no raster; a robot with a tip sensor can run them before a
     procedure), fitted with F and G kept from the straight vessel (the section's elasticity
     does not change with the vessel, the shaft's friction does)."""
-    plant, tracker = _make_plant(seed, vessel)
-    plant.reset()
+    rig, tracker = make_rig(seed, vessel, plant)
+    rig.reset()
     hplan = hysteresis_plan()
-    roll = fit_hysteresis(hplan, run_visits(plan_visits(hplan.plan), plant.move, tracker))
-    plant.reset()
-    rec = run_visits(plan_visits(circle_plan()), plant.move, tracker)
+    roll = fit_hysteresis(hplan, run_visits(plan_visits(hplan.plan), rig.move, tracker))
+    rig.reset()
+    rec = run_visits(plan_visits(circle_plan()), rig.move, tracker)
     circles = motion_from(rec, KNOB_CIRCLES, tracker_bias=cal.tracker_bias)
     transmission = reidentify_in_situ(cal.catheter.transmission, circles, roll.compensator)
     return TendonKnobMap(transmission)
@@ -306,6 +372,24 @@ def _effective_path(q_model: Array, cal: Calibrations) -> tuple[Array, Array]:
     return eff, bends
 
 
+def _short_commands(q_model: Array, cal: Calibrations) -> Array:
+    """The short calibration's commands (APPROACH_STEPS + n, 4): the twist pre-shaped, the
+    5-point F, the roll's play inverse at the intended bend (knobs without play model)."""
+    comp = cal.short
+    if comp is None:
+        raise InvalidValueError(f"condition {SHORT!r} needs the short calibration")
+    path = _approach_path(q_model)
+    lim = DEFAULT_GEOMETRY.knob_limit
+    model = comp.preshape_model(path)
+    model[:, :2] = np.clip(model[:, :2], -lim, lim)
+    eff = np.asarray(cal.simplified.knob_map.model_to_motor(model, check=False), np.float64)
+    bends = DEFAULT_GEOMETRY.knob_ratio * np.hypot(path[:, 0], path[:, 1])
+    comp.reset(np.zeros(4))
+    cmd = comp.command_path(eff, bends=bends)
+    cmd[:, :2] = np.clip(cmd[:, :2], -lim, lim)
+    return cmd
+
+
 def _fresh_map(cal: Calibrations, condition: str, knob_map: Any = None) -> Any:
     """The knob map of a condition as the controller installs it after the calibration:
     a stateful map relaxed at rest (a new one per spin), F as it is."""
@@ -328,6 +412,8 @@ def _commands(
         return path
     if cal is None:
         raise InvalidValueError(f"condition {condition!r} needs the calibrations")
+    if condition == SHORT:
+        return _short_commands(q_model, cal)
     if condition == KNOB_HYSTERESIS:
         eff, bends = _effective_path(q_model, cal)
         comp = cal.compensator
@@ -421,6 +507,7 @@ def run_vessel(
     keep_commands: dict[tuple[int, str], Array] | None = None,
     keep_tips: dict[tuple[int, str], Array] | None = None,
     in_situ: bool = False,
+    plant: PlantSpec = None,
 ) -> list[SpinRecord]:
     """The spins of one catheter in one vessel: a record per bend and condition.
 
@@ -436,8 +523,8 @@ def run_vessel(
     situ_map = None
     if in_situ:
         assert cal is not None
-        situ_map = identify_in_situ(seed, vessel, cal)
-    plant, tracker = _make_plant(seed, vessel)
+        situ_map = identify_in_situ(seed, vessel, cal, plant)
+    rig, tracker = make_rig(seed, vessel, plant)
     records = []
     for bend in bends_deg:
         sp = spin_trajectory([math.radians(bend), 0.0, 0.0, 0.0], n_samples, include_end=True)
@@ -445,14 +532,14 @@ def run_vessel(
         for cond in conditions:
             if cond == CLOSED_LOOP:
                 assert cal is not None  # checked above
-                true, em, cmd = run_spin_closed_loop(plant, tracker, sp.q_model, cal)
+                true, em, cmd = run_spin_closed_loop(rig, tracker, sp.q_model, cal)
                 if keep_commands is not None:
                     keep_commands[(bend, cond)] = cmd
             else:
                 cmd = _commands(cond, sp.q_model, cal, situ_map if cond == OURS else None)
                 if keep_commands is not None:
                     keep_commands[(bend, cond)] = cmd[APPROACH_STEPS:]
-                true, em = run_spin(plant, tracker, cmd)
+                true, em = run_spin(rig, tracker, cmd)
             if keep_tips is not None:
                 keep_tips[(bend, cond)] = true[:, :3, 3]
             ok = np.all(np.isfinite(em.reshape(len(em), -1)), axis=1)
@@ -471,34 +558,10 @@ def run_vessel(
                     n_samples=n_samples,
                     em_missing=int(np.sum(~ok)),
                     in_situ=in_situ and cond == OURS,
+                    plant=plant_name(plant),
                 )
             )
     return records
-
-
-# --- many catheters --------------------------------------------------------------------------
-
-
-def parse_seeds(text: str) -> list[int]:
-    """Catheter seeds from ``"110"``, ``"110-119"`` or ``"110,112,115-116"`` (sorted,
-    unique). Raises ValueError naming the bad part."""
-    seeds: set[int] = set()
-    for part in (p.strip() for p in str(text).split(",")):
-        if not part:
-            continue
-        lo, sep, hi = part.partition("-")
-        try:
-            a, b = (int(lo), int(hi)) if sep else (int(part), int(part))
-        except ValueError:
-            raise InvalidValueError(
-                f"seeds must be integers or ranges like 110-119, got {part!r}"
-            ) from None
-        if a < 0 or b < a:
-            raise InvalidValueError(f"seed range must be ascending and >= 0, got {part!r}")
-        seeds.update(range(a, b + 1))
-    if not seeds:
-        raise InvalidValueError(f"no seed in {text!r}")
-    return sorted(seeds)
 
 
 @dataclass(frozen=True)
@@ -507,6 +570,8 @@ class CatheterRun:
 
     seed: int
     """Catheter seed."""
+    plant: str
+    """The plant's name (:func:`plant_name`)."""
     records: list[SpinRecord]
     """One record per vessel, bend and condition."""
     calibration_text: list[str]
@@ -549,6 +614,11 @@ def _describe_calibration(seed: int, cal: Calibrations | None) -> list[str]:
         f"{c.twist_play_per_bend:.3f}; knob play per rad of the other knob "
         f"{c.knob_play_per_bend:.3f}"
     )
+    if c.roll_play is not None and c.twist_play is not None:
+        lines.append(
+            f"  against the bend: roll play {c.roll_play.describe()}; twist play "
+            f"{c.twist_play.describe()}"
+        )
     return lines
 
 
@@ -561,13 +631,15 @@ def evaluate_catheter(
     conditions: Sequence[str] = CONDITIONS,
     in_situ: bool = False,
     keep: bool = False,
+    plant: PlantSpec = None,
 ) -> CatheterRun:
     """Calibrate catheter ``seed`` in the straight vessel once, then run the spins in each of
     ``vessels`` (:func:`run_vessel`). With ``keep`` the commands and true tips are kept (for
-    the plots). A module-level function, so ``--jobs`` can run catheters in processes."""
+    the plots). ``plant`` (:data:`PlantSpec`) is the catheter's plant (default: the twin).
+    A module-level function, so ``--jobs`` can run catheters in processes."""
     t0 = time.perf_counter()
     needs_calibration = any(c != "none" for c in conditions)
-    cal = calibrate(seed) if needs_calibration else None
+    cal = calibrate(seed, plant, short=SHORT in conditions) if needs_calibration else None
     records: list[SpinRecord] = []
     commands: dict[tuple[str, int, str], Array] = {}
     tips: dict[tuple[str, int, str], Array] = {}
@@ -584,238 +656,16 @@ def evaluate_catheter(
             keep_commands=kc if keep else None,
             keep_tips=kt if keep else None,
             in_situ=in_situ,
+            plant=plant,
         )
         commands.update({(vessel, *k): v for k, v in kc.items()})
         tips.update({(vessel, *k): v for k, v in kt.items()})
     return CatheterRun(
         seed=seed,
+        plant=plant_name(plant),
         records=records,
         calibration_text=_describe_calibration(seed, cal),
         commands=commands,
         tips=tips,
         seconds=time.perf_counter() - t0,
     )
-
-
-def _evaluate(seed: int, *, first: int, **kwargs: Any) -> CatheterRun:
-    """One catheter for the engine (a module-level function: picklable)."""
-    return evaluate_catheter(seed, keep=seed == first, **kwargs)
-
-
-def _run_catheters(
-    seeds: Sequence[int],
-    jobs: int,
-    *,
-    engine: str = "local",
-    address: str | None = None,
-    **kwargs: Any,
-) -> list[CatheterRun]:
-    """:func:`evaluate_catheter` for each seed on an engine (:mod:`icenav.eval.engine`: the
-    local process pool, ``jobs`` at a time, or Ray), printing each catheter as it finishes;
-    the runs come back in seed order."""
-    from tqdm import tqdm
-
-    from icenav.eval.engine import run_jobs
-
-    t0 = time.perf_counter()
-    done = 0
-
-    def report(seed: int, run: CatheterRun) -> None:
-        nonlocal done
-        done += 1
-        for line in run.calibration_text:
-            tqdm.write(line)
-        tqdm.write(
-            f"  catheter {run.seed} done in {run.seconds:.0f} s "
-            f"({done}/{len(seeds)} catheters, {time.perf_counter() - t0:.0f} s elapsed)"
-        )
-
-    runs: list[CatheterRun] = run_jobs(
-        _evaluate,
-        list(seeds),
-        engine=engine,
-        jobs=jobs,
-        address=address,
-        kwargs={"first": seeds[0], **kwargs},
-        on_result=report,
-        describe=lambda s: f"catheter {s}",
-        desc="catheters",
-    )
-    return runs
-
-
-def _write_plots(
-    out: Path, runs: Sequence[CatheterRun], records: Sequence[SpinRecord], vessel: str
-) -> None:
-    """Fig. 5 (commands) and the true tip of the first catheter in ``vessel``; Fig. 7
-    (curvature) from every record."""
-    out.mkdir(parents=True, exist_ok=True)
-    first = runs[0]
-    if not first.commands:
-        return
-    bend = max(k[1] for k in first.commands)
-    path = out / f"spin_commands_{bend}deg.png"
-    plot_commands({k[1:]: v for k, v in first.commands.items() if k[0] == vessel}, bend, path)
-    print(f"wrote {path} (catheter {first.seed}, {vessel} vessel)")
-    tips = {k[2]: v for k, v in first.tips.items() if k[0] == vessel and k[1] == bend}
-    path = out / f"spin_tip_{vessel}_{bend}deg.png"
-    plot_tip(tips, forward(np.array([math.radians(bend), 0, 0, 0]))[:3, 3], bend, path)
-    print(f"wrote {path}")
-    for p in plot_curvature(records, out):
-        print(f"wrote {p}")
-
-
-def _parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(
-        prog="icenav eval spin",
-        description="The paper's image-spinning experiment (Table I, Figs. 5 and 7) on the "
-        "digital twin: calibrate each catheter in the straight vessel, spin in the test "
-        "vessels.",
-    )
-    p.add_argument(
-        "--seed",
-        type=int,
-        default=100,
-        help="catheter seed (calibrated and tested); seeds 0-9 tuned the twin",
-    )
-    p.add_argument(
-        "--seeds",
-        help="many catheters instead of --seed, e.g. 110-119 or 110,112: the tables give the "
-        "mean and the worst catheter",
-    )
-    p.add_argument(
-        "--vessel",
-        default="straight",
-        help="test vessel(s): straight, moderate, steep, comma-separated or 'all' (calibration "
-        "is always in the straight vessel; default straight)",
-    )
-    p.add_argument(
-        "--jobs", type=int, default=1, help="catheters evaluated in parallel (processes)"
-    )
-    p.add_argument(
-        "--engine",
-        choices=("local", "ray"),
-        default="local",
-        help="where the catheters run: the local process pool (default, --jobs at a time) "
-        "or Ray (pip install 'icenav[cluster]'; one CPU a catheter)",
-    )
-    p.add_argument(
-        "--address",
-        default=None,
-        help="with --engine ray: the address of an existing Ray cluster (default: start a "
-        "local one for this run)",
-    )
-    p.add_argument("--json", type=Path, help="write the records (a JSON list) to this file")
-    p.add_argument(
-        "--plots",
-        type=Path,
-        help="write spin_commands_*.png and spin_tip_*.png (Fig. 5) and curvature_*.png "
-        "(Fig. 7; with one --vessel the other two are run for it) here",
-    )
-    p.add_argument("--samples", type=int, default=360, help="samples per spin (default 360)")
-    p.add_argument("--bends", default="20,40,60", help="initial AP bends in deg (default 20,40,60)")
-    p.add_argument(
-        "--conditions",
-        default=",".join(CONDITIONS),
-        help="comma-separated subset of " + ", ".join(ALL_CONDITIONS) + " (default: all)",
-    )
-    p.add_argument(
-        "--in-situ",
-        action="store_true",
-        help="re-identify dense+hysteresis's plays in a curved test vessel before the spin "
-        "(needs the tip sensor in the vessel; the default is the paper's protocol: "
-        "calibrated in the straight vessel only)",
-    )
-    p.add_argument(
-        "--study", action="store_true", help="also print the calibration-size / interpolant study"
-    )
-    return p
-
-
-def _fail(text: str) -> int:
-    print(f"icenav eval spin: {text}", file=sys.stderr)
-    return 2
-
-
-def main(argv: Sequence[str] | None = None) -> int:
-    """``icenav eval spin [--seed N | --seeds A-B] [--vessel V[,V]] [--json F] [--plots D]``."""
-    args = _parser().parse_args(list(argv or []))
-    try:
-        bends = [int(b) for b in args.bends.split(",") if b.strip()]
-    except ValueError:
-        return _fail(f"--bends must be integers in deg, got {args.bends!r}")
-    conds = [c.strip() for c in args.conditions.split(",") if c.strip()]
-    bad = [c for c in conds if c not in ALL_CONDITIONS]
-    if bad or not conds:
-        return _fail(f"unknown condition(s) {bad}; choose from {ALL_CONDITIONS}")
-    if not bends or any(not (0 < b <= 90) for b in bends):
-        return _fail(f"--bends must be in (0, 90] deg, got {args.bends!r}")
-    if args.samples < 10:
-        return _fail(f"--samples must be >= 10, got {args.samples}")
-    vessel_names = ("straight", "moderate", "steep")
-    vessels = (
-        list(vessel_names)
-        if args.vessel.strip() == "all"
-        else [v.strip() for v in args.vessel.split(",") if v.strip()]
-    )
-    if not vessels or any(v not in vessel_names for v in vessels):
-        return _fail(f"--vessel must be among {vessel_names} or 'all', got {args.vessel!r}")
-    vessels = [v for v in vessel_names if v in vessels]
-    try:
-        seeds = parse_seeds(args.seeds) if args.seeds is not None else [args.seed]
-    except ValueError as exc:
-        return _fail(f"--seeds: {exc}")
-    if args.seeds is None and args.seed < 0:
-        return _fail(f"--seed must be >= 0, got {args.seed}")
-    if not 1 <= args.jobs <= 64:
-        return _fail(f"--jobs must be in [1, 64] processes, got {args.jobs}")
-    t0 = time.perf_counter()
-    run_vessels = vessels
-    if args.plots is not None and len(vessels) == 1:
-        run_vessels = list(vessel_names)  # Fig. 7 needs every vessel; the table keeps one
-    print(
-        f"icenav eval spin: {len(seeds)} catheter(s), vessels {', '.join(run_vessels)}"
-        + (" (the others for the curvature figure only)" if run_vessels != vessels else "")
-        + f", bends {bends} deg, {len(conds)} condition(s), {args.samples} samples per spin"
-    )
-    try:
-        runs = _run_catheters(
-            seeds,
-            args.jobs,
-            engine=args.engine,
-            address=args.address,
-            vessels=run_vessels,
-            bends_deg=bends,
-            n_samples=args.samples,
-            conditions=conds,
-            in_situ=args.in_situ,
-        )
-    except (ConfigurationError, JobError) as exc:
-        return _fail(str(exc))
-    all_records = [r for run in runs for r in run.records]
-    records = [r for r in all_records if r.vessel in vessels]
-    print("\nspin RMSE (EM-tracked, the paper's protocol; the paper's Table I in parentheses)")
-    print(format_table(records))
-    effect = format_vessel_effect(records)
-    if effect:
-        print("\n" + effect)
-    if args.json is not None:
-        args.json.parent.mkdir(parents=True, exist_ok=True)
-        args.json.write_text(json.dumps([asdict(r) for r in records], indent=1) + "\n")
-        print(f"\nwrote {args.json} ({len(records)} record(s))")
-    if args.plots is not None:
-        _write_plots(args.plots, runs, all_records, vessels[0])
-    if args.study:
-        print(
-            "\ncalibration study (RMS distance of the true tip from the model tip, "
-            "reaching 150 random targets within +-60 deg from rest):"
-        )
-        from icenav.eval.spin_study import calibration_study
-
-        for row in calibration_study(seeds[0]):
-            print(
-                f"  {row['set']:<44s} {row['n_points']:>4d} pts  {row['interpolant']:<14s}"
-                f" {row['rms_mm']:5.2f} mm"
-            )
-    print(f"\ntotal {time.perf_counter() - t0:.1f} s")
-    return 0

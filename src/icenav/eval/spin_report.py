@@ -28,6 +28,7 @@ __all__ = [
     "CellSummary",
     "PAPER_VESSEL_BOUNDS",
     "VesselEffect",
+    "format_family_matrix",
     "format_table",
     "format_vessel_effect",
     "paper_table",
@@ -35,6 +36,7 @@ __all__ = [
     "plot_curvature",
     "plot_tip",
     "summarize",
+    "summarize_plants",
     "vessel_effect",
 ]
 
@@ -53,6 +55,7 @@ _CONDITION_ORDER = (
     "dense+hysteresis",
     "dense+knob-hysteresis",
     "dense+hysteresis+em",
+    "short",
 )
 
 
@@ -87,23 +90,75 @@ def _ordered(values: Iterable[str], order: Sequence[str]) -> list[str]:
     return [v for v in order if v in vals] + sorted(vals - set(order))
 
 
+def _cell(rs: Sequence[SpinRecord]) -> CellSummary:
+    return CellSummary(
+        n=len(rs),
+        position_mm=float(np.mean([r.position_rmse_mm for r in rs])),
+        rotation_deg=float(np.mean([r.rotation_rmse_deg for r in rs])),
+        true_position_mm=float(np.mean([r.true_position_rmse_mm for r in rs])),
+        true_rotation_deg=float(np.mean([r.true_rotation_rmse_deg for r in rs])),
+        worst_position_mm=float(max(r.position_rmse_mm for r in rs)),
+        worst_rotation_deg=float(max(r.rotation_rmse_deg for r in rs)),
+    )
+
+
 def summarize(records: Sequence[SpinRecord]) -> dict[tuple[str, str, int], CellSummary]:
     """Mean and worst over catheters, keyed by (vessel, condition, bend_deg)."""
     groups: dict[tuple[str, str, int], list[SpinRecord]] = {}
     for r in records:
         groups.setdefault((r.vessel, r.condition, r.bend_deg), []).append(r)
-    out = {}
-    for key, rs in groups.items():
-        out[key] = CellSummary(
-            n=len(rs),
-            position_mm=float(np.mean([r.position_rmse_mm for r in rs])),
-            rotation_deg=float(np.mean([r.rotation_rmse_deg for r in rs])),
-            true_position_mm=float(np.mean([r.true_position_rmse_mm for r in rs])),
-            true_rotation_deg=float(np.mean([r.true_rotation_rmse_deg for r in rs])),
-            worst_position_mm=float(max(r.position_rmse_mm for r in rs)),
-            worst_rotation_deg=float(max(r.rotation_rmse_deg for r in rs)),
-        )
-    return out
+    return {key: _cell(rs) for key, rs in groups.items()}
+
+
+def summarize_plants(
+    records: Sequence[SpinRecord],
+) -> dict[tuple[str, str, str, int], CellSummary]:
+    """Mean and worst over catheters, keyed by (plant, vessel, condition, bend_deg)."""
+    groups: dict[tuple[str, str, str, int], list[SpinRecord]] = {}
+    for r in records:
+        groups.setdefault((r.plant, r.vessel, r.condition, r.bend_deg), []).append(r)
+    return {key: _cell(rs) for key, rs in groups.items()}
+
+
+def format_family_matrix(records: Sequence[SpinRecord]) -> str:
+    """The plant x condition x bend matrix, one block per vessel: per cell the mean EM
+    position and rotation RMSE over the catheters, the worst catheter's, and the mean
+    true-pose RMSE (mm deg); plants in the order they first appear."""
+    cells = summarize_plants(records)
+    bends = sorted({r.bend_deg for r in records})
+    plants = list(dict.fromkeys(r.plant for r in records))
+    width = max(22, *(len(p) + 2 for p in plants))
+    lines = []
+    for vessel in _ordered((r.vessel for r in records), VESSEL_ORDER):
+        seeds = _seeds_text([r for r in records if r.vessel == vessel])
+        lines += [
+            f"plant x condition x bend, vessel {vessel}, {seeds} per plant: "
+            "mean EM mm deg | worst EM mm deg | mean true mm deg",
+            (
+                "plant".ljust(width)
+                + "condition".ljust(22)
+                + "".join(f"{b:>3d} deg".ljust(36) for b in bends)
+            ).rstrip(),
+        ]
+        for plant in plants:
+            conds = _ordered(
+                (r.condition for r in records if r.plant == plant and r.vessel == vessel),
+                _CONDITION_ORDER,
+            )
+            for cond in conds:
+                row = plant.ljust(width) + cond.ljust(22)
+                for b in bends:
+                    c = cells.get((plant, vessel, cond, b))
+                    row += (
+                        "-"
+                        if c is None
+                        else f"{c.position_mm:4.1f} {c.rotation_deg:4.1f} | "
+                        f"{c.worst_position_mm:4.1f} {c.worst_rotation_deg:4.1f} | "
+                        f"{c.true_position_mm:4.1f} {c.true_rotation_deg:4.1f}"
+                    ).ljust(36)
+                lines.append(row.rstrip())
+        lines.append("")
+    return "\n".join(lines).rstrip()
 
 
 def _seeds_text(records: Sequence[SpinRecord]) -> str:
@@ -176,10 +231,12 @@ class VesselEffect:
 def vessel_effect(records: Sequence[SpinRecord]) -> dict[tuple[str, str, int], VesselEffect]:
     """Curved minus straight, per catheter, then mean and worst over the catheters that ran
     both: keyed by (curved vessel, condition, bend_deg)."""
-    straight = {(r.seed, r.condition, r.bend_deg): r for r in records if r.vessel == "straight"}
+    straight = {
+        (r.plant, r.seed, r.condition, r.bend_deg): r for r in records if r.vessel == "straight"
+    }
     diffs: dict[tuple[str, str, int], list[tuple[float, float]]] = {}
     for r in records:
-        s = straight.get((r.seed, r.condition, r.bend_deg))
+        s = straight.get((r.plant, r.seed, r.condition, r.bend_deg))
         if r.vessel == "straight" or s is None:
             continue
         diffs.setdefault((r.vessel, r.condition, r.bend_deg), []).append(

@@ -11,7 +11,7 @@ import numpy as np
 
 from icenav._typing import Array
 from icenav.compensation.elasticity import ElasticityMap, grid_subset_indices
-from icenav.eval.spin import _make_plant, run_calibration
+from icenav.eval.spin import make_rig, run_calibration
 from icenav.geometry.kinematics import forward
 
 __all__ = ["calibration_study"]
@@ -27,7 +27,7 @@ def calibration_study(
     model knob pairs within +-60 deg, and the true tip's distance from the model tip is
     measured (RMS, mm). Also compares interpolants on the full set.
     """
-    plant, tracker = _make_plant(seed, "straight")
+    plant, tracker = make_rig(seed, "straight")
     dense = run_calibration("dense", plant, tracker).calibration_set
     five = run_calibration("five_point", plant, tracker).calibration_set
     rng = np.random.default_rng(seed)

@@ -1,0 +1,187 @@
+"""How a play widens with the bend of the section: a law chosen by held-out residual.
+
+The roll's play (the section turns behind the motor) and the distal twist play (the image
+frame turns behind the section) widen as the section bends: a bent section presses on its
+sheath and on its own wires. How they widen is a property of the catheter, not of our
+model, so it is *measured*: the roll is swept at several bends ``b_i`` (rad, the tracked
+bend) and the play's extra half-width over the straight one, ``e_i`` (rad), is read from
+each sweep. Three forms are fitted to those points, every one through ``e(0) = 0``::
+
+    linear       e(b) = k b                                           (B1)
+    quadratic    e(b) = k1 b + k2 b^2                                 (B2)
+    table        e(b) = piecewise linear through (0, 0), (b_i, e_i),
+                 continued past the last point with the last slope    (B3)
+
+and the form kept is the one with the smallest leave-one-out residual (each measured
+point predicted by the form fitted to the others; :func:`select_bend_play`), the simpler
+form on a tie. Every form is clipped to ``0 <= e <= MAX_EXTRA``. What each assumes:
+(B1) the play grows in proportion to the bend (a friction that grows with the normal force
+of a uniformly curved section, the default twin's law); (B2) a smooth growth of any
+curvature (e.g. a play growing with bend and with the tendon tension that holds it, both
+proportional to the bend); (B3) only that the play is continuous in the bend and that it
+keeps its last measured slope beyond the largest bend measured.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import ArrayLike
+
+from icenav._typing import Array
+from icenav.errors import ConfigurationError
+
+__all__ = ["BEND_PLAY_FORMS", "BendPlay", "MAX_EXTRA", "select_bend_play"]
+
+BEND_PLAY_FORMS = ("linear", "quadratic", "table")
+"""The forms, simplest first (the order that breaks a tie of residuals)."""
+MAX_EXTRA = math.radians(30.0)
+"""Largest extra play half-width any form returns (rad)."""
+
+
+@dataclass(frozen=True)
+class BendPlay:
+    """The extra play half-width as a function of the bend, :math:`e(b)` (rad of rad).
+
+    ``form`` is one of :data:`BEND_PLAY_FORMS`; ``coef`` holds ``(k,)`` for (B1), ``(k1,
+    k2)`` for (B2); ``bends`` / ``extra`` are the measured points (rad), the knots of (B3).
+    """
+
+    form: str
+    """``linear``, ``quadratic`` or ``table``."""
+    coef: tuple[float, ...] = ()
+    """Coefficients of (B1) (rad/rad) or (B2) (rad/rad, rad/rad^2)."""
+    bends: tuple[float, ...] = ()
+    """Measured bends (rad), ascending, > 0."""
+    extra: tuple[float, ...] = ()
+    """Measured extra play at each (rad)."""
+    loo_rms: float = math.nan
+    """Leave-one-out RMS residual of this form on the measured points (rad); NaN when
+    there were too few points to leave one out."""
+
+    def __post_init__(self) -> None:
+        if self.form not in BEND_PLAY_FORMS:
+            raise ConfigurationError(
+                f"bend-play form must be one of {BEND_PLAY_FORMS}, got {self.form!r}"
+            )
+        need = {"linear": 1, "quadratic": 2, "table": 0}[self.form]
+        if len(self.coef) != need:
+            raise ConfigurationError(
+                f"a {self.form} bend play needs {need} coefficient(s), got {self.coef!r}"
+            )
+        b = np.asarray(self.bends, dtype=np.float64)
+        e = np.asarray(self.extra, dtype=np.float64)
+        if b.shape != e.shape or b.ndim != 1 or not np.all(np.isfinite(b)):
+            raise ConfigurationError(
+                f"bends and extra must be two equal-length lists of finite rad, got "
+                f"{self.bends!r} and {self.extra!r}"
+            )
+        if b.size and (np.any(b <= 0.0) or np.any(np.diff(b) <= 0.0)):
+            raise ConfigurationError(f"bends must be ascending and > 0 rad, got {self.bends!r}")
+        if self.form == "table" and b.size == 0:
+            raise ConfigurationError("a table bend play needs at least one measured point")
+
+    @classmethod
+    def linear(cls, k: float) -> BendPlay:
+        """(B1) with slope ``k`` (rad of play per rad of bend)."""
+        return cls("linear", (float(k),))
+
+    def __call__(self, bend: ArrayLike) -> Array:
+        """Extra half-width (rad) at ``bend`` (rad, any shape; |bend| is used)."""
+        b = np.abs(np.asarray(bend, dtype=np.float64))
+        if self.form == "linear":
+            e = self.coef[0] * b  # (B1)
+        elif self.form == "quadratic":
+            e = self.coef[0] * b + self.coef[1] * b * b  # (B2)
+        else:
+            e = _table(np.asarray(self.bends), np.asarray(self.extra), b)  # (B3)
+        return np.clip(e, 0.0, MAX_EXTRA)
+
+    def at(self, bend: float) -> float:
+        """:meth:`__call__` of one bend (rad) as a float."""
+        return float(self(bend))
+
+    @property
+    def slope(self) -> float:
+        """Mean growth over the measured range (rad/rad): ``e(b_max) / b_max`` (the (B1)
+        slope for a linear form without points)."""
+        if not self.bends:
+            return self.coef[0] if self.form == "linear" else math.nan
+        b = self.bends[-1]
+        return self.at(b) / b
+
+    def describe(self) -> str:
+        """One line: the form, and at each measured bend the measured extra play -> the
+        law's (deg)."""
+        pts = ", ".join(
+            f"{math.degrees(e):.2f}->{math.degrees(self.at(b)):.2f} at {math.degrees(b):.0f}"
+            for b, e in zip(self.bends, self.extra, strict=True)
+        )
+        loo = "" if math.isnan(self.loo_rms) else f", LOO {math.degrees(self.loo_rms):.2f} deg"
+        return f"{self.form} ({pts} deg{loo})" if pts else f"{self.form} k={self.slope:.3f}"
+
+
+def _table(b: Array, e: Array, x: Array) -> Array:
+    """(B3): piecewise linear through (0, 0) and (b, e), the last slope beyond."""
+    kb = np.concatenate([[0.0], b])
+    ke = np.concatenate([[0.0], e])
+    inside = np.interp(x, kb, ke)
+    last = (ke[-1] - ke[-2]) / (kb[-1] - kb[-2])
+    return np.where(x > kb[-1], ke[-1] + last * (x - kb[-1]), inside)
+
+
+def _fit(form: str, b: Array, e: Array) -> BendPlay:
+    """One form fitted to points (b, e) by least squares (B1, B2) or as knots (B3)."""
+    if form == "linear":
+        k = float(b @ e / (b @ b)) if b.size else 0.0
+        return BendPlay("linear", (k,), tuple(b), tuple(e))
+    if form == "quadratic":
+        if b.size < 2:
+            raise ConfigurationError("a quadratic bend play needs two points or more")
+        a = np.stack([b, b * b], axis=-1)
+        coef, *_ = np.linalg.lstsq(a, e, rcond=None)
+        return BendPlay("quadratic", (float(coef[0]), float(coef[1])), tuple(b), tuple(e))
+    return BendPlay("table", (), tuple(b), tuple(e))
+
+
+def select_bend_play(bends: Sequence[float], extra: Sequence[float]) -> BendPlay:
+    """The form of (B1)-(B3) with the smallest leave-one-out residual on the points.
+
+    ``bends`` (rad, > 0, any order) and ``extra`` (rad) are the measured points. Each point
+    is predicted by each form fitted to the other points (a form that cannot be fitted to
+    them is not a candidate); the form with the smallest RMS of those predictions is fitted
+    to every point and returned, with its residual in ``loo_rms``. With one point only
+    (nothing to hold out) the linear form is returned.
+    """
+    b = np.asarray(bends, dtype=np.float64).ravel()
+    e = np.asarray(extra, dtype=np.float64).ravel()
+    if b.size != e.size or b.size == 0:
+        raise ConfigurationError(
+            f"need as many extra plays as bends (>= 1), got {b.size} bends, {e.size} plays"
+        )
+    if not (np.all(np.isfinite(b)) and np.all(np.isfinite(e))) or np.any(b <= 0.0):
+        raise ConfigurationError(f"bends must be finite and > 0 rad, got {list(b)}")
+    order = np.argsort(b)
+    b, e = b[order], e[order]
+    if np.any(np.diff(b) <= 0.0):
+        raise ConfigurationError(f"bends must be distinct, got {list(b)}")
+    if b.size == 1:
+        return _fit("linear", b, e)
+    best: BendPlay | None = None
+    for form in BEND_PLAY_FORMS:
+        minimum = {"linear": 1, "quadratic": 2, "table": 1}[form]
+        if b.size - 1 < minimum:
+            continue
+        errors = []
+        for i in range(b.size):
+            keep = np.arange(b.size) != i
+            errors.append(_fit(form, b[keep], e[keep]).at(float(b[i])) - e[i])
+        rms = float(np.sqrt(np.mean(np.square(errors))))
+        if best is None or rms < best.loo_rms - 1e-12:
+            fitted = _fit(form, b, e)
+            best = BendPlay(fitted.form, fitted.coef, fitted.bends, fitted.extra, rms)
+    assert best is not None  # the linear form always qualifies with two points or more
+    return best

@@ -1,0 +1,35 @@
+"""``icenav eval recovery --plant``: the bench runs the plant it is given, on its own clock."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from icenav.errors import PluginError
+from icenav.eval.recovery import RecoveryConfig, _parser, config_from_args
+from icenav.eval.recovery_bench import Bench
+from icenav.sim.families import NonlinearPlayPlant, RateDependentPlant
+
+
+def test_the_option_reaches_the_bench_and_the_twin() -> None:
+    cfg = config_from_args(_parser().parse_args(["--plant", "nonlinear-play", "--seed", "210"]))
+    assert cfg.plant == "nonlinear-play"
+    bench = Bench(cfg)
+    assert isinstance(bench.plant, NonlinearPlayPlant) and bench.robot.plant is bench.plant
+    # under a disturbance condition the family's plant is the one the disturbances wrap
+    bench = Bench(RecoveryConfig(plant="rate-dependent", seed=210, condition="phantom"))
+    assert bench.twin is not None and isinstance(bench.twin.plant.inner, RateDependentPlant)
+    assert bench.twin.plant.inner.clock is not None  # the bench's simulated clock drives it
+
+
+def test_a_plugin_without_a_clock_is_refused(tmp_path: Path) -> None:
+    path = tmp_path / "no_clock.py"
+    path.write_text(
+        "from icenav.sim import CatheterPlant, EMTracker\n"
+        "def make(seed, vessel):\n"
+        "    plant = CatheterPlant(seed=seed, vessel=vessel)\n"
+        "    return plant, EMTracker(plant, seed=seed)\n"
+    )
+    with pytest.raises(PluginError, match="takes no clock= keyword"):
+        Bench(RecoveryConfig(plant=f"{path}:make", seed=3))
