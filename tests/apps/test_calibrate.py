@@ -66,6 +66,19 @@ def test_a_twin_recording_gives_a_calibration_file_with_an_estimated_registratio
     # and the file just written can give the registration of the next recording
     # (--registration; the registration JSON form is used in the 5-point test)
     assert load_registration(out) == reg
+    # and in the evaluation: eval spin --calibration spins with the F the console installs
+    import json
+
+    from icenav.eval.spin_cli import main as spin_main
+
+    records = tmp_path / "spin.json"
+    argv = ["--seed", str(SEED), "--conditions", "none", "--bends", "40", "--samples", "40"]
+    assert spin_main([*argv, "--calibration", str(out), "--json", str(records)]) == 0
+    rows = {r["condition"]: r for r in json.loads(records.read_text())}
+    assert set(rows) == {"none", "file"}
+    assert rows["file"]["true_position_rmse_mm"] < 0.5 * rows["none"]["true_position_rmse_mm"]
+    assert spin_main([*argv, "--calibration", str(tmp_path / "missing.json")]) == 2
+    assert "missing.json" in capsys.readouterr().err
 
 
 @pytest.mark.parametrize("kind", ["five_point", "dense+hysteresis"])

@@ -74,4 +74,8 @@ class CalibrationFile:
             raise FileFormatError(f"{p}: not a text (JSON) file") from exc
         except json.JSONDecodeError as exc:
             raise FileFormatError(f"{p}: not valid JSON ({exc.msg} at line {exc.lineno})") from exc
+        except FileNotFoundError as exc:
+            raise FileFormatError(f"{p}: no such calibration file") from exc
+        except OSError as exc:  # a folder, no permission, ...
+            raise FileFormatError(f"{p}: cannot be read ({exc.strerror or exc})") from exc
         return cls.from_dict(doc, source=str(p))

@@ -99,6 +99,7 @@ __all__ = [
     "run_spin",
     "run_spin_closed_loop",
     "run_vessel",
+    "FILE",
 ]
 
 OURS = "dense+hysteresis"
@@ -115,6 +116,9 @@ the twist's play from two short roll sweeps (:func:`short_hysteresis_plan`; 89 m
 no knob play, no tracker bias."""
 ALL_CONDITIONS = (*CONDITIONS, SHORT)
 """Every condition ``--conditions`` accepts."""
+FILE = "file"
+"""The paper's F built on the samples of a calibration file (``--calibration CAL.json``: a
+file ``icenav calibrate`` or the console wrote), the map the console installs from it."""
 SETTLE_UPDATES = 10
 """Closed loop: tracker updates at the start pose before the spin starts (1/8 s at 80 Hz)."""
 SAVGOL_WINDOW = 15
@@ -410,6 +414,10 @@ def _commands(
     path = _approach_path(q_model)
     if condition == "none":
         return path
+    if condition == FILE:
+        if knob_map is None:
+            raise InvalidValueError("condition 'file' needs the calibration file's map")
+        return knob_map_commands(knob_map, path)
     if cal is None:
         raise InvalidValueError(f"condition {condition!r} needs the calibrations")
     if condition == SHORT:
@@ -508,6 +516,7 @@ def run_vessel(
     keep_tips: dict[tuple[int, str], Array] | None = None,
     in_situ: bool = False,
     plant: PlantSpec = None,
+    file_map: Any = None,
 ) -> list[SpinRecord]:
     """The spins of one catheter in one vessel: a record per bend and condition.
 
@@ -517,7 +526,7 @@ def run_vessel(
     twist) are re-identified in the test vessel first (:func:`identify_in_situ`).
     ``keep_commands`` / ``keep_tips`` receive, per (bend, condition), the motor commands
     (n, 4) and the true tip positions (n, 3) (mm, base frame) of the spin."""
-    if cal is None and any(c != "none" for c in conditions):
+    if cal is None and any(c not in ("none", FILE) for c in conditions):
         raise InvalidValueError(f"conditions {list(conditions)} need the calibrations")
     in_situ = in_situ and vessel != "straight" and OURS in conditions
     situ_map = None
@@ -536,7 +545,8 @@ def run_vessel(
                 if keep_commands is not None:
                     keep_commands[(bend, cond)] = cmd
             else:
-                cmd = _commands(cond, sp.q_model, cal, situ_map if cond == OURS else None)
+                knob = situ_map if cond == OURS else file_map if cond == FILE else None
+                cmd = _commands(cond, sp.q_model, cal, knob)
                 if keep_commands is not None:
                     keep_commands[(bend, cond)] = cmd[APPROACH_STEPS:]
                 true, em = run_spin(rig, tracker, cmd)
@@ -632,13 +642,24 @@ def evaluate_catheter(
     in_situ: bool = False,
     keep: bool = False,
     plant: PlantSpec = None,
+    calibration_file: str | None = None,
 ) -> CatheterRun:
     """Calibrate catheter ``seed`` in the straight vessel once, then run the spins in each of
     ``vessels`` (:func:`run_vessel`). With ``keep`` the commands and true tips are kept (for
     the plots). ``plant`` (:data:`PlantSpec`) is the catheter's plant (default: the twin).
+    With ``calibration_file`` (a path: loaded in the worker) condition ``file`` runs the
+    paper's F built on that file's samples, as the console installs it.
     A module-level function, so ``--jobs`` can run catheters in processes."""
     t0 = time.perf_counter()
-    needs_calibration = any(c != "none" for c in conditions)
+    file_map = None
+    if calibration_file is not None:
+        from icenav.calibration.files import CalibrationFile
+
+        loaded = CalibrationFile.load(calibration_file)
+        file_map = ElasticityMap.build(loaded.calibration, DEFAULT_GEOMETRY)
+    if FILE in conditions and file_map is None:
+        raise InvalidValueError("condition 'file' needs calibration_file")
+    needs_calibration = any(c not in ("none", FILE) for c in conditions)
     cal = calibrate(seed, plant, short=SHORT in conditions) if needs_calibration else None
     records: list[SpinRecord] = []
     commands: dict[tuple[str, int, str], Array] = {}
@@ -657,6 +678,7 @@ def evaluate_catheter(
             keep_tips=kt if keep else None,
             in_situ=in_situ,
             plant=plant,
+            file_map=file_map,
         )
         commands.update({(vessel, *k): v for k, v in kc.items()})
         tips.update({(vessel, *k): v for k, v in kt.items()})

@@ -21,10 +21,12 @@ from typing import Any
 
 import numpy as np
 
-from icenav.errors import ConfigurationError, InvalidValueError, JobError
+from icenav.calibration.files import CalibrationFile
+from icenav.errors import ConfigurationError, IcenavError, InvalidValueError, JobError
 from icenav.eval.spin import (
     ALL_CONDITIONS,
     CONDITIONS,
+    FILE,
     CatheterRun,
     SpinRecord,
     evaluate_catheter,
@@ -215,6 +217,14 @@ def _parser() -> argparse.ArgumentParser:
         help="print the robot time and moves of each calibration at the controller's speeds "
         "and exit",
     )
+    p.add_argument(
+        "--calibration",
+        type=Path,
+        metavar="CAL.json",
+        help="also spin with the paper's F built on this calibration file's samples (as "
+        "'icenav calibrate' or the console wrote it; condition 'file'); with --seed, the "
+        "catheter it was recorded on",
+    )
     plant = p.add_mutually_exclusive_group()
     plant.add_argument(
         "--plant",
@@ -303,6 +313,19 @@ def main(argv: Sequence[str] | None = None) -> int:
         plants = _plants(args.plant, args.plant_family)
     except ConfigurationError as exc:
         return _fail(str(exc))
+    calibration_file = None
+    if args.calibration is not None:
+        if args.seeds is not None or len(plants) > 1:
+            return _fail(
+                "--calibration is one catheter's: give the catheter it was recorded on with "
+                "--seed N (and one plant at most), not --seeds or several families"
+            )
+        try:  # read it here, so a bad file is named before anything runs
+            CalibrationFile.load(args.calibration)
+        except IcenavError as exc:
+            return _fail(f"--calibration {args.calibration}: {exc}")
+        calibration_file = str(args.calibration)
+        conds = [*conds, FILE]
     t0 = time.perf_counter()
     run_vessels = vessels
     if args.plots is not None and len(vessels) == 1:
@@ -325,6 +348,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             n_samples=args.samples,
             conditions=conds,
             in_situ=args.in_situ,
+            calibration_file=calibration_file,
         )
     except (ConfigurationError, JobError) as exc:
         return _fail(str(exc))
