@@ -39,8 +39,6 @@ from icenav.console.panels import (
     LatestSlot,
     client_name,
     control_view,
-    display_factors,
-    display_pixel_map,
     gray_to_rgb,
     jog_command,
     mode_from_choice,
@@ -49,16 +47,8 @@ from icenav.console.panels import (
     summary_markdown,
     views_markdown,
 )
-from icenav.console.scene import (
-    MM_TO_SCENE,
-    AnatomyMesh,
-    RoadmapTrail,
-    as_anatomy_meshes,
-    catheter_scene,
-    image_plane_pose,
-    subsample,
-    view_marker_positions,
-)
+from icenav.console.scene import AnatomyMesh, as_anatomy_meshes
+from icenav.console.scene_view import IMAGE_MAX_WIDTH, IMAGE_MIN_WIDTH, SceneView
 from icenav.control.authorization import TokenGate
 from icenav.control.commands import (
     CommandResult,
@@ -91,14 +81,6 @@ CALIBRATIONS: dict[str, CalibrationKind] = {
     "5-point": "five_point",
     "Dense + hysteresis": "dense+hysteresis",
 }
-TRUE_RGB = (230, 140, 40)
-MODEL_RGB = (60, 120, 255)
-VIEW_RGB = (40, 200, 90)
-ROADMAP_RGB = (150, 150, 150)
-IMAGE_MAX_WIDTH = 640
-"""Widest ICE image sent (pixels); wider ones are decimated."""
-IMAGE_MIN_WIDTH = 300
-"""Narrower ICE images are enlarged towards this width (the panel is about 320 px wide)."""
 
 
 @dataclass(frozen=True)
@@ -301,16 +283,9 @@ class Console(ConsoleCommands):
     def _reset_view_state(self) -> None:
         """What the console has drawn (a fresh start on each start())."""
         self._history = JointHistory(10.0)
-        self._trail = RoadmapTrail()
-        self._markers: dict[str, np.ndarray] = {}
-        self._marker_handles: dict[str, tuple[Any, Any]] = {}
-        self._first_state = True
         self._last_state: ControllerState | None = None
         self._status_mode: Mode | None = None
         self._last_image_t: float | None = None
-        self._tubes: dict[str, Any] = {}
-        self._tube_faces: dict[str, int] = {}
-        self._scene_image: Any = None
 
     # ------------------------------------------------------------------ lifecycle
     @property
@@ -466,54 +441,7 @@ class Console(ConsoleCommands):
                 aspect=1.6,
             )
 
-        cam = s.initial_camera
-        cam.position = (0.09, -0.09, 0.07)  # metres: the 60 mm bending section fills a third
-        cam.look_at = (0.0, 0.0, 0.035)
-        cam.near = 0.001
-        sc = s.scene
-        sc.set_up_direction("+z")
-        sc.configure_default_lights(enabled=True, cast_shadow=False)  # shadows cost frame rate
-        sc.add_frame("/base", axes_length=0.01, axes_radius=0.0005)
-        # the base plane: 1 cm cells, 5 cm sections (a scale for the eye)
-        sc.add_grid(
-            "/grid",
-            width=0.2,
-            height=0.2,
-            cell_size=0.01,
-            section_size=0.05,
-            fade_distance=1.0,
-            shadow_opacity=0.0,
-        )
-        for mesh in self.anatomy:
-            sc.add_mesh_simple(
-                f"/anatomy/{mesh.name}",
-                vertices=(mesh.vertices * MM_TO_SCENE).astype(np.float32),
-                faces=mesh.faces,
-                color=mesh.rgb,
-                opacity=mesh.opacity,
-                side="double",
-                cast_shadow=False,
-                receive_shadow=False,
-            )
-        self._tip_true = sc.add_frame(
-            "/catheter/tip_true", axes_length=0.008, axes_radius=0.0005, visible=False
-        )
-        self._tip_model = sc.add_frame(
-            "/catheter/tip_model", axes_length=0.006, axes_radius=0.0003, visible=False
-        )
-        self._tip_ghost = sc.add_icosphere(
-            "/catheter/tip_model/ghost", radius=0.0025, color=MODEL_RGB, opacity=0.35
-        )
-        self._sensor = sc.add_frame(
-            "/catheter/sensor", axes_length=0.005, axes_radius=0.0004, visible=False
-        )
-        self._roadmap = sc.add_point_cloud(
-            "/roadmap",
-            points=np.zeros((1, 3), np.float32),
-            colors=ROADMAP_RGB,
-            point_size=0.0012,
-            visible=False,
-        )
+        self.scene = SceneView(s, self.anatomy, self.geometry, self.max_roadmap_points)
 
     def _on_connect(self, client: Any) -> None:
         panel = _ClientPanel(self, client)
@@ -654,108 +582,16 @@ class Console(ConsoleCommands):
         if pct is not None:
             self._progress.value = pct
             self._progress_label.content = f"{state.progress_label or 'Progress'}: {pct:.0f} %"
-        self._draw_scene(state)
+        self.scene.draw_state(state)
         with self._lock:  # a browser connecting or leaving waits for this
             for p in self._panels.values():
                 self._update_panel(p, state)
 
-    def _draw_scene(self, state: ControllerState) -> None:
-        cs = catheter_scene(state, self.geometry.catheter_radius)
-        self._set_tube("true", cs.true_tube, TRUE_RGB, None)
-        self._set_tube("model", cs.model_tube, MODEL_RGB, 0.35)
-        self._tip_model.wxyz, self._tip_model.position = cs.tip_model.wxyz, cs.tip_model.position
-        self._tip_model.visible = True
-        if cs.tip_true is not None:
-            self._tip_true.wxyz, self._tip_true.position = cs.tip_true.wxyz, cs.tip_true.position
-        self._tip_true.visible = cs.tip_true is not None
-        if cs.sensor is not None:
-            self._sensor.wxyz, self._sensor.position = cs.sensor.wxyz, cs.sensor.position
-        self._sensor.visible = cs.sensor is not None
-        if self._trail.update(state):
-            pts = subsample(self._trail.points(), self.max_roadmap_points) * MM_TO_SCENE
-            if len(pts):
-                self._roadmap.points = pts.astype(np.float32)
-                self._roadmap.colors = np.tile(np.array(ROADMAP_RGB, np.uint8), (len(pts), 1))
-            self._roadmap.visible = len(pts) > 0
-        tip = state.tip2base_true if state.tip2base_true is not None else state.tip2base_model
-        markers = view_marker_positions(
-            state.views,
-            self._markers,
-            np.asarray(tip)[:3, 3],
-            first=self._first_state,
-            geometry=self.geometry,
-        )
-        self._first_state = False
-        if markers.keys() != self._markers.keys():
-            self._draw_markers(markers)
-        self._markers = markers
-
-    def _set_tube(self, key: str, tube: Any, rgb: tuple[int, int, int], op: float | None) -> None:
-        handle = self._tubes.get(key)
-        if tube is None:
-            if handle is not None:
-                handle.visible = False
-            return
-        vertices, faces = tube
-        if handle is None or self._tube_faces.get(key) != len(faces):
-            if handle is not None:
-                handle.remove()
-            self._tubes[key] = self._server.scene.add_mesh_simple(
-                f"/catheter/{key}",
-                vertices=vertices,
-                faces=faces,
-                color=rgb,
-                opacity=op,
-                cast_shadow=False,
-                receive_shadow=False,
-            )
-            self._tube_faces[key] = len(faces)
-        else:
-            handle.vertices = vertices
-            handle.visible = True
-
-    def _draw_markers(self, markers: dict[str, np.ndarray]) -> None:
-        sc = self._server.scene
-        for name in list(self._marker_handles):
-            if name not in markers:
-                for h in self._marker_handles.pop(name):
-                    h.remove()
-        for i, (name, pos) in enumerate(markers.items()):
-            if name in self._marker_handles:
-                continue
-            key = f"/views/v{i}_{abs(hash(name)) % 10**8}"
-            p = np.asarray(pos) * MM_TO_SCENE
-            sphere = sc.add_icosphere(key, radius=0.002, color=VIEW_RGB, position=p)
-            label = sc.add_label(key + "_label", name, position=p + np.array([0, 0, 0.004]))
-            self._marker_handles[name] = (sphere, label)
-
     def _draw_image(self, frame: ImageFrame, state: ControllerState | None) -> None:
-        rgb = gray_to_rgb(frame.pixels, IMAGE_MAX_WIDTH, IMAGE_MIN_WIDTH)
-        self._image.image = rgb
+        self._image.image = gray_to_rgb(frame.pixels, IMAGE_MAX_WIDTH, IMAGE_MIN_WIDTH)
         self._image.visible = True
         self._image_placeholder.visible = False
-        if state is None or np.array_equal(frame.ijk2tip, np.eye(4)):
-            return  # identity: the imager did not say where its pixels are; panel only
-        tip = state.tip2base_true if state.tip2base_true is not None else state.tip2base_model
-        down, up = display_factors(frame.pixels.shape[1], IMAGE_MAX_WIDTH, IMAGE_MIN_WIDTH)
-        ijk2tip = np.asarray(frame.ijk2tip, dtype=np.float64) @ display_pixel_map(down, up)
-        pose, w, h = image_plane_pose(ijk2tip, tip, (rgb.shape[0], rgb.shape[1]))
-        if self._scene_image is None:
-            self._scene_image = self._server.scene.add_image(
-                "/ice_image",
-                rgb,
-                w,
-                h,
-                format="jpeg",
-                wxyz=pose.wxyz,
-                position=pose.position,
-                cast_shadow=False,
-                receive_shadow=False,
-            )
-        else:
-            self._scene_image.image = rgb
-            self._scene_image.wxyz, self._scene_image.position = pose.wxyz, pose.position
-            self._scene_image.render_width, self._scene_image.render_height = w, h
+        self.scene.draw_image(frame, state)
 
     def _update_panel(self, p: _ClientPanel, state: ControllerState) -> None:
         cv = control_view(state.control_owner, p.name)

@@ -1,0 +1,224 @@
+"""The console's shared 3-D scene (viser): anatomy, catheter tubes and frames, EM sensor,
+roadmap, saved-view markers and the ICE image in its plane.
+
+:class:`SceneView` owns the scene handles of one running server and draws a controller
+state into them (on the console's refresh thread); the geometry it draws comes from the
+pure functions of :mod:`icenav.console.scene`. Scene units are metres (:data:`MM_TO_SCENE`).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+
+from icenav.console.panels import display_factors, display_pixel_map, gray_to_rgb
+from icenav.console.scene import (
+    MM_TO_SCENE,
+    AnatomyMesh,
+    RoadmapTrail,
+    catheter_scene,
+    image_plane_pose,
+    subsample,
+    view_marker_positions,
+)
+from icenav.control.state import ControllerState, ImageFrame
+from icenav.geometry.kinematics import CatheterGeometry
+
+__all__ = ["SceneView"]
+
+TRUE_RGB = (230, 140, 40)
+MODEL_RGB = (60, 120, 255)
+VIEW_RGB = (40, 200, 90)
+ROADMAP_RGB = (150, 150, 150)
+IMAGE_MAX_WIDTH = 640
+"""Widest ICE image drawn in the scene (pixels); wider ones are decimated."""
+IMAGE_MIN_WIDTH = 300
+"""Narrower ICE images are enlarged towards this width."""
+
+
+class SceneView:
+    """The 3-D scene of one running viser server.
+
+    Parameters
+    ----------
+    server : viser.ViserServer
+        The server whose (shared) scene is drawn.
+    anatomy : sequence of AnatomyMesh
+        Surfaces in the base frame (mm), drawn translucently.
+    geometry : CatheterGeometry
+        Catheter radius (tubes) and the model pose of views loaded with a session.
+    max_roadmap_points : int
+        The roadmap drawn as at most this many points.
+    """
+
+    def __init__(
+        self,
+        server: Any,
+        anatomy: Sequence[AnatomyMesh],
+        geometry: CatheterGeometry,
+        max_roadmap_points: int,
+    ):
+        self.server = server
+        self.geometry = geometry
+        self.max_roadmap_points = max_roadmap_points
+        self.trail = RoadmapTrail()
+        self.markers: dict[str, np.ndarray] = {}
+        """Saved-view marker positions (mm, base frame), by view name."""
+        self.marker_handles: dict[str, tuple[Any, Any]] = {}
+        """(sphere, label) scene handles of each saved view's marker."""
+        self.image: Any = None
+        """The scene's ICE image handle (None until an image with a placement came)."""
+        self._first_state = True
+        self._tubes: dict[str, Any] = {}
+        self._tube_faces: dict[str, int] = {}
+        self._build(anatomy)
+
+    def _build(self, anatomy: Sequence[AnatomyMesh]) -> None:
+        s = self.server
+        cam = s.initial_camera
+        cam.position = (0.09, -0.09, 0.07)  # metres: the 60 mm bending section fills a third
+        cam.look_at = (0.0, 0.0, 0.035)
+        cam.near = 0.001
+        sc = s.scene
+        sc.set_up_direction("+z")
+        sc.configure_default_lights(enabled=True, cast_shadow=False)  # shadows cost frame rate
+        sc.add_frame("/base", axes_length=0.01, axes_radius=0.0005)
+        # the base plane: 1 cm cells, 5 cm sections (a scale for the eye)
+        sc.add_grid(
+            "/grid",
+            width=0.2,
+            height=0.2,
+            cell_size=0.01,
+            section_size=0.05,
+            fade_distance=1.0,
+            shadow_opacity=0.0,
+        )
+        for mesh in anatomy:
+            sc.add_mesh_simple(
+                f"/anatomy/{mesh.name}",
+                vertices=(mesh.vertices * MM_TO_SCENE).astype(np.float32),
+                faces=mesh.faces,
+                color=mesh.rgb,
+                opacity=mesh.opacity,
+                side="double",
+                cast_shadow=False,
+                receive_shadow=False,
+            )
+        self.tip_true = sc.add_frame(
+            "/catheter/tip_true", axes_length=0.008, axes_radius=0.0005, visible=False
+        )
+        self.tip_model = sc.add_frame(
+            "/catheter/tip_model", axes_length=0.006, axes_radius=0.0003, visible=False
+        )
+        self._tip_ghost = sc.add_icosphere(
+            "/catheter/tip_model/ghost", radius=0.0025, color=MODEL_RGB, opacity=0.35
+        )
+        self.sensor = sc.add_frame(
+            "/catheter/sensor", axes_length=0.005, axes_radius=0.0004, visible=False
+        )
+        self.roadmap = sc.add_point_cloud(
+            "/roadmap",
+            points=np.zeros((1, 3), np.float32),
+            colors=ROADMAP_RGB,
+            point_size=0.0012,
+            visible=False,
+        )
+
+    def draw_state(self, state: ControllerState) -> None:
+        """Catheter, sensor, roadmap and view markers of ``state``."""
+        cs = catheter_scene(state, self.geometry.catheter_radius)
+        self._set_tube("true", cs.true_tube, TRUE_RGB, None)
+        self._set_tube("model", cs.model_tube, MODEL_RGB, 0.35)
+        self.tip_model.wxyz, self.tip_model.position = cs.tip_model.wxyz, cs.tip_model.position
+        self.tip_model.visible = True
+        if cs.tip_true is not None:
+            self.tip_true.wxyz, self.tip_true.position = cs.tip_true.wxyz, cs.tip_true.position
+        self.tip_true.visible = cs.tip_true is not None
+        if cs.sensor is not None:
+            self.sensor.wxyz, self.sensor.position = cs.sensor.wxyz, cs.sensor.position
+        self.sensor.visible = cs.sensor is not None
+        if self.trail.update(state):
+            pts = subsample(self.trail.points(), self.max_roadmap_points) * MM_TO_SCENE
+            if len(pts):
+                self.roadmap.points = pts.astype(np.float32)
+                self.roadmap.colors = np.tile(np.array(ROADMAP_RGB, np.uint8), (len(pts), 1))
+            self.roadmap.visible = len(pts) > 0
+        tip = state.tip2base_true if state.tip2base_true is not None else state.tip2base_model
+        markers = view_marker_positions(
+            state.views,
+            self.markers,
+            np.asarray(tip)[:3, 3],
+            first=self._first_state,
+            geometry=self.geometry,
+        )
+        self._first_state = False
+        if markers.keys() != self.markers.keys():
+            self._draw_markers(markers)
+        self.markers = markers
+
+    def _set_tube(self, key: str, tube: Any, rgb: tuple[int, int, int], op: float | None) -> None:
+        handle = self._tubes.get(key)
+        if tube is None:
+            if handle is not None:
+                handle.visible = False
+            return
+        vertices, faces = tube
+        if handle is None or self._tube_faces.get(key) != len(faces):
+            if handle is not None:
+                handle.remove()
+            self._tubes[key] = self.server.scene.add_mesh_simple(
+                f"/catheter/{key}",
+                vertices=vertices,
+                faces=faces,
+                color=rgb,
+                opacity=op,
+                cast_shadow=False,
+                receive_shadow=False,
+            )
+            self._tube_faces[key] = len(faces)
+        else:
+            handle.vertices = vertices
+            handle.visible = True
+
+    def _draw_markers(self, markers: dict[str, np.ndarray]) -> None:
+        sc = self.server.scene
+        for name in list(self.marker_handles):
+            if name not in markers:
+                for h in self.marker_handles.pop(name):
+                    h.remove()
+        for i, (name, pos) in enumerate(markers.items()):
+            if name in self.marker_handles:
+                continue
+            key = f"/views/v{i}_{abs(hash(name)) % 10**8}"
+            p = np.asarray(pos) * MM_TO_SCENE
+            sphere = sc.add_icosphere(key, radius=0.002, color=VIEW_RGB, position=p)
+            label = sc.add_label(key + "_label", name, position=p + np.array([0, 0, 0.004]))
+            self.marker_handles[name] = (sphere, label)
+
+    def draw_image(self, frame: ImageFrame, state: ControllerState | None) -> None:
+        """The ICE image in its plane at the tip (nothing when its placement is unknown)."""
+        if state is None or np.array_equal(frame.ijk2tip, np.eye(4)):
+            return  # identity: the imager did not say where its pixels are; panel only
+        rgb = gray_to_rgb(frame.pixels, IMAGE_MAX_WIDTH, IMAGE_MIN_WIDTH)
+        tip = state.tip2base_true if state.tip2base_true is not None else state.tip2base_model
+        down, up = display_factors(frame.pixels.shape[1], IMAGE_MAX_WIDTH, IMAGE_MIN_WIDTH)
+        ijk2tip = np.asarray(frame.ijk2tip, dtype=np.float64) @ display_pixel_map(down, up)
+        pose, w, h = image_plane_pose(ijk2tip, tip, (rgb.shape[0], rgb.shape[1]))
+        if self.image is None:
+            self.image = self.server.scene.add_image(
+                "/ice_image",
+                rgb,
+                w,
+                h,
+                format="jpeg",
+                wxyz=pose.wxyz,
+                position=pose.position,
+                cast_shadow=False,
+                receive_shadow=False,
+            )
+        else:
+            self.image.image = rgb
+            self.image.wxyz, self.image.position = pose.wxyz, pose.position
+            self.image.render_width, self.image.render_height = w, h
