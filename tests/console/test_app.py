@@ -59,7 +59,7 @@ def test_refresh_draws_the_newest_state_only(console: Console) -> None:
     stats = console.stats()
     assert stats.states_offered == 6 and stats.refreshes == 2  # 4 of 5 coalesced
     status = console._status.content
-    assert "KNOB" in status and "4 vertices" in status and "VALID" in status
+    assert "Jogging the knobs" in status and "4 vertices" in status and "VALID" in status
     # scene follows the state: tip frame at the true tip, in metres
     np.testing.assert_allclose(console.scene.tip_true.position, forward(q)[:3, 3] * 1e-3, atol=1e-9)
     assert console.scene.sensor.visible
@@ -78,11 +78,11 @@ def test_status_and_plot_refresh_at_status_hz() -> None:
         for k in range(1, 7):
             ctl.publish(make_state(cycle=k, time=1.0 * k))
             c.refresh_once()
-            drawn = f"t** = {1.0 * k:.1f} s" in c._status.content
+            drawn = f"Running for** {1.0 * k:.1f} s" in c._status.content
             assert drawn == (k % 3 == 0), (k, c._status.content[:200])
         ctl.publish(make_state(cycle=7, time=7.0, mode=Mode.KNOB))  # a mode change: at once
         c.refresh_once()
-        assert "KNOB" in c._status.content
+        assert "Jogging the knobs" in c._status.content
 
 
 def test_jog_button_sends_the_mode_s_jog_only_with_control(console: Console) -> None:
@@ -90,7 +90,11 @@ def test_jog_button_sends_the_mode_s_jog_only_with_control(console: Console) -> 
 
     ctl: RecordingController = console.controller  # type: ignore[assignment]
     panel = SimpleNamespace(
-        name="browser-7", can_control=False, source=Source("console", "browser-7")
+        name="browser-7",
+        can_control=False,
+        source=Source("console", "browser-7"),
+        tell=lambda *a: None,
+        clear=lambda *a: None,
     )
     hold = console._jog_callback(panel, 2, -1)  # type: ignore[arg-type]
     ctl.publish(make_state(mode=Mode.TIP))
@@ -224,6 +228,9 @@ def test_listener_after_stop_is_inert() -> None:
         "icenav.console.app",
         "icenav.console.scene",
         "icenav.console.scene_view",
+        "icenav.console.display",
+        "icenav.console.labels",
+        "icenav.console.client_panel",
         "icenav.console.panels",
     ],
 )

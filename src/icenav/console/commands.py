@@ -14,6 +14,7 @@ from typing import Any
 
 import numpy as np
 
+from icenav.console.labels import humanize
 from icenav.control.commands import (
     Calibrate,
     Command,
@@ -65,13 +66,13 @@ class ConsoleCommands:
         panel (with the controller's reason), a success clears the note."""
 
         def show(result: CommandResult) -> None:
-            what = command.describe()
+            what = humanize(command.describe())
             if result.outcome is Outcome.REFUSED:
-                panel.feedback_text = f"**Refused** ({what}): {result.reason}"
+                panel.tell(f"**Refused** ({what}): {humanize(result.reason)}", command.name)
             elif result.outcome is Outcome.FAILED:
-                panel.feedback_text = f"**Failed** ({what}): {result.reason}"
-            elif not isinstance(command, Jog):
-                panel.feedback_text = ""
+                panel.tell(f"**Failed** ({what}): {humanize(result.reason)}", command.name)
+            else:  # an accepted jog clears only a jog's refusal, not another command's
+                panel.clear(command.name if isinstance(command, Jog) else None)
 
         ticket = self.controller.submit(command)
         if on_decided is not None:
@@ -115,9 +116,9 @@ class ConsoleCommands:
 
     def _confirm_calibration(self, panel: Any, kind: CalibrationKind) -> None:
         try:
-            text = self.controller.preview_calibration(kind).describe()
+            text = humanize(self.controller.preview_calibration(kind).describe())
         except IcenavError as exc:
-            panel.feedback_text = f"**Cannot calibrate**: {exc}"
+            panel.tell(f"**Cannot calibrate**: {humanize(str(exc))}")
             return
         self._ask(
             panel,
@@ -213,9 +214,7 @@ class ConsoleCommands:
         with self._lock:
             panels = list(self._panels.values())
         for p in panels:
-            if p.feedback_text != p.feedback_shown:
-                p.feedback.content = p.feedback_text
-                p.feedback_shown = p.feedback_text
+            p.serve_feedback()
             while p.exports:
                 p.export_text = self.export_view(p.exports.popleft())
             if p.export_note is not None and p.export_text != p.export_shown:

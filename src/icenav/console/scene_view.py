@@ -8,12 +8,14 @@ pure functions of :mod:`icenav.console.scene`. Scene units are metres (:data:`MM
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
+from numpy.typing import NDArray
 
-from icenav.console.panels import display_factors, display_pixel_map, gray_to_rgb
+from icenav.console.panels import display_factors, display_pixel_map
 from icenav.console.scene import (
     MM_TO_SCENE,
     AnatomyMesh,
@@ -24,18 +26,69 @@ from icenav.console.scene import (
     view_marker_positions,
 )
 from icenav.control.state import ControllerState, ImageFrame
+from icenav.errors import ConfigurationError
 from icenav.geometry.kinematics import CatheterGeometry
 
-__all__ = ["SceneView"]
+__all__ = ["FAN_OPACITY", "SceneLabel", "SceneView", "as_scene_labels", "fan_rgba"]
 
 TRUE_RGB = (230, 140, 40)
 MODEL_RGB = (60, 120, 255)
 VIEW_RGB = (40, 200, 90)
 ROADMAP_RGB = (150, 150, 150)
-IMAGE_MAX_WIDTH = 640
+IMAGE_MAX_WIDTH = 256
 """Widest ICE image drawn in the scene (pixels); wider ones are decimated."""
-IMAGE_MIN_WIDTH = 300
-"""Narrower ICE images are enlarged towards this width."""
+FAN_OPACITY = 0.8
+"""Opacity of the ICE fan in the scene (the anatomy behind it shows through)."""
+LABEL_RGB = (250, 250, 250)
+ORIENTATION_MM = 15.0
+"""Length of the orientation marker's arms (mm)."""
+
+
+@dataclass(frozen=True)
+class SceneLabel:
+    """A label in the scene: a structure (RA, TV, ...) or a patient direction (A, P, ...)."""
+
+    key: str
+    """Structure key (``ra``, ``interatrial_septum``) or ``dir-<letter>`` for a direction."""
+    label: str
+    """Short text shown (``RA``, ``A``)."""
+    name: str
+    """Full name (``right atrium``, ``anterior``)."""
+    point: tuple[float, float, float]
+    """Anchor in the base frame (mm); for a direction, a unit vector in the base frame."""
+
+    @property
+    def is_direction(self) -> bool:
+        return self.key.startswith("dir-")
+
+
+def as_scene_labels(items: Sequence[Any] | None) -> tuple[SceneLabel, ...]:
+    """Labels from landmark objects (``key``, ``label``, ``name``, ``point``) or
+    ``(key, label, name, point)`` tuples; None gives ()."""
+    out: list[SceneLabel] = []
+    for item in items or ():
+        if isinstance(item, tuple):
+            key, label, name, point = item
+        else:
+            key, label, name, point = item.key, item.label, item.name, item.point
+        p = np.asarray(point, dtype=np.float64).reshape(-1)
+        if p.shape != (3,) or not np.isfinite(p).all():
+            raise ConfigurationError(f"label {key!r}: point must be 3 finite values (mm)")
+        out.append(SceneLabel(str(key), str(label), str(name), (p[0], p[1], p[2])))
+    return tuple(out)
+
+
+def fan_rgba(pixels: NDArray[np.uint8], opacity: float = FAN_OPACITY) -> NDArray[np.uint8]:
+    """(H, W) B-mode image as (H, W, 4) RGBA: opaque ``opacity`` inside the sector (each row
+    from its first to its last pixel with an echo), transparent outside it."""
+    p = np.asarray(pixels, dtype=np.uint8)
+    lit = p > 0
+    cols = np.arange(p.shape[1])
+    first = np.where(lit.any(axis=1), lit.argmax(axis=1), p.shape[1])
+    last = np.where(lit.any(axis=1), p.shape[1] - 1 - lit[:, ::-1].argmax(axis=1), -1)
+    inside = (cols[None, :] >= first[:, None]) & (cols[None, :] <= last[:, None])
+    alpha = np.where(inside, round(255 * opacity), 0).astype(np.uint8)
+    return np.dstack([p, p, p, alpha])
 
 
 class SceneView:
@@ -51,6 +104,8 @@ class SceneView:
         Catheter radius (tubes) and the model pose of views loaded with a session.
     max_roadmap_points : int
         The roadmap drawn as at most this many points.
+    labels : sequence of SceneLabel
+        Anatomy labels and patient directions (the orientation marker).
     """
 
     def __init__(
@@ -59,6 +114,7 @@ class SceneView:
         anatomy: Sequence[AnatomyMesh],
         geometry: CatheterGeometry,
         max_roadmap_points: int,
+        labels: Sequence[SceneLabel] = (),
     ):
         self.server = server
         self.geometry = geometry
@@ -70,10 +126,75 @@ class SceneView:
         """(sphere, label) scene handles of each saved view's marker."""
         self.image: Any = None
         """The scene's ICE image handle (None until an image with a placement came)."""
+        self.on_view_click: Callable[[str, int | None], None] | None = None
+        """Called with (view name, client id) when a browser clicks a view's marker."""
         self._first_state = True
         self._tubes: dict[str, Any] = {}
         self._tube_faces: dict[str, int] = {}
+        self._roadmap_on = True
+        self._image_on = True
+        self.label_handles: list[Any] = []
+        """Anatomy labels and the orientation marker's letters."""
         self._build(anatomy)
+        self._build_labels(labels, anatomy)
+
+    def _build_labels(self, labels: Sequence[SceneLabel], anatomy: Sequence[AnatomyMesh]) -> None:
+        """Structure labels at their anchors; the orientation marker (A/P, L/R, S/I arms)
+        beside the anatomy, at the corner of its bounding box nearest the viewer's start."""
+        sc = self.server.scene
+        for i, lab in enumerate(x for x in labels if not x.is_direction):
+            h = sc.add_label(
+                f"/labels/s{i}",
+                lab.label,
+                position=np.asarray(lab.point) * MM_TO_SCENE,
+                font_screen_scale=1.1,
+                anchor="center-center",
+            )
+            self.label_handles.append(h)
+        dirs = [x for x in labels if x.is_direction]
+        if not dirs:
+            return
+        pts = [m.vertices for m in anatomy] or [np.zeros((1, 3))]
+        allp = np.concatenate(pts)
+        corner = np.array([allp[:, 0].max(), allp[:, 1].min(), allp[:, 2].min()]) + 10.0
+        origin = corner * MM_TO_SCENE
+        segs = []
+        for i, d in enumerate(dirs):
+            u = np.asarray(d.point, dtype=np.float64)
+            u = u / max(float(np.linalg.norm(u)), 1e-12)
+            tip = origin + u * ORIENTATION_MM * MM_TO_SCENE
+            segs.append([origin, tip])
+            h = sc.add_label(
+                f"/orientation/{i}",
+                d.label,
+                position=origin + u * (ORIENTATION_MM + 4.0) * MM_TO_SCENE,
+                anchor="center-center",
+            )
+            self.label_handles.append(h)
+        self.label_handles.append(
+            sc.add_line_segments(
+                "/orientation/arms",
+                np.asarray(segs, dtype=np.float32),
+                colors=(255, 200, 0),
+                thickness=0.0006,
+            )
+        )
+
+    def show_roadmap(self, on: bool) -> None:
+        """Show or hide the roadmap's points."""
+        self._roadmap_on = bool(on)
+        self.roadmap.visible = self._roadmap_on and len(self.trail.points()) > 0
+
+    def show_labels(self, on: bool) -> None:
+        """Show or hide the anatomy labels and the orientation marker."""
+        for h in self.label_handles:
+            h.visible = bool(on)
+
+    def show_image(self, on: bool) -> None:
+        """Show or hide the ICE fan in the scene."""
+        self._image_on = bool(on)
+        if self.image is not None:
+            self.image.visible = self._image_on
 
     def _build(self, anatomy: Sequence[AnatomyMesh]) -> None:
         s = self.server
@@ -144,7 +265,7 @@ class SceneView:
             if len(pts):
                 self.roadmap.points = pts.astype(np.float32)
                 self.roadmap.colors = np.tile(np.array(ROADMAP_RGB, np.uint8), (len(pts), 1))
-            self.roadmap.visible = len(pts) > 0
+            self.roadmap.visible = self._roadmap_on and len(pts) > 0
         tip = state.tip2base_true if state.tip2base_true is not None else state.tip2base_model
         markers = view_marker_positions(
             state.views,
@@ -193,32 +314,45 @@ class SceneView:
                 continue
             key = f"/views/v{i}_{abs(hash(name)) % 10**8}"
             p = np.asarray(pos) * MM_TO_SCENE
-            sphere = sc.add_icosphere(key, radius=0.002, color=VIEW_RGB, position=p)
-            label = sc.add_label(key + "_label", name, position=p + np.array([0, 0, 0.004]))
+            sphere = sc.add_icosphere(key, radius=0.0025, color=VIEW_RGB, position=p)
+            label = sc.add_label(key + "_label", name, position=p + np.array([0, 0, 0.005]))
+            sphere.on_click(self._clicked(name))
             self.marker_handles[name] = (sphere, label)
 
+    def _clicked(self, name: str) -> Callable[[Any], None]:
+        def cb(ev: Any) -> None:
+            if self.on_view_click is not None:
+                self.on_view_click(name, getattr(ev, "client_id", None))
+
+        return cb
+
     def draw_image(self, frame: ImageFrame, state: ControllerState | None) -> None:
-        """The ICE image in its plane at the tip (nothing when its placement is unknown)."""
+        """The ICE image as its fan (translucent, transparent outside the sector) in its
+        plane at the tip; nothing when its placement is unknown."""
         if state is None or np.array_equal(frame.ijk2tip, np.eye(4)):
             return  # identity: the imager did not say where its pixels are; panel only
-        rgb = gray_to_rgb(frame.pixels, IMAGE_MAX_WIDTH, IMAGE_MIN_WIDTH)
+        pixels = np.asarray(frame.pixels)
+        if pixels.ndim == 3:
+            pixels = pixels.mean(axis=2).astype(np.uint8)
+        down, up = display_factors(pixels.shape[1], IMAGE_MAX_WIDTH, 0)
+        rgba = fan_rgba(pixels[::down, ::down])
         tip = state.tip2base_true if state.tip2base_true is not None else state.tip2base_model
-        down, up = display_factors(frame.pixels.shape[1], IMAGE_MAX_WIDTH, IMAGE_MIN_WIDTH)
         ijk2tip = np.asarray(frame.ijk2tip, dtype=np.float64) @ display_pixel_map(down, up)
-        pose, w, h = image_plane_pose(ijk2tip, tip, (rgb.shape[0], rgb.shape[1]))
+        pose, w, h = image_plane_pose(ijk2tip, tip, (rgba.shape[0], rgba.shape[1]))
         if self.image is None:
             self.image = self.server.scene.add_image(
                 "/ice_image",
-                rgb,
+                rgba,
                 w,
                 h,
-                format="jpeg",
+                format="png",
                 wxyz=pose.wxyz,
                 position=pose.position,
                 cast_shadow=False,
                 receive_shadow=False,
+                visible=self._image_on,
             )
         else:
-            self.image.image = rgb
+            self.image.image = rgba
             self.image.wxyz, self.image.position = pose.wxyz, pose.position
             self.image.render_width, self.image.render_height = w, h
