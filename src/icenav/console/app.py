@@ -52,6 +52,7 @@ from icenav.console.display import (
     imaged_depth_cm,
     render_display,
 )
+from icenav.console.jog import JogRepeater
 from icenav.console.labels import (
     SHORTCUTS,
     GamepadState,
@@ -245,6 +246,8 @@ class Console(ConsoleCommands):
         self.refresh_hz = refresh_hz
         self._status_every = max(1, round(refresh_hz / status_hz))
         self.jog_hz = jog_hz
+        self.jog = JogRepeater(jog_hz)
+        """Keeps a held on-screen jog going between the browser's hold messages."""
         self.geometry = geometry
         self.mapping = mapping or JoystickMapping()
         self._jog_rates = _rate_words(self.mapping)
@@ -334,6 +337,7 @@ class Console(ConsoleCommands):
         self._slot.offer(self.controller.snapshot())
         self._thread = threading.Thread(target=self._run, name="icenav-console", daemon=True)
         self._thread.start()
+        self.jog.start()
 
     def stop(self) -> None:
         """Stop refreshing, release control held by browsers and close the server."""
@@ -341,6 +345,7 @@ class Console(ConsoleCommands):
             return
         self._running = False
         self._stop.set()
+        self.jog.stop()
         if self._thread is not None:
             self._thread.join(timeout=5.0)
             self._thread = None
@@ -402,9 +407,16 @@ class Console(ConsoleCommands):
             )
             self._safety = gui.add_markdown("*Waiting for the controller...*")
             self._banner = gui.add_html("", visible=False)
+            self._reset = gui.add_button(
+                "Reset fault",
+                color="yellow",
+                visible=False,
+                hint="Clears the E-STOP or fault (the controller accepts it from the holder)",
+            )
             self._error_md = gui.add_markdown("")
         self._estop.on_click(lambda ev: self.controller.estop(client=self._client_of(ev)))
         self._stop_btn.on_click(lambda ev: self.controller.stop(client=self._client_of(ev)))
+        self._reset.on_click(lambda ev: self._for_panel(ev, self._reset_for))
         self._build_image_panel(gui)
         with gui.add_folder("3-D scene", order=15.0, expand_by_default=False):
             gui.add_markdown(
@@ -534,7 +546,7 @@ class Console(ConsoleCommands):
                 self.send(panel, SetCompensation(enabled, source=panel.source))
 
         panel.spin.on_click(lambda ev: self.send(panel, Spin(source=panel.source)))
-        panel.reset.on_click(lambda ev: self.send(panel, Reset(source=panel.source)))
+        panel.reset.on_click(lambda ev: self._reset_for(panel))
 
         @panel.calibrate.on_click
         def _(ev: Any) -> None:
@@ -551,6 +563,7 @@ class Console(ConsoleCommands):
 
         for b, axis, sign in panel.jog_buttons:
             b.on_hold(self._jog_callback(panel, axis, sign), callback_hz=self.jog_hz)
+            b.on_click(lambda ev: self._jog_released(panel))  # the click on pointer-up
 
         if panel.export is not None:
 
@@ -570,6 +583,7 @@ class Console(ConsoleCommands):
         with self._lock:
             panel = self._panels.pop(client.client_id, None)
         if panel is not None:  # its control is released; what it started stops and holds
+            self.jog.release(panel.name)
             self.controller.disconnect(panel.name)
 
     def _client_of(self, ev: Any) -> str:
@@ -612,6 +626,9 @@ class Console(ConsoleCommands):
         if name != NO_VIEWS:
             self.send(panel, GoToView(str(name), source=panel.source))
 
+    def _reset_for(self, panel: ClientPanel) -> None:
+        self.send(panel, Reset(source=panel.source))
+
     def _view_marker_clicked(self, view: str, client_id: int | None) -> None:
         """A click on a saved view's marker in the scene selects it in that browser."""
         with self._lock:
@@ -620,9 +637,10 @@ class Console(ConsoleCommands):
             panel.views.value = view
 
     def _jog_callback(self, panel: ClientPanel, axis: int, sign: int) -> Any:
-        def cb(ev: Any) -> None:
+        def send() -> None:
             state = self._last_state
             if state is None or not panel.can_control:
+                self.jog.release(panel.name)
                 return
             # Outside tip mode a jog drives the knobs: the controller wakes from IDLE into
             # knob mode on it, and it aborts an automatic motion (as gamepad input does).
@@ -630,7 +648,15 @@ class Console(ConsoleCommands):
             vel, frame = jog_command(mode, axis, sign, self.mapping)
             self.send(panel, Jog(vel, frame, source=panel.source))
 
-        return cb
+        return lambda ev: self.jog.hold(panel.name, send)
+
+    def _jog_released(self, panel: ClientPanel) -> None:
+        """A jog button let go: stop repeating and stop the motion now (a zero jog)."""
+        if self.jog.release(panel.name) and panel.can_control:
+            state = self._last_state
+            tip = state is not None and state.mode == Mode.TIP
+            zero = np.zeros(6 if tip else 4)
+            self.send(panel, Jog(zero, "tip" if tip else "knob", source=panel.source))
 
     # ------------------------------------------------------------------ refreshing
     def refresh_once(self) -> bool:
@@ -674,6 +700,7 @@ class Console(ConsoleCommands):
             self._banner.content = f'<div class="icenav-banner">{_md_to_html(banner)}</div>'
         if halted != self._halted:
             self._banner.visible = halted
+            self._reset.visible = halted
             self._halted = halted
         self._summary.content = summary_markdown(state, self._fresh_message(state))
         self._history.append(state.time, state.q_motor)

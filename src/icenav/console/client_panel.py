@@ -84,14 +84,6 @@ class ClientPanel:
         gui = client.gui
         self.note = gui.add_markdown("", order=1.0)
         self.feedback = gui.add_markdown("", order=1.01)
-        self.reset = gui.add_button(
-            "Reset fault",
-            color="yellow",
-            order=1.02,
-            visible=False,
-            hint="Clears an E-STOP or a fault (from the browser holding control)",
-        )
-        """Shown while the robot is halted (ESTOP / FAULT), right under the safety bar."""
         self.token = None
         if token_needed:  # reliability: part 4 (security)
             self.token = gui.add_text("Control token", initial_value="", order=1.05)
@@ -124,6 +116,11 @@ class ClientPanel:
                 "Mode", tuple(MODE_CHOICES), initial_value=next(iter(MODE_CHOICES))
             )
             self.compensation = gui.add_checkbox("Compensation", initial_value=False)
+            self.reset = gui.add_button(
+                "Reset (clear E-STOP / fault)",
+                color="yellow",
+                hint="The same as Reset fault in the safety bar",
+            )
             self.spin = gui.add_button("Spin 360")
             self.calib_kind = gui.add_dropdown(
                 "Calibration", tuple(CALIBRATIONS), initial_value="5-point"
@@ -173,7 +170,6 @@ class ClientPanel:
             self.note.content = cv.text
             self.note_text = cv.text
         halted = state.mode in (Mode.ESTOP, Mode.FAULT)
-        self.reset.visible = halted
         enabled = cv.can_control and not halted
         if enabled != self.enabled:
             for h in self.all_motion_controls():

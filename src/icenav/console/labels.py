@@ -192,7 +192,7 @@ def halt_banner(state: ControllerState) -> Banner | None:
         else ("FAULT: the robot stopped; every motion control is disabled")
     )
     action = (
-        "make the patient and the robot safe, then press **Reset fault** (under this "
-        "banner, in the browser holding control)."
+        "make the patient and the robot safe, then press **Reset fault** below "
+        "(from the browser holding control)."
     )
     return Banner(title, cause, action)
