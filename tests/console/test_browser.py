@@ -256,7 +256,7 @@ def test_console_on_the_real_controller(browser: Any) -> None:
     from icenav.apps.wiring import anatomy_labels, make_sim_controller
     from icenav.control.controller import ControllerConfig
 
-    session = make_sim_controller(seed=0, config=ControllerConfig(image_rate_hz=10.0))
+    session = make_sim_controller(seed=0, config=ControllerConfig(image_rate_hz=5.0))
     ctl = session.controller
     waiter = StateWaiter(ctl)
     ctl.start()

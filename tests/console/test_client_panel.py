@@ -49,3 +49,17 @@ def test_empty_and_duplicate_view_names_are_refused_with_a_message() -> None:
     panel.save.click()
     assert ctl.wait_for_call("save_view")[0] == ("apex",)
     assert panel.feedback_text == ""  # accepted: the refusal is gone
+
+
+def test_a_click_on_a_view_marker_selects_it_in_that_browser_only() -> None:
+    console, ctl, panel = _console()
+    console._on_connect(FakeClient(2))
+    other = console._panels[2]
+    views = (ViewSummary("home", np.zeros(4), 0.0), ViewSummary("septum", np.zeros(4), 0.0))
+    for p in (panel, other):
+        p.update(make_state(views=views), console._jog_rates)
+    assert panel.views.value == other.views.value == "septum"  # the newest is selected
+    console._view_marker_clicked("home", 1)
+    assert panel.views.value == "home" and other.views.value == "septum"
+    console._view_marker_clicked("gone", 1)  # not (or no longer) a saved view: ignored
+    assert panel.views.value == "home"

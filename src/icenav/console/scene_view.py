@@ -239,6 +239,9 @@ class SceneView:
         self.sensor = sc.add_frame(
             "/catheter/sensor", axes_length=0.005, axes_radius=0.0004, visible=False
         )
+        # the EM sensor as a red bead with its name (children follow and hide with the frame)
+        sc.add_icosphere("/catheter/sensor/bead", radius=0.0014, color=(220, 30, 30))
+        sc.add_label("/catheter/sensor/name", "EM", position=(0.0, 0.0, -0.004))
         self.roadmap = sc.add_point_cloud(
             "/roadmap",
             points=np.zeros((1, 3), np.float32),
