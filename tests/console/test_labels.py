@@ -50,3 +50,19 @@ def test_safety_line_and_banner() -> None:
     assert banner.cause == "EMERGENCY STOP by browser #1" and "Reset fault" in banner.action
     fault = halt_banner(make_state(mode=Mode.FAULT, q=np.zeros(4), message=""))
     assert fault is not None and fault.cause == "not reported" and "FAULT" in fault.title
+
+
+def test_client_text_cannot_inject_html_into_the_page() -> None:
+    """viser renders raw HTML in markdown: a view name typed by any client with control
+    (a browser, 3D Slicer) reaches every browser's page escaped."""
+    from icenav.console.panels import status_markdown, summary_markdown
+
+    evil = "<img src=x onerror=alert(1)>"
+    state = make_state(message=f"view '{evil}' saved", control_owner=f"igtl-{evil}")
+    for text in (
+        summary_markdown(state),
+        status_markdown(state),
+        safety_markdown(state),
+        halt_banner(make_state(mode=Mode.ESTOP, message=evil)).html(),  # type: ignore[union-attr]
+    ):
+        assert "<img" not in text and "&lt;img" in text, text

@@ -34,7 +34,6 @@ as ``icenav demo`` sets when exposed) a browser is view only until it entered th
 from __future__ import annotations
 
 import contextlib
-import math
 import threading
 import time
 from collections.abc import Callable, Sequence
@@ -57,7 +56,8 @@ from icenav.console.labels import (
     SHORTCUTS,
     GamepadState,
     halt_banner,
-    humanize,
+    jog_rate_words,
+    md,
     safety_markdown,
 )
 from icenav.console.panels import (
@@ -139,17 +139,6 @@ class ConsoleStats:
     """ICE images sent to the browsers."""
     clients: int
     """Browsers connected now."""
-
-
-def _rate_words(mapping: JoystickMapping) -> dict[Mode, tuple[str, ...]]:
-    deg = math.degrees
-    knob = f"{deg(mapping.knob_rate):.0f}°/s"
-    roll = f"{deg(mapping.roll_rate):.0f}°/s"
-    tip = f"{mapping.tip_speed:.0f} mm/s"
-    return {
-        Mode.KNOB: (knob, knob, roll, f"{mapping.translation_rate:.0f} mm/s"),
-        Mode.TIP: (tip, tip, tip, roll),
-    }
 
 
 class Console(ConsoleCommands):
@@ -250,7 +239,7 @@ class Console(ConsoleCommands):
         """Keeps a held on-screen jog going between the browser's hold messages."""
         self.geometry = geometry
         self.mapping = mapping or JoystickMapping()
-        self._jog_rates = _rate_words(self.mapping)
+        self._jog_rates = jog_rate_words(self.mapping)
         self.max_roadmap_points = max_roadmap_points
         self.anatomy = as_anatomy_meshes(anatomy_mesh)
         self.labels: tuple[SceneLabel, ...] = as_scene_labels(anatomy_labels)
@@ -609,7 +598,7 @@ class Console(ConsoleCommands):
             return
         if view in panel.view_options:
             panel.tell(
-                f"**Not saved**: a view named **{view}** exists; choose another name "
+                f"**Not saved**: a view named **{md(view)}** exists; choose another name "
                 "(or delete that view first).",
                 "save_view",
             )
@@ -697,7 +686,7 @@ class Console(ConsoleCommands):
         banner = halt_banner(state)
         halted = banner is not None
         if banner is not None:
-            self._banner.content = f'<div class="icenav-banner">{_md_to_html(banner)}</div>'
+            self._banner.content = f'<div class="icenav-banner">{banner.html()}</div>'
         if halted != self._halted:
             self._banner.visible = halted
             self._reset.visible = halted
@@ -714,7 +703,7 @@ class Console(ConsoleCommands):
         self._progress_label.visible = pct is not None
         if pct is not None:
             self._progress.value = pct
-            label = humanize(state.progress_label or "Progress")
+            label = md(state.progress_label or "Progress")
             self._progress_label.content = f"{label}: {pct:.0f} %"
         self.scene.draw_state(state)
         with self._lock:  # a browser connecting or leaving waits for this
@@ -759,18 +748,3 @@ class Console(ConsoleCommands):
             return lambda ev: self._goto(p, view)
 
         return make
-
-
-def _md_to_html(banner: Any) -> str:
-    """The banner's fields as HTML (its text is the controller's: escaped)."""
-    import html
-
-    def bold(text: str) -> str:
-        parts = html.escape(text).split("**")
-        return "".join(f"<b>{s}</b>" if i % 2 else s for i, s in enumerate(parts))
-
-    return (
-        f"<div style='font-size:1.15em;font-weight:700'>{html.escape(banner.title)}</div>"
-        f"<div><b>Cause:</b> {html.escape(banner.cause)}</div>"
-        f"<div><b>To clear:</b> {bold(banner.action)}</div>"
-    )

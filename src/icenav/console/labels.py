@@ -8,12 +8,14 @@ module turns them into the words on the screen. Pure functions, no viser.
 from __future__ import annotations
 
 import datetime as dt
+import html
 import math
 import re
 from dataclasses import dataclass
 from typing import Literal
 
 from icenav.control.state import ControllerState, Mode, ViewSummary
+from icenav.control.teleop import JoystickMapping
 
 __all__ = [
     "Banner",
@@ -25,6 +27,8 @@ __all__ = [
     "duration_text",
     "halt_banner",
     "humanize",
+    "jog_rate_words",
+    "md",
     "robot_label",
     "safety_markdown",
     "tracker_label",
@@ -91,6 +95,13 @@ def humanize(text: str) -> str:
     for raw, words in _CALIBRATION_WORDS.items():
         out = out.replace(raw, words)
     return out
+
+
+def md(text: str) -> str:
+    """Text from the controller or a client (a view name, a message, a client id), in words
+    and safe inside markdown: viser renders raw HTML in markdown unsanitized, and a view
+    name is whatever a client with control typed, so ``<`` ``>`` ``&`` become entities."""
+    return html.escape(humanize(text), quote=False)
 
 
 def duration_text(seconds: float) -> str:
@@ -163,7 +174,7 @@ def safety_markdown(state: ControllerState, gamepad: GamepadState = "none") -> s
     return (
         f"**{mode}** &nbsp;·&nbsp; Robot: {robot_label(state)} &nbsp;·&nbsp; Tracker: "
         f"{tracker_label(state.tracker_status)}  \nControl: "
-        f"**{client_label(state.control_owner)}** &nbsp;·&nbsp; Gamepad: "
+        f"**{md(client_label(state.control_owner))}** &nbsp;·&nbsp; Gamepad: "
         f"{_gamepad_text(state, gamepad)}"
     )
 
@@ -178,6 +189,30 @@ class Banner:
 
     def markdown(self) -> str:
         return f"### {self.title}\n**Cause:** {self.cause}  \n**To clear:** {self.action}"
+
+    def html(self) -> str:
+        """The banner as HTML (the cause is the controller's text: escaped)."""
+
+        def bold(text: str) -> str:
+            parts = html.escape(text).split("**")
+            return "".join(f"<b>{s}</b>" if i % 2 else s for i, s in enumerate(parts))
+
+        return (
+            f"<div style='font-size:1.15em;font-weight:700'>{html.escape(self.title)}</div>"
+            f"<div><b>Cause:</b> {html.escape(self.cause)}</div>"
+            f"<div><b>To clear:</b> {bold(self.action)}</div>"
+        )
+
+
+def jog_rate_words(mapping: JoystickMapping) -> dict[Mode, tuple[str, ...]]:
+    """Each on-screen jog axis's speed in words, per jog mode (for the buttons' hints)."""
+    knob = f"{math.degrees(mapping.knob_rate):.0f}°/s"
+    roll = f"{math.degrees(mapping.roll_rate):.0f}°/s"
+    tip = f"{mapping.tip_speed:.0f} mm/s"
+    return {
+        Mode.KNOB: (knob, knob, roll, f"{mapping.translation_rate:.0f} mm/s"),
+        Mode.TIP: (tip, tip, tip, roll),
+    }
 
 
 def halt_banner(state: ControllerState) -> Banner | None:

@@ -17,7 +17,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from icenav._typing import Array
-from icenav.console.labels import MODE_LABELS, client_label, duration_text, humanize, tracker_label
+from icenav.console.labels import MODE_LABELS, client_label, duration_text, md, tracker_label
 from icenav.control.state import ControllerState, Mode, ViewSummary
 from icenav.control.teleop import JoystickMapping
 from icenav.errors import ConfigurationError, ShapeError
@@ -138,10 +138,10 @@ class ControlView:
 def control_view(owner: str | None, me: str) -> ControlView:
     """Control note and permissions of browser ``me`` when ``owner`` holds control."""
     if owner == me:
-        return ControlView(True, False, f"**You have control** ({client_label(me)}).")
+        return ControlView(True, False, f"**You have control** ({md(client_label(me))}).")
     if owner is None:
         return ControlView(False, True, "**View only**: nobody has control; take it to drive.")
-    return ControlView(False, False, f"**View only**: {client_label(owner)} has control.")
+    return ControlView(False, False, f"**View only**: {md(client_label(owner))} has control.")
 
 
 def joint_table_markdown(q_motor: ArrayLike, q_model: ArrayLike) -> str:
@@ -170,14 +170,14 @@ def status_markdown(state: ControllerState) -> str:
         f"**Mode:** {mode} &nbsp; **Robot:** {state.robot_status.value}",
         f"**Tracker:** {tracker_label(state.tracker_status)} ({state.tracker_status}) &nbsp; "
         f"**Roadmap:** {state.n_vertices} vertices, {state.n_edges} edges",
-        f"**Control:** {client_label(state.control_owner)} &nbsp; **Compensation:** "
+        f"**Control:** {md(client_label(state.control_owner))} &nbsp; **Compensation:** "
         f"{'on' if state.compensation_enabled else 'off'} &nbsp; **Running for** "
         f"{duration_text(state.time)}",
     ]
     if state.mode in (Mode.FAULT, Mode.ESTOP):
-        lines.append(f"**{mode}:** {humanize(state.message) or '(no message)'}")
+        lines.append(f"**{mode}:** {md(state.message) or '(no message)'}")
     elif state.message:
-        lines.append(f"*{humanize(state.message)}*")
+        lines.append(f"*{md(state.message)}*")
     return "\n\n".join(lines) + "\n\n" + joint_table_markdown(state.q_motor, state.q_model)
 
 
@@ -185,9 +185,9 @@ def summary_markdown(state: ControllerState, message: str | None = None) -> str:
     """One line above the image: the mode in words and the latest message (``message``
     when given: the console drops a stale one); the cause in FAULT / ESTOP."""
     mode = MODE_LABELS.get(state.mode, state.mode.value)
-    text = humanize(state.message if message is None else message)
+    text = md(state.message if message is None else message)
     if state.mode in (Mode.FAULT, Mode.ESTOP):
-        return f"**{mode}**: {humanize(state.message) or '(no message)'}"
+        return f"**{mode}**: {md(state.message) or '(no message)'}"
     return f"**{mode}**: {text}" if text else f"**{mode}**"
 
 
