@@ -355,6 +355,7 @@ def test_console_on_the_real_controller(browser: Any) -> None:
             page2 = _open(browser, console.url, 1920, 1080)
             expect(page2.get_by_text("View only: browser #0 has control")).to_be_visible()
             print("layout at 1920 x 1080:", _check_layout(page2))
+            page2.set_viewport_size({"width": 1400, "height": 900})  # less software WebGL
             expect(page2.get_by_role("button", name="Save view", exact=True)).to_be_disabled()
             page.get_by_role("tab", name="Drive").click()
             page.get_by_role("button", name="Spin 360", exact=True).click()
@@ -431,7 +432,8 @@ def test_control_token_in_the_browser(browser: Any, tmp_path: Path) -> None:
         with Console(
             ctl, port=0, control_token=token, export_dir=exports, refresh_hz=5.0, status_hz=5.0
         ) as console:
-            page = _open(browser, console.url, 800, 600)
+            # 1400 x 900: the image and control panels leave a narrow 3-D canvas (cheap)
+            page = _open(browser, console.url, 1400, 900)
             # the live console, view only
             expect(page.get_by_text("nobody has control", exact=False)).to_be_visible()
             expect(page.get_by_text("Control token")).to_be_visible()

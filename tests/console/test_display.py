@@ -55,6 +55,16 @@ def test_picture_cuts_blank_rows_draws_scale_and_applies_gain() -> None:
         check_display_settings(DisplaySettings(gain_db=40.0))
 
 
+def test_heart_rate_from_the_phase_across_the_r_wave() -> None:
+    from icenav.console.display import heart_rate_bpm
+
+    def phase(t: float) -> float:
+        return (t / 0.8) % 1.0  # 75 beats/min
+
+    for t in (0.3, 0.81, 1.6):  # 0.81 s: just after an R wave (the phase wrapped)
+        assert heart_rate_bpm(phase, t) == pytest.approx(75.0)
+
+
 def test_ecg_has_its_r_wave_at_phase_zero() -> None:
     phase = np.linspace(0, 1, 1001)
     mv = ecg_mv(phase)

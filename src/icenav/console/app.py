@@ -48,6 +48,7 @@ from icenav.console.commands import NO_VIEWS, ConsoleCommands, next_name
 from icenav.console.display import (
     DisplaySettings,
     ecg_samples,
+    heart_rate_bpm,
     imaged_depth_cm,
     render_display,
 )
@@ -729,7 +730,10 @@ class Console(ConsoleCommands):
         if self.cardiac_phase is not None:
             ecg = ecg_samples(self.cardiac_phase, frame.timestamp)
             phase = self.cardiac_phase(frame.timestamp)
-            note = f"ECG (from the twin's heart) · {100 * phase:.0f} % of the beat"
+            note = (
+                f"ECG · HR {heart_rate_bpm(self.cardiac_phase, frame.timestamp):.0f}/min · "
+                f"{100 * phase:.0f} % of the beat"
+            )
         settings = self.display
         if settings.depth_cm is not None and settings.depth_cm >= self._depth.max:
             settings = DisplaySettings(settings.gain_db, None)

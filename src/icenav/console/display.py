@@ -33,6 +33,7 @@ __all__ = [
     "check_display_settings",
     "ecg_mv",
     "ecg_samples",
+    "heart_rate_bpm",
     "image_geometry",
     "imaged_depth_cm",
     "imaged_rows",
@@ -254,3 +255,12 @@ def ecg_samples(
     t = np.linspace(-ECG_WINDOW_S, 0.0, n)
     phases = np.array([cardiac_phase(now_s + dt) for dt in t])
     return t, ecg_mv(phases)
+
+
+def heart_rate_bpm(
+    cardiac_phase: Callable[[float], float], now_s: float, dt: float = 0.05
+) -> float:
+    """Heart rate (beats/min) at controller time ``now_s``: the phase's rate of change over
+    the last ``dt`` seconds (the phase wraps from 1 to 0 at each R wave)."""
+    advance = (cardiac_phase(now_s) - cardiac_phase(now_s - dt)) % 1.0
+    return 60.0 * advance / dt
