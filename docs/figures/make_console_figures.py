@@ -28,6 +28,16 @@ from icenav.control.controller import ControllerConfig
 from icenav.control.state import Mode
 
 HERE = Path(__file__).parent
+SCROLL_JS = """to_end => {  // the control panel's own scroll area: the outermost that scrolls
+  const estop = [...document.querySelectorAll('button')]
+    .find(b => b.textContent.trim() === 'E-STOP');
+  let vp = null;
+  for (let n = estop.parentElement; n; n = n.parentElement) {
+    if (n.hasAttribute && n.hasAttribute('data-scrollarea-viewport')
+        && n.scrollHeight > n.clientHeight + 5) vp = n;
+  }
+  if (vp !== null) vp.scrollTo(0, to_end ? vp.scrollHeight : 0);
+}"""
 CHROMIUM = "/usr/bin/chromium"
 ARGS = ["--no-sandbox", "--disable-gpu", "--disable-dev-shm-usage", "--no-first-run"]
 
@@ -86,14 +96,10 @@ def main() -> int:
                     close.click()
                 page.screenshot(path=str(HERE / f"console_{w}.png"))
                 if w == 1400:
-                    page.locator(".mantine-ScrollArea-viewport").last.evaluate(
-                        "e => e.scrollTo(0, e.scrollHeight)"
-                    )
+                    page.evaluate(SCROLL_JS, 1)
                     page.wait_for_timeout(800)
                     page.screenshot(path=str(HERE / "console_views.png"))
-                    page.locator(".mantine-ScrollArea-viewport").last.evaluate(
-                        "e => e.scrollTo(0, 0)"
-                    )
+                    page.evaluate(SCROLL_JS, 0)
                     page.get_by_role("button", name="Go to home", exact=True).click()
                     _wait(lambda: ctl.snapshot().mode is Mode.GOTO_VIEW, "go to view")
                     page.wait_for_timeout(600)

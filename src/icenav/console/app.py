@@ -112,9 +112,7 @@ MESSAGE_S = 15.0
 PAGE_CSS = """<style>
 /* the safety bar (the block holding .icenav-safety) stays at the top of its panel */
 div:has(> div:nth-child(3)) > div:has(.icenav-safety) {
-  position: sticky; top: 0; z-index: 20;
-  background: var(--mantine-color-body); border-bottom: 2px solid #c92a2a;
-  padding-top: 0.3em;
+  position: sticky; top: 0; z-index: 20; background: var(--mantine-color-body);
 }
 /* ... which needs no box between it and the panel's scroll area to clip by "hidden" */
 [data-scrollarea-viewport] div:has(.icenav-safety):not([data-scrollarea-viewport]) {
