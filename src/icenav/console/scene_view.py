@@ -202,6 +202,13 @@ class SceneView:
         cam.position = (0.09, -0.09, 0.07)  # metres: the 60 mm bending section fills a third
         cam.look_at = (0.0, 0.0, 0.035)
         cam.near = 0.001
+        if anatomy:  # the whole heart in view, from the same side
+            pts = np.concatenate([m.vertices for m in anatomy]) * MM_TO_SCENE
+            lo, hi = pts.min(axis=0), pts.max(axis=0)
+            centre = 0.5 * (lo + hi)
+            away = np.array([0.09, -0.09, 0.07]) / np.linalg.norm([0.09, -0.09, 0.07])
+            cam.look_at = tuple(centre)
+            cam.position = tuple(centre + away * 0.9 * float(np.linalg.norm(hi - lo)))
         sc = s.scene
         sc.set_up_direction("+z")
         sc.configure_default_lights(enabled=True, cast_shadow=False)  # shadows cost frame rate
