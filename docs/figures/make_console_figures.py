@@ -67,7 +67,14 @@ def _drive_away(ctl) -> None:  # type: ignore[no-untyped-def]
 
 
 def main() -> int:
-    from playwright.sync_api import expect, sync_playwright
+    try:
+        from playwright.sync_api import expect, sync_playwright
+    except ImportError:
+        print("console figures skipped: no playwright package (scripts/install-browser.sh)")
+        return 0
+    if not Path(CHROMIUM).exists():
+        print(f"console figures skipped: no {CHROMIUM} (scripts/install-browser.sh)")
+        return 0
 
     session = make_sim_controller(seed=0, config=ControllerConfig(image_rate_hz=10.0))
     ctl = session.controller
