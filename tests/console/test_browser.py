@@ -248,7 +248,7 @@ def _jog_rate(states: list[ControllerState]) -> tuple[float, float]:
 
 
 def test_console_on_the_real_controller(browser: Any) -> None:
-    """At 1400 x 900 (the operator) and 1920 x 1080 (a viewer): the layout, a view saved with
+    """At 1400 x 900 and 1920 x 1080: the layout; then a view saved with
     its thumbnail, the held jog at its stated speed, Esc stopping a go-to-view, the ESTOP
     banner and every motion control disabled, Reset, a view-only browser's E-STOP, control
     passing, Delete's confirmation."""
@@ -278,6 +278,9 @@ def test_console_on_the_real_controller(browser: Any) -> None:
             expect(page.get_by_text("You have control")).to_be_visible()
             expect(page.locator("canvas[data-engine]")).to_be_visible()
             print("layout at 1400 x 900:", _check_layout(page))
+            page.set_viewport_size({"width": 1920, "height": 1080})
+            print("layout at 1920 x 1080:", _check_layout(page))
+            page.set_viewport_size({"width": 1400, "height": 900})  # less software WebGL
 
             # Save view: an empty name is refused with a message; "home" gets its thumbnail
             panel = _panel(console, 0)
@@ -383,11 +386,9 @@ def test_console_on_the_real_controller(browser: Any) -> None:
             expect(banner).to_be_hidden()
             expect(save).to_be_enabled()
 
-            # a second browser (full HD) is view only; its E-STOP stops the first one's spin
-            page2 = _open(browser, console.url, 1920, 1080)
+            # a second browser is view only; its E-STOP stops the first one's spin
+            page2 = _open(browser, console.url, 1400, 900)
             expect(page2.get_by_text("View only: browser #0 has control")).to_be_visible()
-            print("layout at 1920 x 1080:", _check_layout(page2))
-            page2.set_viewport_size({"width": 1400, "height": 900})  # less software WebGL
             expect(page2.get_by_role("button", name="Save view", exact=True)).to_be_disabled()
             page.get_by_role("tab", name="Drive").click()
             page.get_by_role("button", name="Spin 360", exact=True).click()
