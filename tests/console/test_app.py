@@ -150,7 +150,7 @@ def test_image_with_placement_is_drawn_in_its_plane(console: Console) -> None:
     console.refresh_once()
     img = console.scene.image
     assert img is not None
-    # the centre pixel (63.5, 63.5) of the 256-pixel enlarged image maps to the plane centre
+    # the centre pixel (63.5, 63.5) maps to the plane centre (images up to 256 px: not resampled)
     expected = forward(q) @ ijk2tip @ np.array([63.5, 63.5, 0, 1])
     np.testing.assert_allclose(img.position, expected[:3] * 1e-3, atol=1e-9)
     assert img.render_width == pytest.approx(128 * s * 1e-3)
