@@ -1,12 +1,13 @@
 """The console in a real headless Chromium (Debian's, driven by Playwright's Python package),
 on the real controller (:class:`icenav.control.controller.Controller` on the digital twin).
 
-The page loads, the 3-D canvas and the live ICE image render, Save view adds a view to the
-list (with its thumbnail), a held on-screen jog button moves the twin away and Go to view
-brings it back, a second browser is view-only (its motion controls disabled, the owner
-named), its E-STOP stops a spin started by the first at once, and control passes from the
-first browser to the second. The screenshot docs/figures/console.png is taken on the way,
-with the catheter bent away from the view.
+At 1400 x 900 and 1920 x 1080: the image panel covers at least 45 % of the window and E-STOP
+stays on screen after the control panel is scrolled to its end; Save view refuses an empty
+name and lists the view with its thumbnail; a held on-screen jog moves at the stated speed;
+the E-STOP shortcut (Esc) stops a running go-to-view, the banner names the cause and every
+motion control is disabled until Reset; a second browser is view-only and its E-STOP stops
+a spin; control passes; Delete asks first. The token test: a browser without the token
+commands nothing but Stop and E-STOP. The docs' screenshots: docs/figures/make_console_figures.py.
 
 Waits are Playwright's (``expect``, ``wait_for_function``) for the page and a condition
 variable fed by the controller's listener for the controller; never a fixed sleep.
@@ -16,6 +17,7 @@ where they fail: scripts/install-browser.sh installs both.
 
 from __future__ import annotations
 
+import contextlib
 import math
 import os
 import threading
@@ -42,10 +44,6 @@ CHROMIUM_ARGS = [
     "--disable-sync",
     "--no-first-run",
 ]
-DOCS_FIGURE = Path(__file__).resolve().parents[2] / "docs" / "figures" / "console.png"
-# the test refreshes the docs' screenshot only when asked (ICENAV_UPDATE_SCREENSHOT=1), so a
-# test run never dirties the work tree
-UPDATE_DOCS = os.environ.get("ICENAV_UPDATE_SCREENSHOT") == "1"
 TIMEOUT_MS = 30_000
 IMAGE_RENDERED_JS = (
     "() => [...document.images].some(i => i.src.startsWith('blob:') && i.naturalWidth > 0)"
@@ -150,11 +148,14 @@ class StateWaiter:
         self._cond = threading.Condition()
         self.latest: ControllerState | None = None
         self.count = 0
+        self.history: list[ControllerState] = []
+        """Every state published, in order (index = count before it)."""
         controller.add_listener(self._on_state)
 
     def _on_state(self, state: ControllerState) -> None:
         with self._cond:
             self.latest = state
+            self.history.append(state)
             self.count += 1
             self._cond.notify_all()
 
@@ -183,75 +184,212 @@ class StateWaiter:
         return out
 
 
-def _sim_controller() -> Any:
-    """The real controller on the digital twin (what ``icenav demo`` runs), with the live
-    ultrasound image."""
-    from icenav.apps.wiring import make_sim_controller
-    from icenav.control.controller import ControllerConfig
+MOTION_BUTTONS = ("Save view", "Go to view", "Delete view", "Go to home")
+"""The Views tab's motion buttons, checked disabled in the page in ESTOP."""
 
-    return make_sim_controller(seed=0, config=ControllerConfig(image_rate_hz=15.0)).controller
+LAYOUT_JS = """() => {
+  const region = document.querySelector('[data-dock-region="left"]');
+  const ice = [...region.querySelectorAll('img')].find(i => i.src.startsWith('blob:'));
+  const estop = [...document.querySelectorAll('button')]
+    .find(b => b.textContent.trim() === 'E-STOP');
+  let vp = null;  // the control panel's own scroll area (the outermost that scrolls)
+  for (let n = estop.parentElement; n; n = n.parentElement) {
+    if (n.hasAttribute && n.hasAttribute('data-scrollarea-viewport')
+        && n.scrollHeight > n.clientHeight + 5) vp = n;
+  }
+  if (vp !== null) vp.scrollTo(0, vp.scrollHeight);
+  return new Promise(done => requestAnimationFrame(() => requestAnimationFrame(() => {
+    const r = estop.getBoundingClientRect();
+    const hit = document.elementFromPoint(r.x + r.width / 2, r.y + r.height / 2);
+    done({
+      panel: region.getBoundingClientRect().width / window.innerWidth,
+      image: ice ? ice.getBoundingClientRect().width / window.innerWidth : 0,
+      scrolled: vp === null ? 0 : vp.scrollTop,
+      estopVisible: r.top >= 0 && r.bottom <= window.innerHeight && estop.contains(hit),
+    });
+  })));
+}"""
 
 
-def test_console_on_the_real_controller(browser: Any, tmp_path: Path) -> None:
+SCROLL_TOP_JS = """() => document.querySelectorAll('[data-scrollarea-viewport]')
+  .forEach(v => v.scrollTo(0, 0))"""
+
+
+def _check_layout(page: Any) -> dict[str, float]:
+    """The image panel covers >= 45 % of the window's width; after the control panel is
+    scrolled to its end, E-STOP is still on screen and on top (not covered)."""
     from playwright.sync_api import expect
 
-    figure = DOCS_FIGURE if UPDATE_DOCS else tmp_path / "console.png"
+    page.wait_for_function(IMAGE_RENDERED_JS, polling=100)
+    page.get_by_text("Status", exact=True).click()  # opened: the panel is taller than the window
+    expect(page.get_by_text("Joint states, last 10 s")).to_be_visible()
+    got = page.evaluate(LAYOUT_JS)
+    assert got["panel"] >= 0.45, got
+    assert got["image"] >= 0.30, got  # the picture itself (its height fits the window)
+    assert got["scrolled"] > 0, got  # the panel did scroll: the check means something
+    assert got["estopVisible"], got
+    # back as it was (scrolled to the top, Status closed): the live status table and plot
+    # would otherwise keep nudging the buttons above them while the test clicks
+    page.get_by_text("Status", exact=True).click()
+    expect(page.get_by_text("Joint states, last 10 s")).to_be_hidden()
+    page.evaluate(SCROLL_TOP_JS)
+    return got  # type: ignore[no-any-return]
 
-    ctl = _sim_controller()
+
+def _jog_rate(states: list[ControllerState]) -> tuple[float, float]:
+    """(deg/s of the AP knob in controller time while it moved, fraction of the cycles from
+    the first to the last moving one in which it moved: 1.0 = no stair steps)."""
+    q = np.array([s.q_motor[0] for s in states])
+    t = np.array([s.time for s in states])
+    moving = np.flatnonzero(np.diff(q) > 0)
+    span = slice(moving[0], moving[-1] + 1)
+    dq, dt = np.diff(q)[span], np.diff(t)[span]
+    return math.degrees(dq[dq > 0].sum() / dt[dq > 0].sum()), float(np.mean(dq > 0))
+
+
+def test_console_on_the_real_controller(browser: Any) -> None:
+    """At 1400 x 900 and 1920 x 1080: the layout; then a view saved with
+    its thumbnail, the held jog at its stated speed, Esc stopping a go-to-view, the ESTOP
+    banner and every motion control disabled, Reset, a view-only browser's E-STOP, control
+    passing, Delete's confirmation."""
+    from playwright.sync_api import expect
+
+    from icenav.apps.wiring import anatomy_labels, make_sim_controller
+    from icenav.control.controller import ControllerConfig
+
+    # a loaded CI machine can hold the loop up past the supervisor's 1 s (its own tests
+    # cover it): 5 s here, so that the console is what this test checks
+    config = ControllerConfig(image_rate_hz=5.0, stall_estop_s=5.0)
+    session = make_sim_controller(seed=0, config=config)
+    ctl = session.controller
     waiter = StateWaiter(ctl)
     ctl.start()
+    phase = session.renderer.phantom.cardiac_phase
     try:
-        with Console(ctl, port=0, anatomy_mesh=anatomy_meshes()) as console:
-            page = _open(browser, console.url)
+        with Console(
+            ctl,
+            port=0,
+            anatomy_mesh=anatomy_meshes(),
+            anatomy_labels=anatomy_labels(),
+            cardiac_phase=phase,
+            refresh_hz=10.0,
+        ) as console:
+            page = _open(browser, console.url, 1400, 900)
             expect(page.get_by_text("You have control")).to_be_visible()
             expect(page.locator("canvas[data-engine]")).to_be_visible()
-            page.wait_for_function(IMAGE_RENDERED_JS, polling=100)
+            print("layout at 1400 x 900:", _check_layout(page))
+            page.set_viewport_size({"width": 1920, "height": 1080})
+            print("layout at 1920 x 1080:", _check_layout(page))
+            page.set_viewport_size({"width": 1400, "height": 900})  # less software WebGL
 
-            # Save view adds a view to the list, with its thumbnail
+            # Save view: an empty name is refused with a message; "home" gets its thumbnail
             panel = _panel(console, 0)
+            save = page.get_by_role("button", name="Save view", exact=True)
+            _type_view_name(console, page, panel, " ")
+            save.click()
+            expect(page.get_by_text("type a name for the view first")).to_be_visible()
             _type_view_name(console, page, panel, "home")
-            page.get_by_role("button", name="Save view", exact=True).click()
+            save.click()
             s = waiter.until(lambda s: any(v.name == "home" for v in s.views), "view saved")
             home = next(v for v in s.views if v.name == "home")
             home_tip = s.tip2base_true[:3, 3].copy()  # type: ignore[index]
-            expect(page.locator("strong", has_text="home")).to_be_visible()
-            expect(page.get_by_text("Thumbnail")).to_be_visible()
+            expect(page.get_by_text("home: saved", exact=False)).to_be_visible()
+            thumbs = page.locator("img[src^='blob:']")
+            expect(thumbs).to_have_count(2)  # the live image and home's thumbnail
+            assert "type a name" not in panel.feedback_text  # the refusal did not stay
 
-            # jog away with a held on-screen button, then Go to view
-            page.get_by_role("tab", name="Jog").click()
-            page.get_by_role("button", name="AP knob (phi1) +", exact=True).hover()
-            page.mouse.down()
-            waiter.until(lambda s: s.q_motor[0] > home.q_motor[0] + math.radians(40), "jogged away")
-            page.mouse.up()
-            away = waiter.until(lambda s: s.mode is Mode.KNOB, "knob mode")
+            # a held jog button: the AP knob at the stated 30 deg/s (controller time)
+            jog_button = page.get_by_role("button", name="AP knob (phi1) +", exact=True)
+
+            def jog_away() -> list[ControllerState]:
+                """Hold AP knob + until 30 deg past home; the states meanwhile."""
+                page.get_by_role("tab", name="Jog").click()
+                expect(jog_button).to_be_enabled()
+                q0 = waiter.latest.q_motor[0]  # type: ignore[union-attr]
+                n0 = waiter.count
+                for _ in range(3):  # a press lost by a starved page is pressed again
+                    jog_button.hover()
+                    page.mouse.down()
+                    with contextlib.suppress(AssertionError):
+                        waiter.until(lambda s: s.q_motor[0] > q0, "moving", timeout_s=10.0)
+                        break
+                    page.mouse.up()
+                waiter.until(lambda s: s.q_motor[0] > home.q_motor[0] + math.radians(30), "away")
+                page.mouse.up()
+                waiter.until(lambda s: s.mode is Mode.KNOB, "knob mode")
+                page.get_by_role("tab", name="Views").click()
+                return waiter.history[n0:]
+
+            rate, share = _jog_rate(jog_away())
+            print(f"jog: {rate:.1f} deg/s while moving, moving in {100 * share:.0f} % of cycles")
+            assert rate == pytest.approx(math.degrees(console.mapping.knob_rate), rel=0.1)
+            away = waiter.latest
+            assert away is not None
             moved_mm = float(np.linalg.norm(away.tip2base_true[:3, 3] - home_tip))  # type: ignore[index]
             assert moved_mm > 5.0
-            page.get_by_role("tab", name="Views").click()
 
-            # the screenshot for the docs (bent away from "home"): notice closed, panel at the top
-            for close in page.locator("button.mantine-Notification-closeButton").all():
-                close.click()
-            expect(page.locator(".mantine-Notification-root")).to_have_count(0)
-            page.get_by_role("button", name="E-STOP").scroll_into_view_if_needed()
-            page.wait_for_function(IMAGE_RENDERED_JS, polling=100)
-            figure.parent.mkdir(parents=True, exist_ok=True)
-            page.screenshot(path=str(figure))
-            assert figure.stat().st_size > 10_000
+            def during_goto(button: str, key: str) -> list[ControllerState]:
+                """Click ``button`` (a go to home), press ``key`` once the go-to runs; the
+                states from the click until the motion ended."""
+                n0 = waiter.count
+                page.get_by_role("button", name=button, exact=True).click()  # keeps the focus
+                waiter.until(lambda s: s.mode is Mode.GOTO_VIEW, "go to view started")
+                page.keyboard.press(key)
+                waiter.until(lambda s: s.mode in (Mode.IDLE, Mode.ESTOP), "go to view ended")
+                return waiter.history[n0:]
 
-            page.get_by_role("button", name="Go to view", exact=True).click()
-            waiter.until(lambda s: s.mode is Mode.GOTO_VIEW, "go to view started")
-            back = waiter.until(lambda s: s.mode is Mode.IDLE, "go to view done")
-            np.testing.assert_allclose(back.q_motor, home.q_motor, atol=math.radians(0.5))
-            err_mm = float(np.linalg.norm(back.tip2base_true[:3, 3] - home_tip))  # type: ignore[index]
-            assert err_mm < moved_mm / 2
-            print(f"go to view: moved away {moved_mm:.1f} mm, back within {err_mm:.2f} mm")
+            def interrupted(states: list[ControllerState]) -> bool:
+                """The go-to was still running when the key's command landed (on a loaded
+                machine it may finish first: then the test drives away and tries again)."""
+                end = next(i for i, s in enumerate(states) if s.mode in (Mode.IDLE, Mode.ESTOP))
+                return states[end - 1].mode is Mode.GOTO_VIEW and "done" not in states[end].message
 
-            # a second browser is view only; its E-STOP stops the first one's spin at once
-            page2 = _open(browser, console.url, 800, 600)  # smaller: less software WebGL
-            expect(page2.get_by_text("View only")).to_be_visible()
-            expect(page2.get_by_text("browser-0", exact=True)).to_be_visible()
+            # Space stops a running go-to-view, and does not press the focused button again
+            goto_done = CallbacksDone(panel.goto)
+            clicks = 0
+            while True:
+                states = during_goto("Go to view", "Space")
+                clicks += 1
+                if interrupted(states) or clicks == 3:
+                    break
+                jog_away()
+            assert interrupted(states), "the go-to ended before Space three times"
+            idle = waiter.until(lambda s: s.mode is Mode.IDLE, "stopped by the shortcut")
+            assert "stopped by browser-0" in idle.message
+            assert all(s.mode is not Mode.GOTO_VIEW for s in waiter.next_states(30))
+            assert goto_done.count == clicks  # Space pressed no button
+
+            # Go to home from the view list; Esc (E-STOP) stops it at once
+            for _ in range(3):
+                jog_away()
+                states = during_goto("Go to home", "Escape")
+                if interrupted(states):
+                    break
+                page.get_by_role("button", name="Reset fault", exact=True).click()
+                waiter.until(lambda s: s.mode is Mode.IDLE, "reset to idle")
+            assert interrupted(states), "the go-to ended before Esc three times"
+            stopped = waiter.until(lambda s: s.mode is Mode.ESTOP, "e-stop by the shortcut")
+            later = waiter.next_states(10)
+            assert np.ptp(np.array([s.q_motor for s in later]), axis=0).max() == 0.0
+            assert "browser-0" in stopped.message
+            banner = page.locator(".icenav-banner")
+            expect(banner).to_be_visible()
+            expect(banner).to_contain_text("Cause:")
+            expect(banner).to_contain_text("browser #0")  # the cause, in words
+            controls = panel.all_motion_controls()  # every tab's, and the list's Go to
+            assert len(controls) >= 17 and all(h.disabled for h in controls)
+            for name in MOTION_BUTTONS:  # and the page shows them so (the open tab's)
+                expect(page.get_by_role("button", name=name, exact=True)).to_be_disabled()
+            expect(page.get_by_role("button", name="Reset fault", exact=True)).to_be_enabled()
+            page.get_by_role("button", name="Reset fault", exact=True).click()
+            waiter.until(lambda s: s.mode is Mode.IDLE, "reset to idle")
+            expect(banner).to_be_hidden()
+            expect(save).to_be_enabled()
+
+            # a second browser is view only; its E-STOP stops the first one's spin
+            page2 = _open(browser, console.url, 1400, 900)
+            expect(page2.get_by_text("View only: browser #0 has control")).to_be_visible()
             expect(page2.get_by_role("button", name="Save view", exact=True)).to_be_disabled()
-            expect(page2.get_by_role("button", name="Go to view", exact=True)).to_be_disabled()
             page.get_by_role("tab", name="Drive").click()
             page.get_by_role("button", name="Spin 360", exact=True).click()
             start = waiter.until(lambda s: s.mode is Mode.SPINNING, "spin started")
@@ -260,14 +398,10 @@ def test_console_on_the_real_controller(browser: Any, tmp_path: Path) -> None:
             )
             page2.get_by_role("button", name="E-STOP").click()
             stopped = waiter.until(lambda s: s.mode is Mode.ESTOP, "e-stop")
-            later = waiter.next_states(20)
-            q_after = np.array([s.q_motor for s in later])
-            assert np.ptp(q_after, axis=0).max() == pytest.approx(0.0, abs=1e-9)
-            assert all(s.mode is Mode.ESTOP for s in later)
-            assert stopped.progress is None and "browser-1" in stopped.message
-            expect(page.get_by_text("EMERGENCY STOP", exact=False).first).to_be_visible()
-
-            # Reset fault brings the controller back to IDLE
+            later = waiter.next_states(10)
+            assert np.ptp(np.array([s.q_motor for s in later]), axis=0).max() == 0.0
+            assert "browser-1" in stopped.message
+            expect(page.locator(".icenav-banner")).to_contain_text("browser #1")
             page.get_by_role("button", name="Reset fault", exact=True).click()
             waiter.until(lambda s: s.mode is Mode.IDLE, "reset to idle")
 
@@ -279,8 +413,7 @@ def test_console_on_the_real_controller(browser: Any, tmp_path: Path) -> None:
             take.click()
             waiter.until(lambda s: s.control_owner == "browser-1", "control taken")
             expect(page2.get_by_text("You have control")).to_be_visible()
-            expect(page2.get_by_role("button", name="Save view", exact=True)).to_be_enabled()
-            expect(page.get_by_text("browser-1", exact=True)).to_be_visible()
+            expect(page.get_by_text("View only: browser #1 has control")).to_be_visible()
             expect(page.get_by_role("button", name="Spin 360", exact=True)).to_be_disabled()
 
             # Delete asks for confirmation: Cancel keeps the view, Delete removes it
@@ -288,7 +421,7 @@ def test_console_on_the_real_controller(browser: Any, tmp_path: Path) -> None:
             delete.click()
             expect(page2.get_by_text("Delete the saved view", exact=False)).to_be_visible()
             page2.get_by_role("button", name="Cancel", exact=True).click()
-            later = waiter.next_states(10)
+            later = waiter.next_states(5)
             assert [v.name for v in later[-1].views] == ["home"]
             delete.click()
             page2.get_by_role("button", name="Delete", exact=True).click()
@@ -298,7 +431,7 @@ def test_console_on_the_real_controller(browser: Any, tmp_path: Path) -> None:
             assert console.last_error == ""
             assert console.stats().images_sent > 0
     finally:
-        ctl.shutdown()
+        session.close()
 
 
 def test_control_token_in_the_browser(browser: Any, tmp_path: Path) -> None:
@@ -313,7 +446,8 @@ def test_control_token_in_the_browser(browser: Any, tmp_path: Path) -> None:
     from icenav.apps.wiring import make_sim_controller
     from icenav.control.controller import ControllerConfig
 
-    ctl = make_sim_controller(seed=0, config=ControllerConfig(image_rate_hz=2.0)).controller
+    config = ControllerConfig(image_rate_hz=2.0, stall_estop_s=5.0)  # as above: a loaded CI
+    ctl = make_sim_controller(seed=0, config=config).controller
     waiter = StateWaiter(ctl)
     ctl.start()
     try:
@@ -332,11 +466,12 @@ def test_control_token_in_the_browser(browser: Any, tmp_path: Path) -> None:
         with Console(
             ctl, port=0, control_token=token, export_dir=exports, refresh_hz=5.0, status_hz=5.0
         ) as console:
-            page = _open(browser, console.url, 800, 600)
+            # 1400 x 900: the image and control panels leave a narrow 3-D canvas (cheap)
+            page = _open(browser, console.url, 1400, 900)
             # the live console, view only
             expect(page.get_by_text("nobody has control", exact=False)).to_be_visible()
             expect(page.get_by_text("Control token")).to_be_visible()
-            expect(page.locator("strong", has_text="home")).to_be_visible()
+            expect(page.get_by_text("home: saved", exact=False)).to_be_visible()
             expect(page.get_by_role("button", name="Save view", exact=True)).to_be_disabled()
             panel = _panel(console, 0)
             assert not panel.authorised and ctl.snapshot().control_owner is None
@@ -412,7 +547,7 @@ def test_control_token_in_the_browser(browser: Any, tmp_path: Path) -> None:
             expect(save).to_be_enabled()
             save.click()
             waiter.until(lambda s: "intruder" in [v.name for v in s.views], "view saved")
-            expect(page.locator("strong", has_text="intruder")).to_be_visible()
+            expect(page.get_by_text("intruder: saved", exact=False)).to_be_visible()
             export.click()
             expect(page.get_by_text("Exported view", exact=False)).to_be_visible()
             (written,) = exports.iterdir()

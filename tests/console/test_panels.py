@@ -21,6 +21,7 @@ from icenav.console.panels import (
     jog_command,
     joint_table_markdown,
     mode_from_choice,
+    mode_options,
     progress_percent,
     status_markdown,
     summary_markdown,
@@ -98,7 +99,8 @@ def test_control_view_for_each_owner() -> None:
     pad = control_view("gamepad", me)
     assert not pad.can_control and not pad.can_take and "gamepad" in pad.text
     other = control_view("browser-1", me)
-    assert not other.can_control and not other.can_take and "browser-1" in other.text
+    assert not other.can_control and not other.can_take and "browser #1" in other.text
+    assert "browser-" not in mine.text + other.text  # no internal names on the page
 
 
 def test_joint_table_shows_degrees_and_mm() -> None:
@@ -122,20 +124,41 @@ def test_status_markdown_shows_mode_fault_tracker_roadmap_owner() -> None:
             compensation_enabled=True,
         )
     )
-    for text in ("KNOB", "ENABLED", "MISSING", "1234 vertices", "2000 edges", "gamepad", "on"):
+    for text in (
+        "Jogging the knobs",
+        "enabled",
+        "sensor not seen",
+        "1234 vertices",
+        "2000 edges",
+        "the gamepad",
+        "on",
+    ):
         assert text in md
     fault = status_markdown(
-        _state(mode=Mode.ESTOP, robot_status=RobotStatus.ESTOP, message="e-stop pressed")
+        _state(mode=Mode.ESTOP, robot_status=RobotStatus.ESTOP, message="e-stop by browser-2")
     )
-    assert "**ESTOP:** e-stop pressed" in fault
+    assert "**EMERGENCY STOP:** e-stop by browser #2" in fault
     assert "nobody" in fault
+    long_run = status_markdown(_state(time=3725.0))
+    assert "Running for** 1 h 02 min" in long_run
 
 
 def test_summary_line_names_mode_and_message() -> None:
-    assert summary_markdown(_state()) == "**KNOB**"
-    assert summary_markdown(_state(message="view 'a' saved")) == "**KNOB**: view 'a' saved"
-    fault = summary_markdown(_state(mode=Mode.FAULT, message="drive 2 fault 0x2310"))
-    assert "**FAULT**: drive 2 fault 0x2310" in fault and "Reset fault" in fault
+    assert summary_markdown(_state()) == "**Jogging the knobs**"
+    saved = summary_markdown(_state(message="view 'a' saved"))
+    assert saved == "**Jogging the knobs**: view 'a' saved"
+    # a stale message dropped by the console (message=""): the mode alone
+    assert summary_markdown(_state(message="jog refused"), "") == "**Jogging the knobs**"
+    fault = summary_markdown(_state(mode=Mode.FAULT, message="drive 2 fault 0x2310"), "")
+    assert "**FAULT: robot stopped**: drive 2 fault 0x2310" in fault  # the cause stays
+
+
+def test_mode_dropdown_names_the_running_automatic_mode() -> None:
+    options, value = mode_options(Mode.IDLE)
+    assert options == tuple(MODE_CHOICES) and MODE_CHOICES[value] is Mode.IDLE
+    options, value = mode_options(Mode.SPINNING)
+    assert value == "Spinning the image 360°" and options[-1] == value
+    assert mode_options(Mode.ESTOP)[1] == "EMERGENCY STOP"
 
 
 def test_views_markdown_lists_views() -> None:

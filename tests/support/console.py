@@ -219,9 +219,13 @@ class FakeHandle:
     def __init__(self, *args: object, **kwargs: object) -> None:
         self.value = kwargs.get("initial_value", "")
         self.content = args[0] if args else ""
-        self.label = args[0] if args else ""
+        self.label = kwargs.get("label", args[0] if args else "")
         self.callbacks: list[Callable[[Any], None]] = []
         self.closed = False
+        self.removed = False
+        self.disabled = bool(kwargs.get("disabled", False))
+        self.visible = bool(kwargs.get("visible", True))
+        self.options = kwargs.get("options", args[1] if len(args) > 1 else ())
 
     def on_click(self, fn: Callable[[Any], None]) -> Callable[[Any], None]:
         self.callbacks.append(fn)
@@ -253,6 +257,9 @@ class FakeHandle:
 
     def close(self) -> None:
         self.closed = True
+
+    def remove(self) -> None:
+        self.removed = True
 
 
 class FakeGui:

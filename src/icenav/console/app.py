@@ -1,5 +1,17 @@
 """The operator console: a viser server showing the controller's state and sending its requests.
 
+Layout (for the bedside, docs/console.md)
+-----------------------------------------
+- Left, the main panel: the live ICE image, as large as the window allows with its aspect
+  kept, with a depth scale in cm, the sector's orientation marker, an ECG strip (when the
+  console has a cardiac phase source) and the display's gain and depth.
+- Middle, the 3-D scene (enlarge it by dragging the panel edges or minimizing the image).
+- Right, the control panel: a safety bar that never scrolls (E-STOP, Stop, the mode, robot,
+  tracker, who holds control and the gamepad in words; in ESTOP / FAULT a banner with the
+  cause and its Reset button), then this browser's controls and the status.
+- Keyboard shortcuts (:data:`icenav.console.labels.SHORTCUTS`): Space = Stop, Esc = E-STOP,
+  G = go to the selected view, V = save a view, T = take control.
+
 Threads
 -------
 - The control thread calls the console's listener with each published state; the listener
@@ -10,55 +22,57 @@ Threads
   (:mod:`icenav.console.commands`); what the controller decided is shown in the panel of the
   browser that asked. Export DICOM writes its file on the refresh thread once accepted.
 
-Several browsers may connect. The E-STOP and Stop buttons, the status, the image, the plot
-and the 3-D scene are shared; each browser has its own driving controls, enabled only while
-it holds control. Who may do what is the controller's decision
-(:mod:`icenav.control.authorization`), not the console's. Delete view and Calibrate ask for
-confirmation. With a control token (``Console(..., control_token=...)``, as ``icenav demo``
-sets when exposed) a browser is view only until it entered the token (constant-time
-comparison, rate-limited guesses with a logged alarm: ``TokenGate``).
+Several browsers may connect. The safety bar, the image, the plot and the 3-D scene are
+shared; each browser has its own driving controls (:mod:`icenav.console.client_panel`), enabled
+only while it holds control and the robot is not halted. Who may do what is the
+controller's decision (:mod:`icenav.control.authorization`), not the console's. Delete view
+and Calibrate ask for confirmation. With a control token (``Console(..., control_token=...)``,
+as ``icenav demo`` sets when exposed) a browser is view only until it entered the token
+(constant-time comparison, rate-limited guesses with a logged alarm: ``TokenGate``).
 """
 
 from __future__ import annotations
 
 import contextlib
 import threading
-from collections import deque
-from collections.abc import Sequence
+import time
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from icenav.console.commands import NO_VIEWS, Confirmation, ConsoleCommands, next_name
+from icenav.console.client_panel import CALIBRATIONS, ClientPanel
+from icenav.console.commands import NO_VIEWS, ConsoleCommands, next_name
+from icenav.console.display import (
+    DisplaySettings,
+    ecg_samples,
+    heart_rate_bpm,
+    imaged_depth_cm,
+    render_display,
+)
+from icenav.console.jog import JogRepeater
+from icenav.console.labels import (
+    SHORTCUTS,
+    GamepadState,
+    halt_banner,
+    jog_rate_words,
+    md,
+    safety_markdown,
+)
 from icenav.console.panels import (
-    JOG_AXES,
-    MODE_CHOICES,
     JointHistory,
     LatestSlot,
     client_name,
-    control_view,
-    display_factors,
-    display_pixel_map,
-    gray_to_rgb,
     jog_command,
     mode_from_choice,
     progress_percent,
     status_markdown,
     summary_markdown,
-    views_markdown,
 )
-from icenav.console.scene import (
-    MM_TO_SCENE,
-    AnatomyMesh,
-    RoadmapTrail,
-    as_anatomy_meshes,
-    catheter_scene,
-    image_plane_pose,
-    subsample,
-    view_marker_positions,
-)
+from icenav.console.scene import AnatomyMesh, as_anatomy_meshes
+from icenav.console.scene_view import SceneLabel, SceneView, as_scene_labels
 from icenav.control.authorization import TokenGate
 from icenav.control.commands import (
     CommandResult,
@@ -69,7 +83,6 @@ from icenav.control.commands import (
     SaveView,
     SetCompensation,
     SetMode,
-    Source,
     Spin,
 )
 from icenav.control.state import (
@@ -86,19 +99,31 @@ from icenav.persistence.dicom import ExportDirectory
 
 __all__ = ["Console", "ConsoleStats"]
 
-CALIBRATIONS: dict[str, CalibrationKind] = {
-    "Dense raster": "dense",
-    "5-point": "five_point",
-    "Dense + hysteresis": "dense+hysteresis",
+IMAGE_PANEL_PX = 880
+"""Width of the ICE image panel (CSS pixels): >= 45 % of a 1920-pixel-wide window, and
+63 % of a 1400-pixel one (viser docks panels by pixel width only)."""
+CONTROL_PANEL_PX = 360
+"""Width of the control panel (CSS pixels)."""
+IMAGE_DISPLAY_PX = 800
+"""Width of the displayed ICE picture's image part (pixels; the browser scales it down to
+the panel, and to the window's height: ``PAGE_CSS``)."""
+MESSAGE_S = 15.0
+"""A controller message (not a fault's cause) is shown this long after it last changed (s)."""
+PAGE_CSS = """<style>
+/* the safety bar (the block holding .icenav-safety) stays at the top of its panel */
+div:has(> div:nth-child(3)) > div:has(.icenav-safety) {
+  position: sticky; top: 0; z-index: 20; background: var(--mantine-color-body);
 }
-TRUE_RGB = (230, 140, 40)
-MODEL_RGB = (60, 120, 255)
-VIEW_RGB = (40, 200, 90)
-ROADMAP_RGB = (150, 150, 150)
-IMAGE_MAX_WIDTH = 640
-"""Widest ICE image sent (pixels); wider ones are decimated."""
-IMAGE_MIN_WIDTH = 300
-"""Narrower ICE images are enlarged towards this width (the panel is about 320 px wide)."""
+/* ... which needs no box between it and the panel's scroll area to clip by "hidden" */
+[data-scrollarea-viewport] div:has(.icenav-safety):not([data-scrollarea-viewport]) {
+  overflow: clip !important;
+}
+/* the ICE picture fits the window's height (aspect kept) */
+[data-dock-region="left"] img[src^="blob:"] {
+  max-height: calc(100vh - 170px); width: auto; max-width: 100%; margin: 0 auto;
+}
+.icenav-banner { background: #c92a2a; color: white; padding: 0.4em 0.6em; border-radius: 4px; }
+</style><span class="icenav-safety"></span>"""
 
 
 @dataclass(frozen=True)
@@ -115,87 +140,6 @@ class ConsoleStats:
     """Browsers connected now."""
 
 
-class _ClientPanel:
-    """One browser's own controls (viser handles created on its connection)."""
-
-    def __init__(self, console: Console, client: Any):
-        self.client = client
-        self.name = client_name(client.client_id)
-        self.can_control: bool | None = None
-        self.note_text = ""
-        self.jog_mode: Mode | None = None
-        self.view_options: tuple[str, ...] = ()
-        gui = client.gui
-        c = console
-        self.source = Source("console", self.name)
-        """The source of this browser's commands."""
-        self.note = gui.add_markdown("", order=1.0)
-        self.feedback = gui.add_markdown("", order=1.01)
-        """What the controller decided about this browser's latest refused or failed
-        command (set on the refresh thread from :attr:`feedback_text`)."""
-        self.feedback_text = ""
-        self.feedback_shown = ""
-        self.confirm: Confirmation | None = None
-        """The confirmation dialog open in this browser (Delete view, Calibrate), if any."""
-        self.exports: deque[str] = deque(maxlen=8)
-        """Views whose export the controller accepted, to write on the refresh thread."""
-        self.export_text = ""
-        self.export_shown = ""
-        self.authorised = console.control_token is None
-        self.token = None
-        if console.control_token is not None:  # reliability: part 4 (security)
-            self.token = gui.add_text("Control token", initial_value="", order=1.05)
-        self.take = gui.add_button("Take control", order=1.1)
-        self.release = gui.add_button("Release control", order=1.2, visible=False)
-        tabs = gui.add_tab_group(order=5.0)
-        with tabs.add_tab("Views"):
-            self.view_name = gui.add_text("View name", initial_value="view-1")
-            self.save = gui.add_button("Save view")
-            self.views = gui.add_dropdown("Saved views", (NO_VIEWS,), initial_value=NO_VIEWS)
-            self.goto = gui.add_button("Go to view", color="green")
-            self.thumb_note = gui.add_markdown("*No thumbnail.*", visible=False)
-            self.thumb = gui.add_image(
-                np.zeros((8, 8, 3), np.uint8), label="Thumbnail", format="jpeg", visible=False
-            )
-            self.delete = gui.add_button("Delete view", color="gray")
-            self.export = None
-            self.export_note = None
-            if console.export_dir is not None:  # reliability: part 4 (security)
-                self.export = gui.add_button("Export DICOM", hint="Into the export directory")
-                self.export_note = gui.add_markdown("")
-            self.view_list = gui.add_markdown("*No saved views yet.*")
-        with tabs.add_tab("Jog"):
-            self.jog_buttons = []
-            labels = JOG_AXES[Mode.KNOB]
-            for axis in range(4):
-                for sign in (-1, 1):
-                    b = gui.add_button(f"{labels[axis]} {'-' if sign < 0 else '+'}")
-                    b.on_hold(c._jog_callback(self, axis, sign), callback_hz=c.jog_hz)
-                    self.jog_buttons.append((b, axis, sign))
-        with tabs.add_tab("Drive"):
-            self.mode = gui.add_dropdown("Mode", tuple(MODE_CHOICES), initial_value="Idle")
-            self.compensation = gui.add_checkbox("Compensation", initial_value=False)
-            self.reset = gui.add_button("Reset fault", color="yellow")
-            self.spin = gui.add_button("Spin 360")
-            self.calib_kind = gui.add_dropdown(
-                "Calibration", tuple(CALIBRATIONS), initial_value="5-point"
-            )
-            self.calibrate = gui.add_button("Calibrate")
-        self.motion_controls = [
-            self.mode,
-            self.compensation,
-            self.reset,
-            self.spin,
-            self.calib_kind,
-            self.calibrate,
-            self.save,
-            self.goto,
-            self.delete,
-            *([self.export] if self.export is not None else []),
-            *(b for b, _, _ in self.jog_buttons),
-        ]
-
-
 class Console(ConsoleCommands):
     """The browser console of one controller.
 
@@ -207,6 +151,14 @@ class Console(ConsoleCommands):
         Where to serve (127.0.0.1 unless told otherwise; ``port=0`` picks a free port).
     anatomy_mesh : sequence of AnatomyMesh or (name, vertices, faces, rgb, opacity), optional
         Anatomy surfaces in the base frame (mm), drawn translucently; None shows none.
+    anatomy_labels : sequence of landmarks, optional
+        Labels of the anatomy (objects with ``key``, ``label``, ``name`` and ``point`` in the
+        base frame, mm, as ``icenav.apps.wiring.anatomy_labels()`` gives, or such tuples);
+        keys ``dir-<letter>`` are the patient directions (unit vectors) of the orientation
+        marker. None: no labels.
+    cardiac_phase : callable, optional
+        Cardiac phase (fraction of the beat, 0 = R wave) at a controller time (s): the ECG
+        strip under the image is drawn from it. None: no ECG strip.
     refresh_hz : float
         Scene / panel refresh rate (states in between are coalesced); also the highest
         rate at which ICE images are sent.
@@ -236,10 +188,12 @@ class Console(ConsoleCommands):
         port: int = 8080,
         anatomy_mesh: Sequence[AnatomyMesh | tuple[str, Any, Any, Any, float]] | None = None,
         *,
+        anatomy_labels: Sequence[Any] | None = None,
+        cardiac_phase: Callable[[float], float] | None = None,
         refresh_hz: float = 25.0,
         geometry: CatheterGeometry = DEFAULT_GEOMETRY,
         mapping: JoystickMapping | None = None,
-        max_roadmap_points: int = 5000,
+        max_roadmap_points: int = 1500,
         jog_hz: float = 20.0,
         status_hz: float = 10.0,
         control_token: str | None = None,
@@ -280,13 +234,20 @@ class Console(ConsoleCommands):
         self.refresh_hz = refresh_hz
         self._status_every = max(1, round(refresh_hz / status_hz))
         self.jog_hz = jog_hz
+        self.jog = JogRepeater(jog_hz)
+        """Keeps a held on-screen jog going between the browser's hold messages."""
         self.geometry = geometry
         self.mapping = mapping or JoystickMapping()
+        self._jog_rates = jog_rate_words(self.mapping)
         self.max_roadmap_points = max_roadmap_points
         self.anatomy = as_anatomy_meshes(anatomy_mesh)
+        self.labels: tuple[SceneLabel, ...] = as_scene_labels(anatomy_labels)
+        self.cardiac_phase = cardiac_phase
+        self.display = DisplaySettings()
+        """The image display's gain and depth (set from the image panel)."""
         self._slot = LatestSlot()
         self._reset_view_state()
-        self._panels: dict[int, _ClientPanel] = {}
+        self._panels: dict[int, ClientPanel] = {}
         self._lock = threading.RLock()
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
@@ -301,16 +262,13 @@ class Console(ConsoleCommands):
     def _reset_view_state(self) -> None:
         """What the console has drawn (a fresh start on each start())."""
         self._history = JointHistory(10.0)
-        self._trail = RoadmapTrail()
-        self._markers: dict[str, np.ndarray] = {}
-        self._marker_handles: dict[str, tuple[Any, Any]] = {}
-        self._first_state = True
         self._last_state: ControllerState | None = None
         self._status_mode: Mode | None = None
         self._last_image_t: float | None = None
-        self._tubes: dict[str, Any] = {}
-        self._tube_faces: dict[str, int] = {}
-        self._scene_image: Any = None
+        self._last_frame: ImageFrame | None = None
+        self._message = ("", 0.0)
+        self._safety_shown = ""
+        self._halted: bool | None = None
 
     # ------------------------------------------------------------------ lifecycle
     @property
@@ -367,6 +325,7 @@ class Console(ConsoleCommands):
         self._slot.offer(self.controller.snapshot())
         self._thread = threading.Thread(target=self._run, name="icenav-console", daemon=True)
         self._thread.start()
+        self.jog.start()
 
     def stop(self) -> None:
         """Stop refreshing, release control held by browsers and close the server."""
@@ -374,6 +333,7 @@ class Console(ConsoleCommands):
             return
         self._running = False
         self._stop.set()
+        self.jog.stop()
         if self._thread is not None:
             self._thread.join(timeout=5.0)
             self._thread = None
@@ -422,101 +382,135 @@ class Console(ConsoleCommands):
     # ------------------------------------------------------------------ building
     def _build_shared(self) -> None:
         s = self._server
-        s.gui.configure_theme(control_width="large", show_share_button=False)
-        self._estop = s.gui.add_button(
-            "E-STOP", color="red", icon=None, order=0.0, hint="Emergency stop (anyone, any mode)"
-        )
+        gui = s.gui
+        gui.configure_theme(control_width="large", show_share_button=False)
+        safety = gui.add_tab_group(order=0.0)  # the safety bar: a box (sticky: PAGE_CSS)
+        with safety.add_tab("Safety"):
+            gui.add_html(PAGE_CSS)
+            self._estop = gui.add_button(
+                "E-STOP", color="red", hint="Emergency stop: all axes, any mode, anyone (Esc)"
+            )
+            self._stop_btn = gui.add_button(
+                "Stop", color="orange", hint="End the automatic motion and hold (Space)"
+            )
+            self._safety = gui.add_markdown("*Waiting for the controller...*")
+            self._banner = gui.add_html("", visible=False)
+            self._reset = gui.add_button(
+                "Reset fault",
+                color="yellow",
+                visible=False,
+                hint="Clears the E-STOP or fault (the controller accepts it from the holder)",
+            )
+            self._error_md = gui.add_markdown("")
         self._estop.on_click(lambda ev: self.controller.estop(client=self._client_of(ev)))
-        self._stop_btn = s.gui.add_button("Stop", color="orange", order=0.1)
         self._stop_btn.on_click(lambda ev: self.controller.stop(client=self._client_of(ev)))
-        self._error_md = s.gui.add_markdown("", order=0.2)
-        self._summary = s.gui.add_markdown("*Waiting for the controller...*", order=1.5)
-        self._image_placeholder = s.gui.add_markdown("*No ICE image yet.*", order=2.0)
-        self._image = s.gui.add_image(
-            np.zeros((8, 8, 3), np.uint8),
-            label="ICE image",
-            format="jpeg",
-            jpeg_quality=80,
-            order=2.1,
-            visible=False,
-        )
-        self._progress_label = s.gui.add_markdown("", order=3.0, visible=False)
-        self._progress = s.gui.add_progress_bar(0.0, order=3.1, visible=False, animated=True)
-        with s.gui.add_folder("Status", order=20.0):
-            self._status = s.gui.add_markdown("*Waiting for the controller...*")
-            import viser.uplot as uplot
-
-            empty = tuple(np.zeros(0) for _ in range(5))
-            self._plot = s.gui.add_uplot(
-                empty,
-                (
-                    uplot.Series(label="t (s)"),
-                    uplot.Series(label="phi1 (deg)", stroke="#d9480f", width=2),
-                    uplot.Series(label="phi2 (deg)", stroke="#1971c2", width=2),
-                    uplot.Series(label="phi3 (deg)", stroke="#2f9e44", width=2),
-                    uplot.Series(label="d4 (mm)", stroke="#7048e8", width=2, scale="mm"),
-                ),
-                title="Joint states, last 10 s",
-                scales={"x": uplot.Scale(time=False), "mm": uplot.Scale(auto=True)},
-                axes=(
-                    uplot.Axis(),
-                    uplot.Axis(label="deg"),
-                    uplot.Axis(label="mm", scale="mm", side=1),
-                ),
-                aspect=1.6,
+        self._reset.on_click(lambda ev: self._for_panel(ev, self._reset_for))
+        self._build_image_panel(gui)
+        with gui.add_folder("3-D scene", order=15.0, expand_by_default=False):
+            gui.add_markdown(
+                "Drag the image panel's edge (or minimize it) to enlarge the scene. Orange: "
+                "the catheter; blue: the model's ghost; small axes: the EM sensor; green: "
+                "saved views (click one to select it)."
             )
-
-        cam = s.initial_camera
-        cam.position = (0.09, -0.09, 0.07)  # metres: the 60 mm bending section fills a third
-        cam.look_at = (0.0, 0.0, 0.035)
-        cam.near = 0.001
-        sc = s.scene
-        sc.set_up_direction("+z")
-        sc.configure_default_lights(enabled=True, cast_shadow=False)  # shadows cost frame rate
-        sc.add_frame("/base", axes_length=0.01, axes_radius=0.0005)
-        # the base plane: 1 cm cells, 5 cm sections (a scale for the eye)
-        sc.add_grid(
-            "/grid",
-            width=0.2,
-            height=0.2,
-            cell_size=0.01,
-            section_size=0.05,
-            fade_distance=1.0,
-            shadow_opacity=0.0,
+            self._show_roadmap = gui.add_checkbox("Show the roadmap", initial_value=True)
+            self._show_labels = gui.add_checkbox("Show anatomy labels", initial_value=True)
+            self._show_fan = gui.add_checkbox("Show the image in 3-D", initial_value=True)
+        with gui.add_folder("Status", order=20.0, expand_by_default=False):
+            self._status = gui.add_markdown("*Waiting for the controller...*")
+            self._plot = self._joint_plot(gui)
+        with gui.add_folder("Keyboard shortcuts", order=30.0, expand_by_default=False):
+            rows = "\n".join(f"| **{k}** | {what} |" for k, what in SHORTCUTS)
+            gui.add_markdown(f"| key | does |\n|---|---|\n{rows}\n\nNot while typing in a field.")
+        self._build_shortcuts(gui)
+        self.scene = SceneView(
+            s, self.anatomy, self.geometry, self.max_roadmap_points, labels=self.labels
         )
-        for mesh in self.anatomy:
-            sc.add_mesh_simple(
-                f"/anatomy/{mesh.name}",
-                vertices=(mesh.vertices * MM_TO_SCENE).astype(np.float32),
-                faces=mesh.faces,
-                color=mesh.rgb,
-                opacity=mesh.opacity,
-                side="double",
-                cast_shadow=False,
-                receive_shadow=False,
+        self.scene.on_view_click = self._view_marker_clicked
+        self._show_roadmap.on_update(lambda ev: self.scene.show_roadmap(self._show_roadmap.value))
+        self._show_labels.on_update(lambda ev: self.scene.show_labels(self._show_labels.value))
+        self._show_fan.on_update(lambda ev: self.scene.show_image(self._show_fan.value))
+        gui.main_panel.dock_right()
+        gui.main_panel.set_width(CONTROL_PANEL_PX)
+
+    def _build_image_panel(self, gui: Any) -> None:
+        panel = gui.add_panel()
+        with panel.add_tab("ICE image"):
+            self._summary = gui.add_markdown("*Waiting for the controller...*")
+            self._image_placeholder = gui.add_markdown("*No ICE image yet.*")
+            self._image = gui.add_image(
+                np.zeros((8, 8, 3), np.uint8),
+                label=None,
+                format="jpeg",
+                jpeg_quality=85,
+                visible=False,
             )
-        self._tip_true = sc.add_frame(
-            "/catheter/tip_true", axes_length=0.008, axes_radius=0.0005, visible=False
-        )
-        self._tip_model = sc.add_frame(
-            "/catheter/tip_model", axes_length=0.006, axes_radius=0.0003, visible=False
-        )
-        self._tip_ghost = sc.add_icosphere(
-            "/catheter/tip_model/ghost", radius=0.0025, color=MODEL_RGB, opacity=0.35
-        )
-        self._sensor = sc.add_frame(
-            "/catheter/sensor", axes_length=0.005, axes_radius=0.0004, visible=False
-        )
-        self._roadmap = sc.add_point_cloud(
-            "/roadmap",
-            points=np.zeros((1, 3), np.float32),
-            colors=ROADMAP_RGB,
-            point_size=0.0012,
-            visible=False,
+            self._progress_label = gui.add_markdown("", visible=False)
+            self._progress = gui.add_progress_bar(0.0, visible=False, animated=True)
+            self._gain = gui.add_slider(
+                "Gain (dB)", min=-20.0, max=20.0, step=1.0, initial_value=0.0,
+                hint="Display gain: brightens or darkens the picture (not the acquisition)",
+            )  # fmt: skip
+            self._depth = gui.add_slider(
+                "Depth (cm)", min=2.0, max=20.0, step=0.5, initial_value=20.0,
+                hint="Displayed depth (the image is cut below it)",
+            )  # fmt: skip
+        panel.dock_left()
+        panel.set_width(IMAGE_PANEL_PX)
+        self._image_panel = panel
+
+        def changed(ev: Any) -> None:
+            self.display = DisplaySettings(float(self._gain.value), float(self._depth.value))
+            self._redraw_image()
+
+        self._gain.on_update(changed)
+        self._depth.on_update(changed)
+
+    def _joint_plot(self, gui: Any) -> Any:
+        import viser.uplot as uplot
+
+        empty = tuple(np.zeros(0) for _ in range(5))
+        return gui.add_uplot(
+            empty,
+            (
+                uplot.Series(label="t (s)"),
+                uplot.Series(label="AP knob (°)", stroke="#d9480f", width=2),
+                uplot.Series(label="RL knob (°)", stroke="#1971c2", width=2),
+                uplot.Series(label="roll (°)", stroke="#2f9e44", width=2),
+                uplot.Series(label="translation (mm)", stroke="#7048e8", width=2, scale="mm"),
+            ),
+            title="Joint states, last 10 s",
+            scales={"x": uplot.Scale(time=False), "mm": uplot.Scale(auto=True)},
+            axes=(
+                uplot.Axis(),
+                uplot.Axis(label="°"),
+                uplot.Axis(label="mm", scale="mm", side=1),
+            ),
+            aspect=1.6,
         )
 
+    def _build_shortcuts(self, gui: Any) -> None:
+        """Keyboard shortcuts (viser commands with hotkeys; not while typing in a field)."""
+        ctl = self.controller
+
+        def on(key: str, label: str, fn: Callable[[Any], object]) -> None:
+            cmd = gui.add_command(label, hotkey=key)
+            cmd.on_trigger(fn)
+
+        on("escape", "E-STOP", lambda ev: ctl.estop(client=self._client_of(ev)))
+        on("space", "Stop", lambda ev: ctl.stop(client=self._client_of(ev)))
+        on("G", "Go to the selected view", lambda ev: self._for_panel(ev, self._goto))
+        on("V", "Save a view", lambda ev: self._for_panel(ev, self._save))
+        on("T", "Take control", lambda ev: self._for_panel(ev, self._take))
+
+    def _for_panel(self, ev: Any, fn: Callable[[ClientPanel], None]) -> None:
+        with self._lock:
+            panel = self._panels.get(ev.client_id)
+        if panel is not None:
+            fn(panel)
+
+    # ------------------------------------------------------------------ browsers
     def _on_connect(self, client: Any) -> None:
-        panel = _ClientPanel(self, client)
+        panel = ClientPanel(client, self.control_token is not None, self.export_dir is not None)
         ctl = self.controller
         name = panel.name
         if not panel.authorised:  # the controller refuses everything but Stop / E-STOP
@@ -525,25 +519,12 @@ class Console(ConsoleCommands):
         def ok(ev: Any) -> bool:
             return ev.client is not None
 
-        @panel.take.on_click
-        def _(ev: Any) -> None:
-            if not panel.authorised and panel.token is not None and self._token_gate:
-                verdict = self._token_gate.check(name, str(panel.token.value).strip())
-                if not verdict.ok:
-                    panel.note.content = f"**{verdict.reason}**"
-                    return
-                panel.authorised = True
-                ctl.set_view_only(name, False)
-            if not ctl.acquire_control(name):
-                panel.feedback_text = "**Take control refused**: another client holds control."
-
-        @panel.release.on_click
-        def _(ev: Any) -> None:
-            ctl.release_control(name)
+        panel.take.on_click(lambda ev: self._take(panel))
+        panel.release.on_click(lambda ev: ctl.release_control(name))
 
         @panel.mode.on_update
         def _(ev: Any) -> None:
-            if ok(ev):
+            if ok(ev) and panel.mode.value in panel.mode.options[:3]:
                 self.send(panel, SetMode(mode_from_choice(panel.mode.value), source=panel.source))
 
         @panel.compensation.on_update
@@ -552,38 +533,25 @@ class Console(ConsoleCommands):
                 enabled = bool(panel.compensation.value)
                 self.send(panel, SetCompensation(enabled, source=panel.source))
 
-        panel.reset.on_click(lambda ev: self.send(panel, Reset(source=panel.source)))
         panel.spin.on_click(lambda ev: self.send(panel, Spin(source=panel.source)))
+        panel.reset.on_click(lambda ev: self._reset_for(panel))
 
         @panel.calibrate.on_click
         def _(ev: Any) -> None:
-            self._confirm_calibration(panel, CALIBRATIONS[panel.calib_kind.value])
+            kind: CalibrationKind = CALIBRATIONS[panel.calib_kind.value]  # type: ignore[assignment]
+            self._confirm_calibration(panel, kind)
 
-        @panel.save.on_click
-        def _(ev: Any) -> None:
-            view = panel.view_name.value.strip()
-            if not view:
-                return
-
-            def saved(result: CommandResult) -> None:  # a refused save keeps the name
-                if result.outcome is Outcome.ACCEPTED and panel.view_name.value == view:
-                    panel.view_name.value = next_name(view)
-
-            self.send(panel, SaveView(view, source=panel.source), on_decided=saved)
-
-        @panel.goto.on_click
-        def _(ev: Any) -> None:
-            if panel.views.value != NO_VIEWS:
-                self.send(panel, GoToView(panel.views.value, source=panel.source))
+        panel.save.on_click(lambda ev: self._save(panel))
+        panel.goto.on_click(lambda ev: self._goto(panel))
 
         @panel.delete.on_click
         def _(ev: Any) -> None:
             if panel.views.value != NO_VIEWS:
                 self._confirm_delete(panel, str(panel.views.value))
 
-        @panel.views.on_update
-        def _(ev: Any) -> None:
-            self._show_thumbnail(panel)
+        for b, axis, sign in panel.jog_buttons:
+            b.on_hold(self._jog_callback(panel, axis, sign), callback_hz=self.jog_hz)
+            b.on_click(lambda ev: self._jog_released(panel))  # the click on pointer-up
 
         if panel.export is not None:
 
@@ -603,15 +571,64 @@ class Console(ConsoleCommands):
         with self._lock:
             panel = self._panels.pop(client.client_id, None)
         if panel is not None:  # its control is released; what it started stops and holds
+            self.jog.release(panel.name)
             self.controller.disconnect(panel.name)
 
     def _client_of(self, ev: Any) -> str:
         return "browser" if ev.client_id is None else client_name(ev.client_id)
 
-    def _jog_callback(self, panel: _ClientPanel, axis: int, sign: int) -> Any:
-        def cb(ev: Any) -> None:
+    def _take(self, panel: ClientPanel) -> None:
+        ctl = self.controller
+        if not panel.authorised and panel.token is not None and self._token_gate:
+            verdict = self._token_gate.check(panel.name, str(panel.token.value).strip())
+            if not verdict.ok:
+                panel.note.content = f"**{verdict.reason}**"
+                return
+            panel.authorised = True
+            ctl.set_view_only(panel.name, False)
+        if not ctl.acquire_control(panel.name):
+            panel.tell("**Take control refused**: another client holds control.")
+
+    def _save(self, panel: ClientPanel) -> None:
+        """Save view: an empty or duplicate name is refused here, with a message."""
+        view = str(panel.view_name.value).strip()
+        if not view:
+            panel.tell("**Not saved**: type a name for the view first.", "save_view")
+            return
+        if view in panel.view_options:
+            panel.tell(
+                f"**Not saved**: a view named **{md(view)}** exists; choose another name "
+                "(or delete that view first).",
+                "save_view",
+            )
+            return
+
+        def saved(result: CommandResult) -> None:  # a refused save keeps the name
+            if result.outcome is Outcome.ACCEPTED and panel.view_name.value == view:
+                panel.view_name.value = next_name(view)
+
+        self.send(panel, SaveView(view, source=panel.source), on_decided=saved)
+
+    def _goto(self, panel: ClientPanel, view: str | None = None) -> None:
+        name = panel.views.value if view is None else view
+        if name != NO_VIEWS:
+            self.send(panel, GoToView(str(name), source=panel.source))
+
+    def _reset_for(self, panel: ClientPanel) -> None:
+        self.send(panel, Reset(source=panel.source))
+
+    def _view_marker_clicked(self, view: str, client_id: int | None) -> None:
+        """A click on a saved view's marker in the scene selects it in that browser."""
+        with self._lock:
+            panel = self._panels.get(client_id) if client_id is not None else None
+        if panel is not None and view in panel.view_options:
+            panel.views.value = view
+
+    def _jog_callback(self, panel: ClientPanel, axis: int, sign: int) -> Any:
+        def send() -> None:
             state = self._last_state
             if state is None or not panel.can_control:
+                self.jog.release(panel.name)
                 return
             # Outside tip mode a jog drives the knobs: the controller wakes from IDLE into
             # knob mode on it, and it aborts an automatic motion (as gamepad input does).
@@ -619,7 +636,15 @@ class Console(ConsoleCommands):
             vel, frame = jog_command(mode, axis, sign, self.mapping)
             self.send(panel, Jog(vel, frame, source=panel.source))
 
-        return cb
+        return lambda ev: self.jog.hold(panel.name, send)
+
+    def _jog_released(self, panel: ClientPanel) -> None:
+        """A jog button let go: stop repeating and stop the motion now (a zero jog)."""
+        if self.jog.release(panel.name) and panel.can_control:
+            state = self._last_state
+            tip = state is not None and state.mode == Mode.TIP
+            zero = np.zeros(6 if tip else 4)
+            self.send(panel, Jog(zero, "tip" if tip else "knob", source=panel.source))
 
     # ------------------------------------------------------------------ refreshing
     def refresh_once(self) -> bool:
@@ -638,10 +663,34 @@ class Console(ConsoleCommands):
         self._serve_panels()
         return drew
 
+    def gamepad_state(self) -> GamepadState:
+        """The controller's gamepad (``controller.publisher.gamepad()`` when it has one)."""
+        get = getattr(getattr(self.controller, "publisher", None), "gamepad", None)
+        return get() if callable(get) else "none"
+
+    def _fresh_message(self, state: ControllerState) -> str:
+        """The controller's message, dropped :data:`MESSAGE_S` after it last changed."""
+        now = time.monotonic()
+        if state.message != self._message[0]:
+            self._message = (state.message, now)
+        return state.message if now - self._message[1] <= MESSAGE_S else ""
+
     def _draw_state(self, state: ControllerState) -> None:
         with self._lock:
             self._last_state = state
-        self._summary.content = summary_markdown(state)
+        safety = safety_markdown(state, self.gamepad_state())
+        if safety != self._safety_shown:
+            self._safety.content = safety
+            self._safety_shown = safety
+        banner = halt_banner(state)
+        halted = banner is not None
+        if banner is not None:
+            self._banner.content = f'<div class="icenav-banner">{banner.html()}</div>'
+        if halted != self._halted:
+            self._banner.visible = halted
+            self._reset.visible = halted
+            self._halted = halted
+        self._summary.content = summary_markdown(state, self._fresh_message(state))
         self._history.append(state.time, state.q_motor)
         # the status table and the plot are costly to re-render in the browser: status_hz
         if self._refreshes % self._status_every == 0 or state.mode != self._status_mode:
@@ -653,153 +702,51 @@ class Console(ConsoleCommands):
         self._progress_label.visible = pct is not None
         if pct is not None:
             self._progress.value = pct
-            self._progress_label.content = f"{state.progress_label or 'Progress'}: {pct:.0f} %"
-        self._draw_scene(state)
+            label = md(state.progress_label or "Progress")
+            self._progress_label.content = f"{label}: {pct:.0f} %"
+        self.scene.draw_state(state)
         with self._lock:  # a browser connecting or leaving waits for this
             for p in self._panels.values():
                 self._update_panel(p, state)
 
-    def _draw_scene(self, state: ControllerState) -> None:
-        cs = catheter_scene(state, self.geometry.catheter_radius)
-        self._set_tube("true", cs.true_tube, TRUE_RGB, None)
-        self._set_tube("model", cs.model_tube, MODEL_RGB, 0.35)
-        self._tip_model.wxyz, self._tip_model.position = cs.tip_model.wxyz, cs.tip_model.position
-        self._tip_model.visible = True
-        if cs.tip_true is not None:
-            self._tip_true.wxyz, self._tip_true.position = cs.tip_true.wxyz, cs.tip_true.position
-        self._tip_true.visible = cs.tip_true is not None
-        if cs.sensor is not None:
-            self._sensor.wxyz, self._sensor.position = cs.sensor.wxyz, cs.sensor.position
-        self._sensor.visible = cs.sensor is not None
-        if self._trail.update(state):
-            pts = subsample(self._trail.points(), self.max_roadmap_points) * MM_TO_SCENE
-            if len(pts):
-                self._roadmap.points = pts.astype(np.float32)
-                self._roadmap.colors = np.tile(np.array(ROADMAP_RGB, np.uint8), (len(pts), 1))
-            self._roadmap.visible = len(pts) > 0
-        tip = state.tip2base_true if state.tip2base_true is not None else state.tip2base_model
-        markers = view_marker_positions(
-            state.views,
-            self._markers,
-            np.asarray(tip)[:3, 3],
-            first=self._first_state,
-            geometry=self.geometry,
-        )
-        self._first_state = False
-        if markers.keys() != self._markers.keys():
-            self._draw_markers(markers)
-        self._markers = markers
-
-    def _set_tube(self, key: str, tube: Any, rgb: tuple[int, int, int], op: float | None) -> None:
-        handle = self._tubes.get(key)
-        if tube is None:
-            if handle is not None:
-                handle.visible = False
-            return
-        vertices, faces = tube
-        if handle is None or self._tube_faces.get(key) != len(faces):
-            if handle is not None:
-                handle.remove()
-            self._tubes[key] = self._server.scene.add_mesh_simple(
-                f"/catheter/{key}",
-                vertices=vertices,
-                faces=faces,
-                color=rgb,
-                opacity=op,
-                cast_shadow=False,
-                receive_shadow=False,
-            )
-            self._tube_faces[key] = len(faces)
-        else:
-            handle.vertices = vertices
-            handle.visible = True
-
-    def _draw_markers(self, markers: dict[str, np.ndarray]) -> None:
-        sc = self._server.scene
-        for name in list(self._marker_handles):
-            if name not in markers:
-                for h in self._marker_handles.pop(name):
-                    h.remove()
-        for i, (name, pos) in enumerate(markers.items()):
-            if name in self._marker_handles:
-                continue
-            key = f"/views/v{i}_{abs(hash(name)) % 10**8}"
-            p = np.asarray(pos) * MM_TO_SCENE
-            sphere = sc.add_icosphere(key, radius=0.002, color=VIEW_RGB, position=p)
-            label = sc.add_label(key + "_label", name, position=p + np.array([0, 0, 0.004]))
-            self._marker_handles[name] = (sphere, label)
-
     def _draw_image(self, frame: ImageFrame, state: ControllerState | None) -> None:
-        rgb = gray_to_rgb(frame.pixels, IMAGE_MAX_WIDTH, IMAGE_MIN_WIDTH)
-        self._image.image = rgb
+        self._last_frame = frame
+        depth = imaged_depth_cm(frame.pixels, frame.ijk2tip)
+        if depth is not None and abs(self._depth.max - depth) > 0.25:
+            self._depth.max = round(depth * 2.0) / 2.0
+            if self._depth.value > self._depth.max:
+                self._depth.value = self._depth.max
+        self._redraw_image()
+        self.scene.draw_image(frame, state)
+
+    def _redraw_image(self) -> None:
+        frame = self._last_frame
+        if frame is None or frame.pixels.ndim != 2:
+            return
+        ecg = None
+        note = ""
+        if self.cardiac_phase is not None:
+            ecg = ecg_samples(self.cardiac_phase, frame.timestamp)
+            phase = self.cardiac_phase(frame.timestamp)
+            note = (
+                f"ECG · HR {heart_rate_bpm(self.cardiac_phase, frame.timestamp):.0f}/min · "
+                f"{100 * phase:.0f} % of the beat"
+            )
+        settings = self.display
+        if settings.depth_cm is not None and settings.depth_cm >= self._depth.max:
+            settings = DisplaySettings(settings.gain_db, None)
+        self._image.image = render_display(
+            frame.pixels, frame.ijk2tip, IMAGE_DISPLAY_PX, settings, ecg, note
+        )
         self._image.visible = True
         self._image_placeholder.visible = False
-        if state is None or np.array_equal(frame.ijk2tip, np.eye(4)):
-            return  # identity: the imager did not say where its pixels are; panel only
-        tip = state.tip2base_true if state.tip2base_true is not None else state.tip2base_model
-        down, up = display_factors(frame.pixels.shape[1], IMAGE_MAX_WIDTH, IMAGE_MIN_WIDTH)
-        ijk2tip = np.asarray(frame.ijk2tip, dtype=np.float64) @ display_pixel_map(down, up)
-        pose, w, h = image_plane_pose(ijk2tip, tip, (rgb.shape[0], rgb.shape[1]))
-        if self._scene_image is None:
-            self._scene_image = self._server.scene.add_image(
-                "/ice_image",
-                rgb,
-                w,
-                h,
-                format="jpeg",
-                wxyz=pose.wxyz,
-                position=pose.position,
-                cast_shadow=False,
-                receive_shadow=False,
-            )
-        else:
-            self._scene_image.image = rgb
-            self._scene_image.wxyz, self._scene_image.position = pose.wxyz, pose.position
-            self._scene_image.render_width, self._scene_image.render_height = w, h
 
-    def _update_panel(self, p: _ClientPanel, state: ControllerState) -> None:
-        cv = control_view(state.control_owner, p.name)
-        if cv.text != p.note_text:
-            p.note.content = cv.text
-            p.note_text = cv.text
-        if cv.can_control != p.can_control:
-            for h in p.motion_controls:
-                h.disabled = not cv.can_control
-            p.can_control = cv.can_control
-        p.take.visible = not cv.can_control
-        p.take.disabled = not cv.can_take
-        p.release.visible = cv.can_control
-        for choice, mode in MODE_CHOICES.items():
-            if state.mode == mode and p.mode.value != choice:
-                p.mode.value = choice
-        if p.compensation.value != state.compensation_enabled:
-            p.compensation.value = state.compensation_enabled
-        jog_mode = state.mode if state.mode == Mode.TIP else Mode.KNOB
-        if jog_mode != p.jog_mode:
-            labels = JOG_AXES[jog_mode]
-            for b, axis, sign in p.jog_buttons:
-                b.label = f"{labels[axis]} {'-' if sign < 0 else '+'}"
-            p.jog_mode = jog_mode
-        names = tuple(v.name for v in state.views)
-        if names != p.view_options:
-            new = [n for n in names if n not in p.view_options]
-            p.view_options = names
-            p.views.options = names or (NO_VIEWS,)
-            if new:  # select the view just saved
-                p.views.value = new[-1]
-            elif p.views.value not in names:
-                p.views.value = names[0] if names else NO_VIEWS
-            p.view_list.content = views_markdown(state.views)
-            self._show_thumbnail(p)
+    def _update_panel(self, p: ClientPanel, state: ControllerState) -> None:
+        if p.update(state, self._jog_rates):
+            p.draw_view_list(state.views, self.controller.view_image, self._goto_button(p))
 
-    def _show_thumbnail(self, p: _ClientPanel) -> None:
-        name = p.views.value
-        frame = None if name == NO_VIEWS else self.controller.view_image(name)
-        if frame is None:
-            p.thumb.visible = False
-            p.thumb_note.content = "*No thumbnail.*" if name != NO_VIEWS else ""
-            p.thumb_note.visible = name != NO_VIEWS
-            return
-        p.thumb.image = gray_to_rgb(frame.pixels, max_width=200)
-        p.thumb.visible = True
-        p.thumb_note.visible = False
+    def _goto_button(self, p: ClientPanel) -> Callable[[str], Callable[[Any], None]]:
+        def make(view: str) -> Callable[[Any], None]:
+            return lambda ev: self._goto(p, view)
+
+        return make

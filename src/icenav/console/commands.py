@@ -14,6 +14,7 @@ from typing import Any
 
 import numpy as np
 
+from icenav.console.labels import md
 from icenav.control.commands import (
     Calibrate,
     Command,
@@ -65,13 +66,13 @@ class ConsoleCommands:
         panel (with the controller's reason), a success clears the note."""
 
         def show(result: CommandResult) -> None:
-            what = command.describe()
+            what = md(command.describe())
             if result.outcome is Outcome.REFUSED:
-                panel.feedback_text = f"**Refused** ({what}): {result.reason}"
+                panel.tell(f"**Refused** ({what}): {md(result.reason)}", command.name)
             elif result.outcome is Outcome.FAILED:
-                panel.feedback_text = f"**Failed** ({what}): {result.reason}"
-            elif not isinstance(command, Jog):
-                panel.feedback_text = ""
+                panel.tell(f"**Failed** ({what}): {md(result.reason)}", command.name)
+            else:  # an accepted jog clears only a jog's refusal, not another command's
+                panel.clear(command.name if isinstance(command, Jog) else None)
 
         ticket = self.controller.submit(command)
         if on_decided is not None:
@@ -107,7 +108,7 @@ class ConsoleCommands:
         self._ask(
             panel,
             "Delete view?",
-            f"Delete the saved view **{view}** from this session? Its image goes with it; "
+            f"Delete the saved view **{md(view)}** from this session? Its image goes with it; "
             "the recorded roadmap stays.",
             "Delete",
             lambda: self.send(panel, DeleteView(view, source=panel.source)),
@@ -115,9 +116,9 @@ class ConsoleCommands:
 
     def _confirm_calibration(self, panel: Any, kind: CalibrationKind) -> None:
         try:
-            text = self.controller.preview_calibration(kind).describe()
+            text = md(self.controller.preview_calibration(kind).describe())
         except IcenavError as exc:
-            panel.feedback_text = f"**Cannot calibrate**: {exc}"
+            panel.tell(f"**Cannot calibrate**: {md(str(exc))}")
             return
         self._ask(
             panel,
@@ -140,7 +141,7 @@ class ConsoleCommands:
 
         def decided(result: CommandResult) -> None:
             if result.outcome is Outcome.REFUSED:
-                panel.export_text = f"**Export refused**: {result.reason}"
+                panel.export_text = f"**Export refused**: {md(result.reason)}"
             else:
                 panel.exports.append(view)
 
@@ -159,8 +160,8 @@ class ConsoleCommands:
         try:
             path = self.export_dir.write_clip(self.view_clip(name, state))
         except IcenavError as exc:
-            return f"**Export failed**: {exc}"
-        return f"Exported view **{name}** to `{path}`"
+            return f"**Export failed**: {md(str(exc))}"
+        return f"Exported view **{md(name)}** to `{path}`"
 
     def view_clip(self, name: str, state: ControllerState | None = None) -> ViewClip:
         """The image saved with view ``name`` as a one-frame clip with its state.
@@ -213,9 +214,7 @@ class ConsoleCommands:
         with self._lock:
             panels = list(self._panels.values())
         for p in panels:
-            if p.feedback_text != p.feedback_shown:
-                p.feedback.content = p.feedback_text
-                p.feedback_shown = p.feedback_text
+            p.serve_feedback()
             while p.exports:
                 p.export_text = self.export_view(p.exports.popleft())
             if p.export_note is not None and p.export_text != p.export_shown:

@@ -17,6 +17,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from icenav._typing import Array
+from icenav.console.labels import MODE_LABELS, client_label, duration_text, md, tracker_label
 from icenav.control.state import ControllerState, Mode, ViewSummary
 from icenav.control.teleop import JoystickMapping
 from icenav.errors import ConfigurationError, ShapeError
@@ -35,14 +36,33 @@ __all__ = [
     "jog_command",
     "joint_table_markdown",
     "mode_from_choice",
+    "mode_options",
     "progress_percent",
     "status_markdown",
     "summary_markdown",
     "views_markdown",
 ]
 
-MODE_CHOICES: dict[str, Mode] = {"Idle": Mode.IDLE, "Knob": Mode.KNOB, "Tip": Mode.TIP}
-"""Mode dropdown label -> mode (the automatic modes start through their own buttons)."""
+MODE_CHOICES: dict[str, Mode] = {
+    "Hold still (idle)": Mode.IDLE,
+    "Jog the knobs": Mode.KNOB,
+    "Jog the tip": Mode.TIP,
+}
+"""Mode dropdown label -> mode (the automatic modes start through their own buttons; while
+one runs the dropdown shows its name, :func:`mode_options`)."""
+
+
+def mode_options(mode: Mode) -> tuple[tuple[str, ...], str]:
+    """(options, value) of the mode dropdown in ``mode``: the three operator modes, and the
+    running automatic or halted mode's name while there is one (so it never says "idle"
+    during a spin)."""
+    base = tuple(MODE_CHOICES)
+    for label, m in MODE_CHOICES.items():
+        if m is mode:
+            return base, label
+    label = MODE_LABELS.get(mode, mode.value)
+    return (*base, label), label
+
 
 JOG_AXES: dict[Mode, tuple[str, str, str, str]] = {
     Mode.KNOB: ("AP knob (phi1)", "RL knob (phi2)", "Roll (phi3)", "Translate (d4)"),
@@ -118,12 +138,10 @@ class ControlView:
 def control_view(owner: str | None, me: str) -> ControlView:
     """Control note and permissions of browser ``me`` when ``owner`` holds control."""
     if owner == me:
-        return ControlView(True, False, "**You have control.**")
+        return ControlView(True, False, f"**You have control** ({md(client_label(me))}).")
     if owner is None:
         return ControlView(False, True, "**View only**: nobody has control; take it to drive.")
-    if owner == "gamepad":
-        return ControlView(False, False, "**View only**: the gamepad has control.")
-    return ControlView(False, False, f"**View only**: `{owner}` has control.")
+    return ControlView(False, False, f"**View only**: {md(client_label(owner))} has control.")
 
 
 def joint_table_markdown(q_motor: ArrayLike, q_model: ArrayLike) -> str:
@@ -147,27 +165,30 @@ def _q4(q: ArrayLike, name: str) -> Array:
 
 def status_markdown(state: ControllerState) -> str:
     """The status panel: mode, robot, tracker, roadmap, control owner, message, joints."""
-    owner = state.control_owner or "nobody"
+    mode = MODE_LABELS.get(state.mode, state.mode.value)
     lines = [
-        f"**Mode:** {state.mode.name} &nbsp; **Robot:** {state.robot_status.name}",
-        f"**Tracker:** {state.tracker_status} &nbsp; **Roadmap:** {state.n_vertices} vertices, "
-        f"{state.n_edges} edges",
-        f"**Control:** {owner} &nbsp; **Compensation:** "
-        f"{'on' if state.compensation_enabled else 'off'} &nbsp; **t** = {state.time:.1f} s",
+        f"**Mode:** {mode} &nbsp; **Robot:** {state.robot_status.value}",
+        f"**Tracker:** {tracker_label(state.tracker_status)} ({state.tracker_status}) &nbsp; "
+        f"**Roadmap:** {state.n_vertices} vertices, {state.n_edges} edges",
+        f"**Control:** {md(client_label(state.control_owner))} &nbsp; **Compensation:** "
+        f"{'on' if state.compensation_enabled else 'off'} &nbsp; **Running for** "
+        f"{duration_text(state.time)}",
     ]
     if state.mode in (Mode.FAULT, Mode.ESTOP):
-        lines.append(f"**{state.mode.name}:** {state.message or '(no message)'}")
+        lines.append(f"**{mode}:** {md(state.message) or '(no message)'}")
     elif state.message:
-        lines.append(f"*{state.message}*")
+        lines.append(f"*{md(state.message)}*")
     return "\n\n".join(lines) + "\n\n" + joint_table_markdown(state.q_motor, state.q_model)
 
 
-def summary_markdown(state: ControllerState) -> str:
-    """One line above the image: mode and the latest message (the fault text in FAULT/ESTOP)."""
+def summary_markdown(state: ControllerState, message: str | None = None) -> str:
+    """One line above the image: the mode in words and the latest message (``message``
+    when given: the console drops a stale one); the cause in FAULT / ESTOP."""
+    mode = MODE_LABELS.get(state.mode, state.mode.value)
+    text = md(state.message if message is None else message)
     if state.mode in (Mode.FAULT, Mode.ESTOP):
-        return f"**{state.mode.name}**: {state.message or '(no message)'} - press Reset fault"
-    text = f"**{state.mode.name}**"
-    return f"{text}: {state.message}" if state.message else text
+        return f"**{mode}**: {md(state.message) or '(no message)'}"
+    return f"**{mode}**: {text}" if text else f"**{mode}**"
 
 
 def views_markdown(views: tuple[ViewSummary, ...]) -> str:

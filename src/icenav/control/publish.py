@@ -61,6 +61,14 @@ class Publisher:
         lim = ctrl.config.geometry.joint_limits
         self._lo, self._hi = lim[:, 0].copy(), lim[:, 1].copy()
 
+    def gamepad(self) -> str:
+        """The gamepad, for display (read-only): "none" (none configured), "connected", or
+        "disconnected" (configured, not seen at its latest reading)."""
+        pad = self._ctrl._pad  # noqa: SLF001 - the controller's own part
+        if pad is None:
+            return "none"
+        return "connected" if pad._connected else "disconnected"  # noqa: SLF001
+
     def operator_message(self) -> str:
         """The latest message; in FAULT / ESTOP the cause stays in front until reset, and a
         view that is not on disk stays in front until a later view is."""
