@@ -265,7 +265,7 @@ def run_headless(args: argparse.Namespace) -> int:
 
 def run_console(args: argparse.Namespace) -> int:
     """The console in the browser on the real-time controller; Ctrl-C to stop."""
-    from icenav.apps.wiring import anatomy_meshes, make_sim_controller
+    from icenav.apps.wiring import anatomy_labels, anatomy_meshes, make_sim_controller
     from icenav.console import Console
     from icenav.devices.gamepad import Sdl2Gamepad
     from icenav.persistence.dicom import ExportDirectory
@@ -314,6 +314,9 @@ def run_console(args: argparse.Namespace) -> int:
         host=args.host,
         port=args.port,
         anatomy_mesh=anatomy_meshes(),
+        anatomy_labels=anatomy_labels(),
+        # the twin's heart gives the ECG strip its phase (on hardware: an ECG input)
+        cardiac_phase=None if session.renderer is None else session.renderer.phantom.cardiac_phase,
         control_token=token,
         export_dir=exports,
     )

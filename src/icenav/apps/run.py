@@ -197,17 +197,18 @@ def _console(ctrl: Any, args: argparse.Namespace, *, with_anatomy: bool) -> Any:
     from icenav.console import Console
     from icenav.persistence.dicom import ExportDirectory
 
-    meshes = None
+    meshes = labels = None
     if with_anatomy:
-        from icenav.apps.wiring import anatomy_meshes
+        from icenav.apps.wiring import anatomy_labels, anatomy_meshes
 
-        meshes = anatomy_meshes()
+        meshes, labels = anatomy_meshes(), anatomy_labels()
     args.export_dir = None
     console = Console(
         ctrl,
         host=args.host,
         port=args.port,
         anatomy_mesh=meshes,
+        anatomy_labels=labels,
         export_dir=ExportDirectory(export_dir_for(args)),
     )
     console.start()
