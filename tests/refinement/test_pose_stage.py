@@ -12,7 +12,7 @@ from icenav.devices.sim_robot import SimulatedRobot
 from icenav.errors import ConfigurationError, ShapeError
 from icenav.eval.metrics import rotation_angle
 from icenav.geometry.kinematics import forward
-from icenav.refinement.image_search import NeighbourhoodError, SimClock
+from icenav.refinement.image_search import NeighbourhoodError
 from icenav.refinement.pose_stage import (
     PoseStageConfig,
     PoseStageStatus,
@@ -21,6 +21,7 @@ from icenav.refinement.pose_stage import (
     pose_stage,
 )
 from icenav.sim.anatomy import EXAMPLE_VIEWS
+from icenav.sim.beat_imager import SimClock
 from icenav.sim.plant import CatheterPlant
 from icenav.sim.tracker import EMTracker, rotvec_to_matrix
 

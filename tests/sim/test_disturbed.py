@@ -9,7 +9,7 @@ import pytest
 
 from icenav.devices.sim_robot import SimulatedRobot
 from icenav.errors import ConfigurationError
-from icenav.refinement.image_search import SimClock
+from icenav.sim.beat_imager import SimClock
 from icenav.sim.conditions import CONDITIONS, DISTURBANCES, build_twin, condition
 from icenav.sim.disturbed import DisturbedPlant, DisturbedTracker, mean_pose
 from icenav.sim.plant import CatheterPlant

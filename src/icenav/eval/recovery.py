@@ -62,9 +62,10 @@ from icenav.eval.recovery_report import (
     roi_error,
     summary_table,
 )
+from icenav.recovery.beats import BeatClip
 from icenav.recovery.views import View
 from icenav.refinement.gating import GatedBeatImager
-from icenav.refinement.image_search import BeatClip, RefinementConfig, refine
+from icenav.refinement.image_search import RefinementConfig, refine
 from icenav.refinement.pose_stage import PoseStageConfig, pose_stage
 from icenav.sim.conditions import CONDITIONS, DISTURBANCES
 

@@ -12,11 +12,12 @@ from numpy.typing import NDArray
 from icenav._typing import Array
 from icenav.control.controller import ControllerConfig, PathTask
 from icenav.devices.sim_robot import SimulatedRobot
+from icenav.recovery.beats import BeatClip
 from icenav.recovery.roadmap import Roadmap
 from icenav.recovery.views import View
 from icenav.refinement.gating import GatedBeatImager, PhantomRespiration
-from icenav.refinement.image_search import BeatClip, SimClock, SimulatedBeatImager
 from icenav.sim.anatomy import EXAMPLE_VIEWS, default_phantom
+from icenav.sim.beat_imager import SimClock, SimulatedBeatImager
 from icenav.sim.conditions import Twin, build_twin, condition
 from icenav.sim.disturbed import mean_pose
 from icenav.sim.operator import ScriptedOperator

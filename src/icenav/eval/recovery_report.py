@@ -43,7 +43,7 @@ from icenav.eval.metrics import (
     rotation_angle,
 )
 from icenav.eval.paper import paper_results
-from icenav.refinement.image_search import BeatClip
+from icenav.recovery.beats import BeatClip
 
 if TYPE_CHECKING:
     from icenav.eval.recovery import RecoveryConfig, ReturnSample
