@@ -63,6 +63,7 @@ from icenav.eval.recovery_report import (
     summary_table,
 )
 from icenav.recovery.beats import BeatClip
+from icenav.recovery.force import DEFAULT_MARGIN_N
 from icenav.recovery.views import View
 from icenav.refinement.gating import GatedBeatImager
 from icenav.refinement.image_search import RefinementConfig, refine
@@ -86,6 +87,20 @@ TARGETS = ("aortic_valve", "mitral_valve", "tricuspid_valve")
 """The paper's three imaging targets (names of the views and ROI labels)."""
 MODES = ("open_loop", "refined")
 """Open-loop return (the paper) and return + closed-loop refinement."""
+
+
+CYCLE_POSE_STAGE = PoseStageConfig(
+    max_iterations=3,
+    tolerance_mm=0.3,
+    tolerance_rad=math.radians(0.5),
+    min_decrease_mm=0.15,
+    reapproach_first=False,
+    max_duration_s=60.0,
+)
+"""The pose stage on the cycle-averaged estimator: at most 3 corrections, each measured over
+complete breaths; tolerances and the least decrease that counts at about the estimator's
+scatter between breaths (0.3 mm), no re-approach of the start (a stick-slip move of its
+own), back to the start when it ended worse."""
 
 
 @dataclass(frozen=True)
@@ -137,6 +152,24 @@ class RecoveryConfig:
     """The image stage scores respiratory-gated beats (else plain ECG-gated beats)."""
     refinement: RefinementConfig = field(default_factory=RefinementConfig)
     """Closed-loop refinement (image stage) settings."""
+    em_estimator: str = "cycle"
+    """EM pose of the pose stage and of the saved view on a disturbed twin: ``cycle``
+    (averaged over complete breaths / beats, :mod:`icenav.refinement.cycle_pose`) or
+    ``average`` (``em_average_saved`` consecutive samples, at any respiratory phase)."""
+    cycle_window_s: float | None = None
+    """Window of the cycle-averaged estimates (s); None: 9 s with breathing, 3 s without."""
+    cycle_rate_hz: float = 10.0
+    """EM (and truth) samples per second of the cycle-averaged estimates (Hz)."""
+    cycle_pose_stage: PoseStageConfig = field(default_factory=lambda: CYCLE_POSE_STAGE)
+    """Pose stage settings with the cycle-averaged estimator (its hold is set to the
+    window): few, deliberate corrections."""
+    image_stage: bool = True
+    """Run the image stage after the pose stage (always when there is no pose stage)."""
+    force_check: bool = True
+    """Returns read the twin's contact force and stop above the operator's + the margin
+    (:mod:`icenav.recovery.force`; a disturbed twin with contact only)."""
+    force_margin_n: float = DEFAULT_MARGIN_N
+    """Margin of the force check (N)."""
 
 
 @dataclass(frozen=True)
@@ -179,6 +212,14 @@ class ReturnSample:
     """Controller time of the image stage (s)."""
     refine_trace: tuple[float, ...] = ()
     """Blurred similarity of each refinement measurement."""
+    static_tip2base: Array = field(default_factory=lambda: np.eye(4))
+    """(4, 4) the true pose averaged over complete breaths / beats after the return (mm)."""
+    pose_stage_undone: bool = False
+    """The pose stage ended worse than it started and went back to the start state."""
+    force_excess_n: float = 0.0
+    """Largest contact force over the operator's recorded one along the return (N)."""
+    return_stopped: str | None = None
+    """Why the return stopped early (the force check), None when it arrived."""
 
 
 @dataclass(frozen=True)
@@ -203,6 +244,8 @@ class RecoveryRun:
     """Wall time of the run (s)."""
     saved_dct_tip2base: dict[str, Array] = field(default_factory=dict)
     """True pose at each saved view averaged over the DCT window (mm)."""
+    saved_static_tip2base: dict[str, Array] = field(default_factory=dict)
+    """True pose at each saved view averaged over complete breaths / beats (mm)."""
 
 
 def run_recovery(cfg: RecoveryConfig | None = None) -> RecoveryRun:
@@ -214,6 +257,7 @@ def run_recovery(cfg: RecoveryConfig | None = None) -> RecoveryRun:
     saved_pose: dict[str, Array] = {}
     saved_dct: dict[str, Array] = {}
     saved_em: dict[str, Array] = {}
+    saved_static: dict[str, Array] = {}
     saved_clip: dict[str, BeatClip] = {}
     refine_refs: dict[str, list[BeatClip]] = {}
     ceiling: dict[str, tuple[float, float, float]] = {}
@@ -223,9 +267,14 @@ def run_recovery(cfg: RecoveryConfig | None = None) -> RecoveryRun:
         pose = b.true_pose()
         views[name] = b.roadmap.make_view(name, created_s=b.clock.now(), tip2base=pose)
         saved_pose[name] = pose
-        em = b.tracker.measure_tip2base(n_average=cfg.em_average_saved)
+        b.hold_still(b.cycle_window_s)
+        if b.cycle_sensor is not None:
+            em = b.cycle_sensor.measure_tip2base()
+        else:
+            em = b.tracker.measure_tip2base(n_average=cfg.em_average_saved)
         if em is not None:
             saved_em[name] = np.asarray(em, np.float64)
+        saved_static[name] = b.static_pose()
         clips = [b.acquire() for _ in range(cfg.ceiling_beats + 1)]
         saved_clip[name] = clips[0]
         refine_refs[name] = [c.subsampled(cfg.refine_subsample) for c in clips]
@@ -263,6 +312,7 @@ def run_recovery(cfg: RecoveryConfig | None = None) -> RecoveryRun:
                     saved_dct[name],
                     saved_clip[name],
                     ceiling[name],
+                    saved_static[name],
                 )  # fmt: skip
             )
     return RecoveryRun(
@@ -275,6 +325,7 @@ def run_recovery(cfg: RecoveryConfig | None = None) -> RecoveryRun:
         saved_em,
         time.perf_counter() - t_wall,
         saved_dct,
+        saved_static,
     )
 
 
@@ -290,18 +341,28 @@ def _one_return(
     """Return to ``view`` (and refine it in the refined mode); measure the result."""
     name = view.name
     b.go(view)
-    extra: dict[str, Any] = {}
-    if mode == "refined":
+    extra: dict[str, Any] = {
+        "force_excess_n": b.last_force_excess_n,
+        "return_stopped": b.last_stop,
+    }
+    if mode == "refined" and b.last_stop is None:
         q_centre = np.asarray(view.q, np.float64)
         if cfg.pose_stage is not None and name in saved_em:
+            sensor: Any = b.tracker
+            ps_cfg = cfg.pose_stage
+            if b.cycle_sensor is not None:
+                sensor = b.cycle_sensor
+                ps_cfg = replace(
+                    cfg.cycle_pose_stage, hold_s=b.cycle_window_s + cfg.cycle_pose_stage.settle_s
+                )
             ps = pose_stage(
                 b.robot,
                 view.q,
                 saved_em[name],
-                b.tracker,
+                sensor,
                 arrival_direction=view.arrival_direction,
                 start_direction=tuple(int(d) for d in b.last_direction),
-                config=cfg.pose_stage,
+                config=ps_cfg,
                 dt=DT,
                 sleep=b.clock.advance,
                 on_command=b.record,
@@ -315,31 +376,15 @@ def _one_return(
                 pose_stage_trace=tuple(
                     (m.position_mm, math.degrees(m.rotation_rad)) for m in ps.measurements
                 ),
+                pose_stage_undone=ps.undone,
             )
-        refs = refine_refs[name]
-        imager: Any = b.refine_imager
-        if cfg.image_stage_gated:
-            imager = GatedBeatImager(b.refine_imager, b.respiration, refs[0], cfg.gate_window_beats)
-        res = refine(
-            b.robot,
-            q_centre,
-            refs,
-            imager,
-            arrival_direction=view.arrival_direction,
-            config=cfg.refinement,
-            dt=DT,
-            sleep=b.clock.advance,
-            on_command=b.record,
-        )
-        extra.update(
-            refine_evaluations=len(res.trials),
-            refine_moved=res.n_commands > 0,
-            refine_s=res.duration_s,
-            refine_trace=tuple(t.score for t in res.trials),
-        )
+        if cfg.image_stage or "pose_stage_status" not in extra:
+            extra.update(_image_stage(b, cfg, view, q_centre, refine_refs[name]))
         b.clock.advance(0.2)
+    b.hold_still(b.cycle_window_s)
     em = b.tracker.measure_tip2base(n_average=cfg.em_average)
     true = b.true_pose()
+    static = b.static_pose()
     clip = b.acquire()
     gated = b.acquire_gated(saved_clip[name])
     return ReturnSample(
@@ -352,8 +397,35 @@ def _one_return(
         gated_clip=gated,
         dct_tip2base=b.dct_pose(),
         max_contact_force_n=b.contact_peak(),
+        static_tip2base=static,
         **extra,
     )
+
+
+def _image_stage(
+    b: Bench, cfg: RecoveryConfig, view: View, q_centre: Array, refs: list[BeatClip]
+) -> dict[str, Any]:
+    """The image stage centred at ``q_centre``; what it did."""
+    imager: Any = b.refine_imager
+    if cfg.image_stage_gated:
+        imager = GatedBeatImager(b.refine_imager, b.respiration, refs[0], cfg.gate_window_beats)
+    res = refine(
+        b.robot,
+        q_centre,
+        refs,
+        imager,
+        arrival_direction=view.arrival_direction,
+        config=cfg.refinement,
+        dt=DT,
+        sleep=b.clock.advance,
+        on_command=b.record,
+    )
+    return {
+        "refine_evaluations": len(res.trials),
+        "refine_moved": res.n_commands > 0,
+        "refine_s": res.duration_s,
+        "refine_trace": tuple(t.score for t in res.trials),
+    }
 
 
 # --- CLI ------------------------------------------------------------------------------------

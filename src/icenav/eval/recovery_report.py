@@ -140,6 +140,21 @@ class RecoveryRecord:
     the paper's in-vivo ROI localisation."""
     max_contact_force_n: float = 0.0
     """Largest total contact force during these returns and their refinement (N)."""
+    true_static_tip_error_mm_mean: float = math.nan
+    """True tip averaged over complete breaths / beats (the periodic motion averaged out)
+    against the saved view's, the same way: mean (mm). The refinement's target."""
+    true_static_tip_error_mm_max: float = math.nan
+    """... and the largest (mm)."""
+    true_static_orientation_error_deg_mean: float = math.nan
+    """True orientation averaged the same way against the saved view's: mean (deg)."""
+    true_static_orientation_error_deg_max: float = math.nan
+    """... and the largest (deg)."""
+    pose_stage_undone_fraction: float = 0.0
+    """Fraction of the pose stages that ended worse than they started and went back."""
+    max_force_excess_n: float = 0.0
+    """Largest contact force over the operator's recorded one along these returns (N)."""
+    returns_stopped: int = 0
+    """Returns the force check stopped."""
 
 
 def raw_similarity(clip: BeatClip, ref: BeatClip) -> float:
@@ -190,9 +205,14 @@ def make_record(
     saved_dct: Array,
     saved_clip: BeatClip,
     ceiling: tuple[float, float, float],
+    saved_static: Array | None = None,
 ) -> RecoveryRecord:
     """The record of the returns ``rs`` to view ``name`` in ``mode``."""
     nan = math.nan
+    static = np.stack([s.static_tip2base for s in rs])
+    ref_static = saved_pose if saved_static is None else saved_static
+    st_mm = np.linalg.norm(static[:, :3, 3] - ref_static[:3, 3], axis=1)
+    st_deg = np.degrees(rotation_angle(static[:, :3, :3], ref_static[:3, :3]))
     em_mean = em_sd = em_rot = sim_gm = nan
     with_em = [s for s in rs if s.em_tip2base is not None]
     if len(with_em) >= 2:
@@ -273,6 +293,13 @@ def make_record(
         similarity_true_gm_pct_mean=sim_true_gm,
         roi_true_gm_error_mm_mean=roi_true_gm,
         max_contact_force_n=float(max(s.max_contact_force_n for s in rs)),
+        true_static_tip_error_mm_mean=float(st_mm.mean()),
+        true_static_tip_error_mm_max=float(st_mm.max()),
+        true_static_orientation_error_deg_mean=float(st_deg.mean()),
+        true_static_orientation_error_deg_max=float(st_deg.max()),
+        pose_stage_undone_fraction=float(np.mean([s.pose_stage_undone for s in rs])),
+        max_force_excess_n=float(max(s.force_excess_n for s in rs)),
+        returns_stopped=sum(s.return_stopped is not None for s in rs),
     )
 
 
@@ -338,6 +365,19 @@ def format_table(records: Sequence[RecoveryRecord]) -> str:
             f"{_f(r.similarity_true_gm_pct_mean, '5.1f')}   ROI {_f(r.roi_true_gm_error_mm_mean)}"
             f"   orient {_f(r.true_orientation_error_deg_mean)}"
             f"   contact {r.max_contact_force_n:5.3f}"
+        )
+    lines.append(
+        "true tip and orientation vs the saved view, both averaged over complete breaths "
+        "(phantom: beats): mean (max) mm, mean (max) deg; pose stages undone:"
+    )
+    for r in records:
+        lines.append(
+            f"  {r.target:<16s} {r.mode:<10s} {_f(r.true_static_tip_error_mm_mean)} "
+            f"({_f(r.true_static_tip_error_mm_max)}) mm   "
+            f"{_f(r.true_static_orientation_error_deg_mean)} "
+            f"({_f(r.true_static_orientation_error_deg_max)}) deg   "
+            f"undone {r.pose_stage_undone_fraction:4.2f}   force over the trace's "
+            f"{r.max_force_excess_n:5.3f} N, stopped {r.returns_stopped}"
         )
     refined = [r for r in records if r.mode == "refined"]
     if refined:

@@ -133,9 +133,19 @@ class PoseStageConfig:
     """Joint speed of the stage's moves (rad/s, rad/s, rad/s, mm/s)."""
     settle_s: float = 0.05
     """Hold after a move before a measurement (s)."""
+    hold_s: float | None = None
+    """Whole hold before a measurement (s); None: ``settle_s + n_average / sample_rate_hz``.
+    With a cycle-averaged sensor (:class:`icenav.refinement.cycle_pose.CycleAveragedPose`)
+    at least its window, so every sample it averages was taken after the move."""
+    undo_if_worse: bool = True
+    """At the end, if the last measurement is worse than the first (the stage made it
+    worse), go back to the start state (re-approached) and stop there: never farther from
+    the saved pose than it started, as far as the estimator can tell."""
 
     def __post_init__(self) -> None:
         unit = "(rad, rad, rad, mm)"
+        if self.hold_s is not None:
+            check_positive(self.hold_s, "hold_s", "s")
         for name in ("radius", "max_step"):
             object.__setattr__(self, name, _four(getattr(self, name), name, unit))
         back = tuple(float(x) for x in self.backoff)
@@ -239,6 +249,8 @@ class PoseStageResult:
     """Set-points sent."""
     max_offset: Array
     """(4,) largest |set-point - q_view| per joint over the run (rad, rad, rad, mm)."""
+    undone: bool = False
+    """The stage ended worse than it started and went back to the start state."""
 
 
 @dataclass(frozen=True)
@@ -348,7 +360,9 @@ class PoseStageTask:
         self._run.last_dir = np.array(start_dir, np.float64)
         w = cfg.rotation_weight_mm_per_rad
         self._w = np.array([1.0, 1.0, 1.0, w, w, w])
-        self._hold_s = cfg.settle_s + cfg.n_average / cfg.sample_rate_hz
+        self._hold_s = (
+            cfg.settle_s + cfg.n_average / cfg.sample_rate_hz if cfg.hold_s is None else cfg.hold_s
+        )
         self._gen = self._servo()
         self._gen_done = False
         self._measuring = False
@@ -357,6 +371,7 @@ class PoseStageTask:
         self._meas: list[PoseMeasurement] = []
         self._final: PoseMeasurement | None = None
         self._best_q = self.q_start.copy()
+        self._undone = False
 
     # --- the servo (a generator of requests) ----------------------------------------------
     def _engaged(self) -> Array:
@@ -428,6 +443,7 @@ class PoseStageTask:
         if self._within(m):
             self._status = PoseStageStatus.AT_VIEW
             return
+        first = m
         best = m
         self._best_q = m.q.copy()
         q = self._run.cmd.copy()
@@ -473,6 +489,20 @@ class PoseStageTask:
             m3 = yield _MeasurePose()
             if m3 is not None:
                 self._final = m3
+        last = self._final
+        if (
+            cfg.undo_if_worse
+            and last is not None
+            and self._cost(last) > self._cost(first)
+            and not np.array_equal(self._run.cmd, self.q_start)
+        ):
+            # worse than at the start, as the same estimator tells: back to the start state
+            self._undone = True
+            for t in self._approach(self.q_start, force=True):
+                yield _Move(t)
+            m4 = yield _MeasurePose()
+            if m4 is not None:
+                self._final = m4
 
     # --- the controller interface ---------------------------------------------------------
     @property
@@ -555,6 +585,7 @@ class PoseStageTask:
             duration_s=run.elapsed,
             n_commands=run.n_cmd,
             max_offset=run.max_off.copy(),
+            undone=self._undone,
         )
 
 
