@@ -38,10 +38,11 @@ def test_a_path_stops_when_the_force_exceeds_the_trace_plus_the_margin() -> None
     path = np.zeros((3, 4))
     path[:, 3] = [0.0, 1.0, 2.0]
     ok = PathTask(path, V_MAX, force_sensor=_Sensor([0.1]), force_profile=np.full(3, 0.05),
-                  force_margin_n=0.06)  # fmt: skip
+                  force_margin_n=0.06, force_margin_fraction=0.0)  # fmt: skip
     assert isinstance(_run(ok)[0], Done)
     over = PathTask(path, V_MAX, force_sensor=_Sensor([0.1] * 20 + [0.2]),
-                    force_profile=np.full(3, 0.05), force_margin_n=0.06)  # fmt: skip
+                    force_profile=np.full(3, 0.05), force_margin_n=0.04,
+                    force_margin_fraction=0.4)  # fmt: skip
     status, k = _run(over)
     assert isinstance(status, Failed) and k == 20
     assert "0.20 N" in status.reason and "0.05 N" in status.reason and "margin" in status.reason
@@ -79,8 +80,7 @@ def test_a_return_into_a_shifted_patient_stops_and_says_so() -> None:
         path = roadmap.plan(np.zeros(4), q_view)
         profile = forces.profile(roadmap, path)
         assert profile is not None
-        task = PathTask(path, V_MAX, force_sensor=sensor, force_profile=profile,
-                        force_margin_n=0.03)  # fmt: skip
+        task = PathTask(path, V_MAX, force_sensor=sensor, force_profile=profile)
         status: object = None
         for _ in range(20_000):
             status = task.step(np.asarray(robot.read_state().q), 0.02)

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from icenav.errors import ConfigurationError
-from icenav.recovery.force import ForceMap, force_excess
+from icenav.recovery.force import ForceMap, force_excess, force_limit
 from icenav.recovery.roadmap import Roadmap
 
 
@@ -32,6 +32,7 @@ def test_the_map_keeps_the_largest_force_per_vertex_and_fills_gaps_along_a_path(
 
 def test_the_limit_is_the_larger_end_of_the_segment_plus_the_margin() -> None:
     profile = np.array([0.1, 0.4, 0.2])
-    assert force_excess(profile, 0, 0.6, 0.25) == pytest.approx(-0.05)
-    assert force_excess(profile, 1, 0.7, 0.25) == pytest.approx(0.05)
-    assert force_excess(profile, 2, 0.5, 0.25) == pytest.approx(0.05)  # the end: itself
+    assert force_excess(profile, 0, 0.6, 0.25, 0.0) == pytest.approx(-0.05)
+    assert force_excess(profile, 1, 0.7, 0.25, 0.0) == pytest.approx(0.05)
+    assert force_excess(profile, 2, 0.5, 0.25, 0.0) == pytest.approx(0.05)  # the end: itself
+    assert force_limit(profile, 1, 0.05, 0.5) == pytest.approx((0.4, 0.65))

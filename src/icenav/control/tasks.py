@@ -31,7 +31,12 @@ import numpy as np
 from icenav._typing import Array
 from icenav.control.modes import Mode
 from icenav.errors import IcenavError, InvalidValueError
-from icenav.recovery.force import DEFAULT_MARGIN_N, ForceSensor, force_excess
+from icenav.recovery.force import (
+    DEFAULT_MARGIN_FRACTION,
+    DEFAULT_MARGIN_N,
+    ForceSensor,
+    force_limit,
+)
 from icenav.recovery.roadmap import Roadmap
 from icenav.recovery.views import View
 
@@ -132,7 +137,9 @@ class PathTask:
     """(n,) contact force (N) the operator's trace produced at each path state
     (:meth:`icenav.recovery.force.ForceMap.profile`); None: no force check."""
     force_margin_n: float = DEFAULT_MARGIN_N
-    """Margin of the force check, Eq. (F1) of :mod:`icenav.recovery.force` (N)."""
+    """Absolute margin of the force check, Eq. (F1) of :mod:`icenav.recovery.force` (N)."""
+    force_margin_fraction: float = DEFAULT_MARGIN_FRACTION
+    """Relative margin of the force check (fraction of the recorded force)."""
     failure: str | None = field(default=None, init=False)
     """Why the task stopped early (the force check), None while it has not."""
     _cum_time: Array = field(init=False, repr=False)
@@ -158,8 +165,10 @@ class PathTask:
                     f"force_profile must be {len(p)} finite forces (N), got shape {fp.shape}"
                 )
             self.force_profile = fp
-        if not (math.isfinite(self.force_margin_n) and self.force_margin_n >= 0):
-            raise InvalidValueError(f"force_margin_n must be >= 0 N, got {self.force_margin_n}")
+        for name in ("force_margin_n", "force_margin_fraction"):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value >= 0):
+                raise InvalidValueError(f"{name} must be finite and >= 0, got {value}")
         seg = np.abs(np.diff(p, axis=0)) / v if len(p) > 1 else np.zeros((0, 4))
         durations = seg.max(axis=1) if len(seg) else np.zeros(0)
         self._cum_time = np.concatenate([[0.0], np.cumsum(durations)])
@@ -211,14 +220,14 @@ class PathTask:
         if f is None:
             return None
         i = self.path_index
-        excess = force_excess(profile, i, f, self.force_margin_n)
-        if excess <= 0.0:
+        recorded, limit = force_limit(profile, i, self.force_margin_n, self.force_margin_fraction)
+        if f <= limit:
             return None
-        recorded = f - excess - self.force_margin_n
         self.failure = (
             f"{self.label}: stopped at path state {i} of {len(self.path) - 1}: contact force "
             f"{f:.2f} N exceeds the {recorded:.2f} N the operator's trace produced there by "
-            f"more than the {self.force_margin_n:.2f} N margin (has the patient moved?); "
+            f"more than the margin (limit {limit:.2f} N: + {self.force_margin_n:.2f} N "
+            f"+ {100 * self.force_margin_fraction:.0f} %; has the patient moved?); "
             "the robot holds"
         )
         return Failed(self.failure)

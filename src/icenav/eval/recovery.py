@@ -63,7 +63,7 @@ from icenav.eval.recovery_report import (
     summary_table,
 )
 from icenav.recovery.beats import BeatClip
-from icenav.recovery.force import DEFAULT_MARGIN_N
+from icenav.recovery.force import DEFAULT_MARGIN_FRACTION, DEFAULT_MARGIN_N
 from icenav.recovery.views import View
 from icenav.refinement.gating import GatedBeatImager
 from icenav.refinement.image_search import RefinementConfig, refine
@@ -83,6 +83,8 @@ __all__ = [
     "run_recovery",
 ]
 
+_DEG = math.pi / 180.0
+
 TARGETS = ("aortic_valve", "mitral_valve", "tricuspid_valve")
 """The paper's three imaging targets (names of the views and ROI labels)."""
 MODES = ("open_loop", "refined")
@@ -90,17 +92,19 @@ MODES = ("open_loop", "refined")
 
 
 CYCLE_POSE_STAGE = PoseStageConfig(
-    max_iterations=3,
-    tolerance_mm=0.3,
-    tolerance_rad=math.radians(0.5),
-    min_decrease_mm=0.15,
+    max_iterations=2,
+    max_step=(2.0 * _DEG, 2.0 * _DEG, 4.0 * _DEG, 1.5),
+    tolerance_mm=0.6,
+    tolerance_rad=0.8 * _DEG,
+    min_decrease_mm=0.3,
     reapproach_first=False,
     max_duration_s=60.0,
 )
-"""The pose stage on the cycle-averaged estimator: at most 3 corrections, each measured over
-complete breaths; tolerances and the least decrease that counts at about the estimator's
-scatter between breaths (0.3 mm), no re-approach of the start (a stick-slip move of its
-own), back to the start when it ended worse."""
+"""The pose stage on the cycle-averaged estimator: at most 2 corrections, larger ones, each
+measured over complete breaths; tolerances and the least decrease that counts above the
+estimator's scatter between breaths (about 0.4 mm on the twin: a still catheter's static
+pose wanders that much), no re-approach of the start (a stick-slip move of its own), back
+to the start when it ended worse."""
 
 
 @dataclass(frozen=True)
@@ -169,7 +173,9 @@ class RecoveryConfig:
     """Returns read the twin's contact force and stop above the operator's + the margin
     (:mod:`icenav.recovery.force`; a disturbed twin with contact only)."""
     force_margin_n: float = DEFAULT_MARGIN_N
-    """Margin of the force check (N)."""
+    """Absolute margin of the force check (N)."""
+    force_margin_fraction: float = DEFAULT_MARGIN_FRACTION
+    """Relative margin of the force check (fraction of the operator's force)."""
 
 
 @dataclass(frozen=True)
@@ -216,8 +222,8 @@ class ReturnSample:
     """(4, 4) the true pose averaged over complete breaths / beats after the return (mm)."""
     pose_stage_undone: bool = False
     """The pose stage ended worse than it started and went back to the start state."""
-    force_excess_n: float = 0.0
-    """Largest contact force over the operator's recorded one along the return (N)."""
+    force_margin_use: float = 0.0
+    """Largest fraction of the force check's margin used along the return (> 1: stopped)."""
     return_stopped: str | None = None
     """Why the return stopped early (the force check), None when it arrived."""
 
@@ -342,7 +348,7 @@ def _one_return(
     name = view.name
     b.go(view)
     extra: dict[str, Any] = {
-        "force_excess_n": b.last_force_excess_n,
+        "force_margin_use": b.last_force_margin_use,
         "return_stopped": b.last_stop,
     }
     if mode == "refined" and b.last_stop is None:

@@ -14,7 +14,7 @@ from icenav.control.controller import ControllerConfig, PathTask
 from icenav.devices.sim_robot import SimulatedRobot
 from icenav.geometry.se3 import pose_mean
 from icenav.recovery.beats import BeatClip
-from icenav.recovery.force import ForceMap
+from icenav.recovery.force import ForceMap, force_limit
 from icenav.recovery.roadmap import Roadmap
 from icenav.recovery.views import View
 from icenav.refinement.cycle_pose import CycleAveragedPose, complete_cycles
@@ -134,8 +134,8 @@ class Bench:
         """The robot's contact-force channel (None on today's twin, or switched off)."""
         if self.twin is not None and cfg.force_check and self.twin.plant.contact is not None:
             self.force_sensor = TwinForceSensor(self.twin.plant)
-        self.last_force_excess_n = 0.0
-        """Largest (force - recorded force) over the last return (N; margin not included)."""
+        self.last_force_margin_use = 0.0
+        """Largest fraction of the force margin the last return used (> 1: stopped)."""
         self.last_stop: str | None = None
         """Why the last return stopped (the force check), None if it arrived."""
         self.robot = SimulatedRobot(self.plant, clock=self.clock.now)
@@ -184,35 +184,51 @@ class Bench:
         return gated.acquire_beat()
 
     def go(self, view: View) -> None:
-        """Return to ``view`` along the roadmap (with the approach), as the controller does."""
+        """Return to ``view`` along the roadmap (with the approach), as the controller does,
+        with the force check when the twin has contact (Eq. F1); a return the check stops
+        is noted (:attr:`last_stop`) and then finished without the check, as an operator
+        who looked would, so the experiment goes on."""
+        check = self.cfg.force_check and self.force_sensor is not None
+        self.last_stop = None
+        self.last_force_margin_use = self._follow(view, check=check)
+        if self.last_stop is not None:
+            self._follow(view, check=False)
+        self.clock.advance(0.2)  # settle
+
+    def _follow(self, view: View, *, check: bool) -> float:
+        """Plan from here to ``view`` and follow the path; the largest fraction of the force
+        margin used (excess over the trace's force / margin; > 1 stops a checked path)."""
         q0 = np.asarray(self.robot.read_state().q, np.float64)
         path = self.roadmap.plan(q0, view, approach=True)
         profile = None
         if self.force_sensor is not None:
             profile = self.forces.profile(self.roadmap, path)
+        cfg = self.cfg
         task = PathTask(
             path,
             np.array(ControllerConfig().max_velocity),
-            force_sensor=self.force_sensor,
-            force_profile=profile,
-            force_margin_n=float(self.cfg.force_margin_n),
+            force_sensor=self.force_sensor if check else None,
+            force_profile=profile if check else None,
+            force_margin_n=float(cfg.force_margin_n),
+            force_margin_fraction=float(cfg.force_margin_fraction),
         )
-        excess = 0.0
+        use = 0.0
         while True:
             if self.force_sensor is not None and profile is not None:
-                f = self.force_sensor.contact_force_n()
-                i = task.path_index
-                j = min(i + 1, len(path) - 1)
-                excess = max(excess, float(f or 0.0) - max(profile[i], profile[j]))
+                f = float(self.force_sensor.contact_force_n() or 0.0)
+                rec, limit = force_limit(
+                    profile, task.path_index, cfg.force_margin_n, cfg.force_margin_fraction
+                )
+                use = max(use, (f - rec) / (limit - rec) if limit > rec else 0.0)
             q = task.next_command(np.asarray(self.robot.read_state().q), DT)
             if q is None:
                 break
             self.robot.command_position(q)
             self.record(q)  # every visited state is recorded (Alg. 1)
             self.clock.advance(DT)
-        self.last_force_excess_n = excess
-        self.last_stop = task.failure
-        self.clock.advance(0.2)  # settle
+        if task.failure is not None:
+            self.last_stop = task.failure
+        return use
 
     def true_pose(self) -> Array:
         """(4, 4) the twin's true tip pose now (mm)."""

@@ -151,8 +151,8 @@ class RecoveryRecord:
     """... and the largest (deg)."""
     pose_stage_undone_fraction: float = 0.0
     """Fraction of the pose stages that ended worse than they started and went back."""
-    max_force_excess_n: float = 0.0
-    """Largest contact force over the operator's recorded one along these returns (N)."""
+    max_force_margin_use: float = 0.0
+    """Largest fraction of the force check's margin used along these returns (> 1: a stop)."""
     returns_stopped: int = 0
     """Returns the force check stopped."""
 
@@ -298,7 +298,7 @@ def make_record(
         true_static_orientation_error_deg_mean=float(st_deg.mean()),
         true_static_orientation_error_deg_max=float(st_deg.max()),
         pose_stage_undone_fraction=float(np.mean([s.pose_stage_undone for s in rs])),
-        max_force_excess_n=float(max(s.force_excess_n for s in rs)),
+        max_force_margin_use=float(max(s.force_margin_use for s in rs)),
         returns_stopped=sum(s.return_stopped is not None for s in rs),
     )
 
@@ -376,8 +376,8 @@ def format_table(records: Sequence[RecoveryRecord]) -> str:
             f"({_f(r.true_static_tip_error_mm_max)}) mm   "
             f"{_f(r.true_static_orientation_error_deg_mean)} "
             f"({_f(r.true_static_orientation_error_deg_max)}) deg   "
-            f"undone {r.pose_stage_undone_fraction:4.2f}   force over the trace's "
-            f"{r.max_force_excess_n:5.3f} N, stopped {r.returns_stopped}"
+            f"undone {r.pose_stage_undone_fraction:4.2f}   force margin used "
+            f"{r.max_force_margin_use:4.2f}, returns stopped {r.returns_stopped}"
         )
     refined = [r for r in records if r.mode == "refined"]
     if refined:
