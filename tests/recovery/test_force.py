@@ -22,9 +22,11 @@ def test_the_map_keeps_the_largest_force_per_vertex_and_fills_gaps_along_a_path(
     forces.record(-1, 3.0)  # not recorded: ignored
     assert forces.n_recorded == 5
     np.testing.assert_allclose(forces.at([0, 2, 4, 99]), [0.0, 0.2, np.nan, np.nan])
-    profile = forces.profile(rm, qs[::-1])
+    profile = forces.profile(rm, qs[::-1], radius=0.5)  # each state's own vertex
     assert profile is not None
     np.testing.assert_allclose(profile, [0.5, 0.5, 0.3, 0.2, 0.1, 0.0])  # state 4 from 5
+    near = forces.profile(rm, qs[::-1])  # the largest within epsilon (1 mm here)
+    np.testing.assert_allclose(near, [0.5, 0.5, 0.3, 0.3, 0.2, 0.1])
     assert ForceMap().profile(rm, qs) is None  # nothing recorded: no check
     with pytest.raises(ConfigurationError):
         forces.record(0, -0.1)

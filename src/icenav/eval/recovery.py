@@ -92,8 +92,9 @@ MODES = ("open_loop", "refined")
 
 
 CYCLE_POSE_STAGE = PoseStageConfig(
-    max_iterations=2,
-    max_step=(2.0 * _DEG, 2.0 * _DEG, 4.0 * _DEG, 1.5),
+    max_iterations=3,
+    max_step=(2.0 * _DEG, 2.0 * _DEG, 4.0 * _DEG, 2.0),
+    step_from_last=True,
     tolerance_mm=0.6,
     tolerance_rad=0.8 * _DEG,
     min_decrease_mm=0.3,

@@ -8,7 +8,9 @@ currents: :class:`ForceSensor`, None when the robot has none), the roadmap's rec
 per vertex, the largest force read while the *operator* drove through it
 (:class:`ForceMap`; states a return or a refinement commanded are not the operator's trace
 and are not recorded). Along a return (Eq. F1), at path point ``i`` between vertices
-``v_i`` and ``v_(i+1)``, with ``F_rec = max(F_rec(v_i), F_rec(v_(i+1)))``::
+``v_i`` and ``v_(i+1)``, with ``F_rec = max(F_rec(v_i), F_rec(v_(i+1)))`` and ``F_rec(v)``
+the largest force recorded within epsilon of ``v`` (the operator passed those states at
+other moments of the beat and the breath)::
 
     F_measured  <=  F_rec + margin_n + margin_fraction * F_rec                    (F1)
 
@@ -41,12 +43,12 @@ __all__ = [
 
 DEFAULT_MARGIN_N = 0.05
 """Absolute margin of Eq. (F1) (N)."""
-DEFAULT_MARGIN_FRACTION = 0.5
+DEFAULT_MARGIN_FRACTION = 1.0
 """Relative margin of Eq. (F1): the contact force at the same motor state varies with the
 heart beat and breathing in proportion to it (on the twin in vivo a state the operator
-passed at 3.3 N reads up to 4.4 N on later returns); the margins cover the largest excess
-measured without a patient shift on the development catheters and patients
-(``docs/view-recovery.md``), and stay below what a shifted patient adds."""
+passed at 3.3 N read up to 5.7 N on a later return); the margins were set on the
+development catheters and patients (``docs/view-recovery.md``), and stay below what a
+shifted patient adds."""
 
 
 class ForceSensor(Protocol):
@@ -100,20 +102,24 @@ class ForceMap:
         out[ok] = self._f[ids[ok]]
         return out
 
-    def profile(self, roadmap: Roadmap, path: ArrayLike) -> Array | None:
-        """The recorded force (N) at each state of a planned ``path`` (n, 4): each state's
-        vertex (within the roadmap's merge radius), gaps filled with the nearest recorded
-        value along the path; None when no state of the path has one (no check)."""
+    def profile(
+        self, roadmap: Roadmap, path: ArrayLike, radius: float | None = None
+    ) -> Array | None:
+        """The recorded force (N) at each state of a planned ``path`` (n, 4): the largest
+        recorded at the vertices within ``radius`` of it (metric units; default the
+        roadmap's epsilon: the operator passed them at other moments of the beat and the
+        breath), gaps filled with the nearest recorded value along the path; None when no
+        state of the path has one (no check)."""
         p = np.asarray(path, np.float64)
         if p.ndim != 2 or p.shape[1] != 4:
             raise ShapeError(f"path must have shape (n, 4), got {p.shape}")
-        ids = np.full(len(p), -1, np.int64)
-        radius = roadmap.config.resolution
+        r = roadmap.epsilon if radius is None else float(radius)
+        f = np.full(len(p), np.nan)
         for i, q in enumerate(p):
-            v, d = roadmap.nearest(q)
-            if d <= radius:
-                ids[i] = v
-        f = self.at(ids)
+            ids, _ = roadmap.neighbours(q, r)
+            vals = self.at(ids)
+            if np.isfinite(vals).any():
+                f[i] = float(np.nanmax(vals))
         known = np.flatnonzero(np.isfinite(f))
         if not len(known):
             return None

@@ -137,6 +137,12 @@ class PoseStageConfig:
     """Whole hold before a measurement (s); None: ``settle_s + n_average / sample_rate_hz``.
     With a cycle-averaged sensor (:class:`icenav.refinement.cycle_pose.CycleAveragedPose`)
     at least its window, so every sample it averages was taken after the move."""
+    step_from_last: bool = False
+    """Each correction starts from the last commanded state with the last measured error
+    (integral action: a step the shaft's stiction swallowed is added to by the next, not
+    retried from the best state at half the gain), and the stage does not go back to the
+    best state at the end (that would be one more stick-slip move); with the cycle-averaged
+    estimator."""
     undo_if_worse: bool = True
     """At the end, if the last measurement is worse than the first (the stage made it
     worse), go back to the start state (re-approached) and stop there: never farther from
@@ -467,8 +473,13 @@ class PoseStageTask:
                 self._status = PoseStageStatus.STALLED
                 break
             iterations += 1
-            target = self._step(best.q.copy(), best.error, gain)
-            for t in self._approach(target, force=not np.array_equal(self._run.cmd, best.q)):
+            if cfg.step_from_last:
+                target = self._step(self._run.cmd.copy(), m.error)
+                moves = self._approach(target)
+            else:
+                target = self._step(best.q.copy(), best.error, gain)
+                moves = self._approach(target, force=not np.array_equal(self._run.cmd, best.q))
+            for t in moves:
                 yield _Move(t)
             m2 = yield _MeasurePose()
             if m2 is None:
@@ -478,12 +489,16 @@ class PoseStageTask:
             self._final = m
             if self._cost(m) < self._cost(best) - cfg.min_decrease_mm:
                 best, self._best_q = m, m.q.copy()
-            else:
+            elif not cfg.step_from_last:
                 gain *= 0.5  # the step did not pay: a shorter one from the best state
         else:
             self._status = PoseStageStatus.CONVERGED
             return
-        if self._cost(m) > self._cost(best) and not np.array_equal(self._run.cmd, best.q):
+        if (
+            not cfg.step_from_last
+            and self._cost(m) > self._cost(best)
+            and not np.array_equal(self._run.cmd, best.q)
+        ):
             for t in self._approach(best.q, force=True):
                 yield _Move(t)
             m3 = yield _MeasurePose()
