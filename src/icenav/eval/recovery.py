@@ -17,14 +17,22 @@ Protocol (the phantom study of Section IV, with the in-vivo metrics of Table II)
    refinement moves) is added to the roadmap, so the recorded trace stays contiguous.
 3. Two modes, run one after the other on the same catheter and roadmap: ``open_loop``
    (the paper's system) and ``refined``: after each return the EM pose stage
-   (:class:`icenav.refinement.pose_stage.PoseStageTask`: servo the averaged EM-measured tip
-   pose onto the EM pose saved with the view, 64 samples averaged at saving) and then the
-   image stage (:func:`icenav.refinement.image_search.refine`, centred where the pose stage
-   ended, scoring respiratory-gated beats); every set-point of both is recorded.
-4. After every return (and refinement) two beats are recorded: one ECG-gated beat at
-   whatever respiratory phase it falls (``clip``), and one gated on ECG *and* respiration
-   to the saved beat (``gated_clip``, :class:`icenav.refinement.gating.GatedBeatImager`: the
-   catheter held still for 5 beats).
+   (:class:`icenav.refinement.pose_stage.PoseStageTask`: servo the EM-measured tip pose onto
+   the EM pose saved with the view; on a disturbed twin both are averaged over complete
+   breaths, or beats without breathing, :mod:`icenav.refinement.cycle_pose`, with the
+   settings :data:`CYCLE_POSE_STAGE`; on today's twin 64 samples) and then, unless
+   ``image_stage`` is off, the image stage (:func:`icenav.refinement.image_search.refine`,
+   centred where the pose stage ended, scoring respiratory-gated beats); without the pose
+   stage (``--no-em``) the image stage alone. Every set-point of both is recorded.
+   Returns check the contact force against the operator's trace (Eq. F1 of
+   :mod:`icenav.recovery.force`) on a twin with contact; a stopped return is counted and
+   finished without the check.
+4. After every return (and refinement) the catheter is held still for the cycle window and
+   the twin's true pose averaged over its complete breaths (beats) is recorded
+   (``static_tip2base``: the refinement's target is measured on it); then two beats: one
+   ECG-gated beat at whatever respiratory phase it falls (``clip``), and one gated on ECG
+   *and* respiration to the saved beat (``gated_clip``,
+   :class:`icenav.refinement.gating.GatedBeatImager`: the catheter held still for 5 beats).
 
 Conditions (``--condition``, :mod:`icenav.sim.conditions`): ``none`` (today's twin, the
 default: nothing disturbs a return), ``phantom`` (the paper's bench study) and ``in-vivo``
@@ -68,6 +76,7 @@ from icenav.recovery.views import View
 from icenav.refinement.gating import GatedBeatImager
 from icenav.refinement.image_search import RefinementConfig, refine
 from icenav.refinement.pose_stage import PoseStageConfig, pose_stage
+from icenav.refinement.retry import RetryConfig, retry_return
 from icenav.sim.conditions import CONDITIONS, DISTURBANCES
 
 __all__ = [
@@ -170,6 +179,12 @@ class RecoveryConfig:
     window): few, deliberate corrections."""
     image_stage: bool = True
     """Run the image stage after the pose stage (always when there is no pose stage)."""
+    refine_strategy: str = "pose_stage"
+    """EM stage on a disturbed twin: ``pose_stage`` (corrective steps,
+    :data:`CYCLE_POSE_STAGE`) or ``retry`` (measured re-approach,
+    :mod:`icenav.refinement.retry`)."""
+    retry: RetryConfig = field(default_factory=RetryConfig)
+    """Settings of the ``retry`` strategy."""
     force_check: bool = True
     """Returns read the twin's contact force and stop above the operator's + the margin
     (:mod:`icenav.recovery.force`; a disturbed twin with contact only)."""
@@ -225,6 +240,8 @@ class ReturnSample:
     """The pose stage ended worse than it started and went back to the start state."""
     force_margin_use: float = 0.0
     """Largest fraction of the force check's margin used along the return (> 1: stopped)."""
+    force_margin_needed_n: float = 0.0
+    """The absolute margin (N) this return needed not to stop (at the relative margin)."""
     return_stopped: str | None = None
     """Why the return stopped early (the force check), None when it arrived."""
 
@@ -350,11 +367,29 @@ def _one_return(
     b.go(view)
     extra: dict[str, Any] = {
         "force_margin_use": b.last_force_margin_use,
+        "force_margin_needed_n": b.last_force_margin_needed_n,
         "return_stopped": b.last_stop,
     }
     if mode == "refined" and b.last_stop is None:
         q_centre = np.asarray(view.q, np.float64)
-        if cfg.pose_stage is not None and name in saved_em:
+        cycle = b.cycle_sensor
+        if cfg.refine_strategy == "retry" and cycle is not None and name in saved_em:
+            t0 = b.clock.now()
+
+            def measure() -> Array | None:
+                b.hold_still(b.cycle_window_s + 0.05)
+                return cycle.measure_tip2base()
+
+            rr = retry_return(saved_em[name], measure, lambda: b.go(view), config=cfg.retry)
+            extra.update(
+                pose_stage_tip2base=b.true_pose(),
+                pose_stage_status=f"retry x{rr.moves}",
+                pose_stage_measurements=len(rr.errors_mm),
+                pose_stage_s=b.clock.now() - t0,
+                pose_stage_trace=tuple(zip(rr.position_mm, rr.rotation_deg, strict=True)),
+                pose_stage_undone=rr.ended_worse,
+            )
+        elif cfg.pose_stage is not None and name in saved_em:
             sensor: Any = b.tracker
             ps_cfg = cfg.pose_stage
             if b.cycle_sensor is not None:
@@ -479,6 +514,9 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--plots", type=Path, help="write recovery_*.png here (first run)")
     p.add_argument("--open-loop-only", action="store_true", help="skip the refined mode (faster)")
     p.add_argument(
+        "--no-em", action="store_true", help="refine from the images alone (no EM pose stage)"
+    )
+    p.add_argument(
         "--quick", action="store_true", help="2 rounds, 6 frames per beat, small budgets (tests)"
     )
     return p
@@ -508,6 +546,8 @@ def config_from_args(args: argparse.Namespace, seed: int | None = None,
         )
     if args.open_loop_only:
         cfg = replace(cfg, modes=("open_loop",))
+    if args.no_em:
+        cfg = replace(cfg, pose_stage=None)
     return cfg
 
 

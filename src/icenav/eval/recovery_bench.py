@@ -136,6 +136,8 @@ class Bench:
             self.force_sensor = TwinForceSensor(self.twin.plant)
         self.last_force_margin_use = 0.0
         """Largest fraction of the force margin the last return used (> 1: stopped)."""
+        self.last_force_margin_needed_n = 0.0
+        """The absolute margin (N) the last return needed not to stop, at the relative one."""
         self.last_stop: str | None = None
         """Why the last return stopped (the force check), None if it arrived."""
         self.robot = SimulatedRobot(self.plant, clock=self.clock.now)
@@ -190,6 +192,7 @@ class Bench:
         who looked would, so the experiment goes on."""
         check = self.cfg.force_check and self.force_sensor is not None
         self.last_stop = None
+        self.last_force_margin_needed_n = 0.0
         self.last_force_margin_use = self._follow(view, check=check)
         if self.last_stop is not None:
             self._follow(view, check=False)
@@ -220,6 +223,9 @@ class Bench:
                     profile, task.path_index, cfg.force_margin_n, cfg.force_margin_fraction
                 )
                 use = max(use, (f - rec) / (limit - rec) if limit > rec else 0.0)
+                self.last_force_margin_needed_n = max(
+                    self.last_force_margin_needed_n, f - rec * (1.0 + cfg.force_margin_fraction)
+                )
             q = task.next_command(np.asarray(self.robot.read_state().q), DT)
             if q is None:
                 break

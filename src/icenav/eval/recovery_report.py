@@ -155,6 +155,8 @@ class RecoveryRecord:
     """Largest fraction of the force check's margin used along these returns (> 1: a stop)."""
     returns_stopped: int = 0
     """Returns the force check stopped."""
+    force_margin_needed_n: float = 0.0
+    """The absolute margin (N) these returns needed not to stop (at the relative margin)."""
 
 
 def raw_similarity(clip: BeatClip, ref: BeatClip) -> float:
@@ -300,6 +302,7 @@ def make_record(
         pose_stage_undone_fraction=float(np.mean([s.pose_stage_undone for s in rs])),
         max_force_margin_use=float(max(s.force_margin_use for s in rs)),
         returns_stopped=sum(s.return_stopped is not None for s in rs),
+        force_margin_needed_n=float(max(s.force_margin_needed_n for s in rs)),
     )
 
 
@@ -377,7 +380,8 @@ def format_table(records: Sequence[RecoveryRecord]) -> str:
             f"{_f(r.true_static_orientation_error_deg_mean)} "
             f"({_f(r.true_static_orientation_error_deg_max)}) deg   "
             f"undone {r.pose_stage_undone_fraction:4.2f}   force margin used "
-            f"{r.max_force_margin_use:4.2f}, returns stopped {r.returns_stopped}"
+            f"{r.max_force_margin_use:4.2f}, returns stopped {r.returns_stopped} (absolute "
+            f"margin needed {r.force_margin_needed_n:5.2f} N)"
         )
     refined = [r for r in records if r.mode == "refined"]
     if refined:
