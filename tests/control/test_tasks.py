@@ -56,7 +56,7 @@ def test_a_path_stops_when_the_force_exceeds_the_trace_plus_the_margin() -> None
 
 def test_a_return_into_a_shifted_patient_stops_and_says_so() -> None:
     """The operator drives to a view and back (forces recorded per vertex); the patient
-    then moves 15 mm on the table; the return replays the recorded states, meets more force
+    then moves 20 mm on the table; the return replays the recorded states, meets more force
     than the trace did, and stops with the reason. Without the shift it arrives."""
     outcomes = []
     for shift in (False, True):
@@ -76,7 +76,7 @@ def test_a_return_into_a_shifted_patient_stops_and_says_so() -> None:
             forces.record(roadmap.current_vertex, sensor.contact_force_n())
             clock.advance(0.02)
         if shift:
-            twin.shift_patient([0.0, 15.0, 0.0])
+            twin.shift_patient([0.0, 20.0, 0.0])
         path = roadmap.plan(np.zeros(4), q_view)
         profile = forces.profile(roadmap, path)
         assert profile is not None

@@ -60,7 +60,7 @@ import numpy as np
 
 from icenav._typing import Array
 from icenav.errors import ConfigurationError
-from icenav.eval.recovery_bench import DT, Bench
+from icenav.eval.recovery_bench import DT, FORCE_MARGIN_N, Bench
 from icenav.eval.recovery_report import (
     RecoveryRecord,
     format_table,
@@ -71,7 +71,7 @@ from icenav.eval.recovery_report import (
     summary_table,
 )
 from icenav.recovery.beats import BeatClip
-from icenav.recovery.force import DEFAULT_MARGIN_FRACTION, DEFAULT_MARGIN_N
+from icenav.recovery.force import DEFAULT_MARGIN_FRACTION
 from icenav.recovery.views import View
 from icenav.refinement.gating import GatedBeatImager
 from icenav.refinement.image_search import RefinementConfig, refine
@@ -80,6 +80,8 @@ from icenav.refinement.retry import RetryConfig, retry_return
 from icenav.sim.conditions import CONDITIONS, DISTURBANCES
 
 __all__ = [
+    "CYCLE_POSE_STAGE",
+    "FORCE_MARGIN_N",
     "MODES",
     "RecoveryConfig",
     "RecoveryRecord",
@@ -93,6 +95,7 @@ __all__ = [
 ]
 
 _DEG = math.pi / 180.0
+
 
 TARGETS = ("aortic_valve", "mitral_valve", "tricuspid_valve")
 """The paper's three imaging targets (names of the views and ROI labels)."""
@@ -177,8 +180,10 @@ class RecoveryConfig:
     cycle_pose_stage: PoseStageConfig = field(default_factory=lambda: CYCLE_POSE_STAGE)
     """Pose stage settings with the cycle-averaged estimator (its hold is set to the
     window): few, deliberate corrections."""
-    image_stage: bool = True
-    """Run the image stage after the pose stage (always when there is no pose stage)."""
+    image_stage: bool = False
+    """On a disturbed twin, run the image stage after the EM stage too (it always runs when
+    there is no EM stage, ``--no-em``, and on today's twin); off by default: under the
+    disturbances its many small moves added error."""
     refine_strategy: str = "pose_stage"
     """EM stage on a disturbed twin: ``pose_stage`` (corrective steps,
     :data:`CYCLE_POSE_STAGE`) or ``retry`` (measured re-approach,
@@ -188,8 +193,9 @@ class RecoveryConfig:
     force_check: bool = True
     """Returns read the twin's contact force and stop above the operator's + the margin
     (:mod:`icenav.recovery.force`; a disturbed twin with contact only)."""
-    force_margin_n: float = DEFAULT_MARGIN_N
-    """Absolute margin of the force check (N)."""
+    force_margin_n: float | None = None
+    """Absolute margin of the force check (N); None: ``FORCE_MARGIN_N`` of the condition
+    (:mod:`icenav.eval.recovery_bench`)."""
     force_margin_fraction: float = DEFAULT_MARGIN_FRACTION
     """Relative margin of the force check (fraction of the operator's force)."""
 
@@ -420,7 +426,7 @@ def _one_return(
                 ),
                 pose_stage_undone=ps.undone,
             )
-        if cfg.image_stage or "pose_stage_status" not in extra:
+        if cfg.image_stage or b.cycle_sensor is None or "pose_stage_status" not in extra:
             extra.update(_image_stage(b, cfg, view, q_centre, refine_refs[name]))
         b.clock.advance(0.2)
     b.hold_still(b.cycle_window_s)
@@ -543,6 +549,7 @@ def config_from_args(args: argparse.Namespace, seed: int | None = None,
             wander_moves=3,
             ceiling_beats=1,
             refinement=replace(cfg.refinement, max_evaluations=6),
+            cycle_rate_hz=5.0,
         )
     if args.open_loop_only:
         cfg = replace(cfg, modes=("open_loop",))

@@ -41,7 +41,7 @@ __all__ = [
     "force_limit",
 ]
 
-DEFAULT_MARGIN_N = 0.05
+DEFAULT_MARGIN_N = 0.1
 """Absolute margin of Eq. (F1) (N)."""
 DEFAULT_MARGIN_FRACTION = 1.0
 """Relative margin of Eq. (F1): the contact force at the same motor state varies with the
