@@ -13,13 +13,19 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
-from numpy.typing import ArrayLike
+from numpy.typing import ArrayLike, NDArray
 
 from icenav._typing import Array
 from icenav._validation import check_positive
 from icenav.errors import ConfigurationError
 
-__all__ = ["DirectionTracker", "RoadmapConfig", "RoadmapMetric", "direction_tracker"]
+__all__ = [
+    "DirectionTracker",
+    "RoadmapConfig",
+    "RoadmapMetric",
+    "approach_ids",
+    "direction_tracker",
+]
 
 _DEG_PER_RAD = 180.0 / math.pi
 
@@ -178,3 +184,45 @@ class DirectionTracker:
     def direction(self) -> tuple[int, int, int, int]:
         d = self.dirs
         return (d[0], d[1], d[2], d[3])
+
+
+def approach_ids(
+    trace: NDArray[np.int32],
+    q: Array,
+    x: Array,
+    direction: Sequence[int],
+    threshold: Array,
+    approach_length: float,
+    epsilon: float,
+    long_edges: set[tuple[int, int]],
+) -> list[int]:
+    """A view's recorded approach: the trace vertices that led to the last one, oldest
+    first, ending at it.
+
+    Walks back along ``trace`` (vertex ids, the view's last) until every joint with an
+    arrival ``direction`` has moved at least twice its ``threshold`` (motor units) towards
+    the view, or until ``approach_length`` (metric units); stops where the trace broke (a
+    step longer than ``epsilon`` that is not a travelled edge of ``long_edges``). ``q``,
+    ``x``: (n, 4) motor states and metric coordinates of the vertices.
+    """
+    vid = int(trace[-1])
+    d = np.array(direction, np.float64)
+    need = d != 0
+    q_view = q[vid]
+    ids = [vid]
+    length = 0.0
+    reached = np.zeros(4, bool)
+    for k in range(len(trace) - 2, -1, -1):
+        if not np.any(need & ~reached):
+            break
+        u = int(trace[k])
+        step = float(np.sqrt(np.sum((x[u] - x[ids[-1]]) ** 2)))
+        if length + step > approach_length:
+            break
+        if step > epsilon and (min(u, ids[-1]), max(u, ids[-1])) not in long_edges:
+            break  # the trace broke here (restart, unrecorded stretch): not travelled
+        length += step
+        ids.append(u)
+        reached |= (q_view - q[u]) * d >= 2.0 * threshold
+    ids.reverse()
+    return ids

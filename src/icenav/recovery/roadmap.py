@@ -5,13 +5,8 @@ and is connected to every vertex within ``epsilon``; a return to a saved view is
 A* search over this graph, so the catheter only passes through states the operator has
 already visited. What we add (see ``docs/view-recovery.md``):
 
-* The metric. The paper assumes 1 mm == 1 deg. We map a motor state ``q = (phi1, phi2,
-  phi3, d4)`` (rad, rad, rad, mm) to *metric coordinates* ``x = scale * q`` with
-  ``scale = (kw * 180/pi, kw * 180/pi, rw * 180/pi, tw)`` (a frozen :class:`RoadmapMetric`,
-  all weights 1 by default: one degree of knob, one degree of roll and one millimetre of
-  translation each count as one metric unit) and use the Euclidean distance in ``x``.
-  Roll is a multi-turn motor angle and is not wrapped (360 deg apart is a different motor
-  state: the shaft has wound up).
+* The metric (:mod:`icenav.recovery.metric`): ``x = scale * q``, 1 mm == 1 deg by default,
+  Euclidean in ``x``; roll is a multi-turn motor angle and is not wrapped.
 * Consecutive trace states are always connected (the operator travelled between them, even
   when a fast move jumps more than ``epsilon``).
 * Near-duplicate states (within ``merge_radius``, default ``epsilon / 4``) are merged into
@@ -19,13 +14,9 @@ already visited. What we add (see ``docs/view-recovery.md``):
 * Neighbour search by spatial hashing on a grid of cell size ``4 * epsilon`` (an
   ``epsilon``-ball touches at most 2 cells per axis, about 5 on average in 4-D), not a scan
   of every vertex.
-* Vertices and edges live in numpy arrays grown by doubling; planning
-  (:mod:`icenav.recovery.planner`) builds a CSR matrix lazily
-  when planning, and the shortest-path tree to each goal (``scipy.sparse.csgraph.dijkstra``
-  from the goal) is cached and, when the graph grows, repaired with the new edges only
-  (adding edges can only shorten distances). A pure-Python A* with the Euclidean
-  heuristic over the same CSR arrays is available (``method="astar"``) and returns paths
-  exactly as short (the heuristic is consistent: edge weights are Euclidean distances).
+* Vertices and edges live in numpy arrays grown by doubling; the planner
+  (:mod:`icenav.recovery.planner`) searches them (cached, incrementally repaired Dijkstra
+  trees, or A*), exactly.
 * A vertex budget (``RoadmapConfig.max_vertices``, default 250,000) bounds memory over a
   long procedure: coarse merging from 80 % of it, no new territory recorded from 90 %
   except the excursions that lead to a saved view or to the start of a return; nothing is
@@ -59,6 +50,7 @@ from icenav.recovery.metric import (
     DirectionTracker,
     RoadmapConfig,
     RoadmapMetric,
+    approach_ids,
     direction_tracker,
 )
 from icenav.recovery.planner import (
@@ -78,7 +70,6 @@ __all__ = [
     "warm_up_planner",
 ]
 
-_DEG_PER_RAD = 180.0 / math.pi
 _EXCURSION_MAX = 2048
 """Longest excursion trail kept while the vertex budget is closed (states more than
 epsilon apart, so at least 2048 metric units of travel)."""
@@ -633,34 +624,13 @@ class Roadmap:
         )
 
     def _approach_ids(self, vid: int) -> list[int]:
-        """Recorded trace vertices that led to ``vid`` (oldest first, ending at vid).
-
-        Walks back along the trace until every joint with an arrival direction has moved at
-        least twice the direction threshold towards the view, or until ``approach_length``.
-        """
+        """Recorded trace vertices that led to ``vid`` (oldest first, ending at vid)."""
         if self._t == 0 or self._trace[self._t - 1] != vid:
             return [vid]
-        direction = np.array(self.arrival_direction, np.float64)
-        need = direction != 0
-        q_view = self._q[vid]
-        ids = [vid]
-        length = 0.0
-        reached = np.zeros(4, bool)
-        limit = self._config.approach_length
-        for k in range(self._t - 2, -1, -1):
-            if not np.any(need & ~reached):
-                break
-            u = int(self._trace[k])
-            step = float(np.sqrt(np.sum((self._x[u] - self._x[ids[-1]]) ** 2)))
-            if length + step > limit:
-                break
-            if step > self._eps and (min(u, ids[-1]), max(u, ids[-1])) not in self._long_edges:
-                break  # the trace broke here (restart, unrecorded stretch): not travelled
-            length += step
-            ids.append(u)
-            reached |= (q_view - self._q[u]) * direction >= 2.0 * self._thr
-        ids.reverse()
-        return ids
+        return approach_ids(
+            self._trace[: self._t], self._q, self._x, self.arrival_direction, self._thr,
+            self._config.approach_length, self._eps, self._long_edges,
+        )  # fmt: skip
 
     # --- planning (icenav.recovery.planner) ------------------------------------------------
 
@@ -707,19 +677,8 @@ class Roadmap:
         """Snapshot the graph now and return a job that computes the shortest-path tree to
         ``goal`` from the snapshot, safe to run in another thread while :meth:`add` goes on;
         hand its result to :meth:`install_tree` (in the thread that owns the roadmap).
-
-        The snapshot is free (views of the append-only edge arrays: entries below the
-        current edge count are never written again); the job builds the CSR and runs the
-        Dijkstra (about half a second at 1e6 vertices). ``approach`` as in :meth:`plan`:
-        with True, the tree is the one a plan with ``approach=True`` searches (to the start
-        of the view's recorded approach).
-
-        ``isolate=True`` runs the Dijkstra in a worker process (one, started at the first
-        use): scipy's ``dijkstra`` holds the GIL for its whole run, so in a thread it stalls
-        every other thread of the process, the control loop included (measured: a 0.5 s
-        stall at 3e5 vertices). The job thread only waits for the answer. If the worker
-        cannot be used, the job falls back to the Dijkstra in its own thread.
-        """
+        ``approach`` as in :meth:`plan`; ``isolate``: in the worker process (see
+        :meth:`icenav.recovery.planner.ShortestPathTrees.tree_job`)."""
         gv = self._search_goal(goal, approach)
         if not 0 <= gv < self._n:
             raise PlanningError(f"goal vertex {gv} is not in the roadmap (0..{self._n - 1})")
@@ -740,17 +699,9 @@ class Roadmap:
     def shortest_path_ids(
         self, start: int, goal: int, method: Literal["tree", "astar"] = "tree"
     ) -> IntArray:
-        """Vertex ids of a shortest path from vertex ``start`` to vertex ``goal``.
-
-        ``method="tree"``: Dijkstra from the goal (scipy), cached per goal and repaired
-        incrementally as the graph grows; ``"astar"``: A* with the Euclidean heuristic.
-        Both are exact.
-
-        Raises
-        ------
-        GoalUnreachableError
-            The goal is not connected to the start.
-        """
+        """Vertex ids of a shortest path from vertex ``start`` to vertex ``goal``, exact:
+        ``method="tree"`` (cached, repaired Dijkstra tree) or ``"astar"``;
+        GoalUnreachableError when they are not connected (:mod:`icenav.recovery.planner`)."""
         n = self._n
         for name, v in (("start", start), ("goal", goal)):
             if not 0 <= v < n:
