@@ -35,8 +35,9 @@ DT = 0.01
 
 FORCE_MARGIN_N = {"phantom": DEFAULT_MARGIN_N, "in-vivo": 0.25}
 """Absolute margin of the force check per condition (N), at the relative margin of 100 %:
-set on the development catheters and patients (100-104 / 0-4) so that no return stopped
-without a patient shift (the phantom needed up to 0.05 N, in vivo up to 0.10 N)."""
+set on the development catheters and patients (100-104 / 0-4), where no return stopped
+without a patient shift (the phantom needed up to 0.05 N, in vivo up to 0.10 N); too narrow
+for the held-out pairs (``docs/results.md``, Table II)."""
 
 
 class TwinBeatImager(SimulatedBeatImager):

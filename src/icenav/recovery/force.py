@@ -45,10 +45,9 @@ DEFAULT_MARGIN_N = 0.1
 """Absolute margin of Eq. (F1) (N)."""
 DEFAULT_MARGIN_FRACTION = 1.0
 """Relative margin of Eq. (F1): the contact force at the same motor state varies with the
-heart beat and breathing in proportion to it (on the twin in vivo a state the operator
-passed at 3.3 N read up to 5.7 N on a later return); the margins were set on the
-development catheters and patients (``docs/view-recovery.md``), and stay below what a
-shifted patient adds."""
+heart beat, breathing and the shaft's lost motion roughly in proportion to it (on the twin
+in vivo a state the operator passed at 3.3 N read up to 5.7 N on a later return). Measured
+false alarms and what a shift adds: ``docs/view-recovery.md``."""
 
 
 class ForceSensor(Protocol):
