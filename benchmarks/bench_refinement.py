@@ -21,12 +21,11 @@ from icenav.devices.sim_robot import SimulatedRobot
 from icenav.refinement.image_search import (
     RefinementConfig,
     RefinementTask,
-    SimClock,
-    SimulatedBeatImager,
     refine,
 )
 from icenav.refinement.pose_stage import pose_stage
 from icenav.sim.anatomy import EXAMPLE_VIEWS, default_phantom
+from icenav.sim.beat_imager import SimClock, SimulatedBeatImager
 from icenav.sim.plant import CatheterPlant
 from icenav.sim.tracker import EMTracker
 from icenav.sim.ultrasound import ProbeConfig, UltrasoundRenderer

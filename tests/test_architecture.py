@@ -104,13 +104,8 @@ def test_every_package_is_in_the_layer_table() -> None:
     assert packages <= set(ALLOWED), f"add {packages - set(ALLOWED)} to ALLOWED"
 
 
-KNOWN: set[str] = {
-    # the layout move left these; each goes with the rebuild of its package (then this set
-    # is empty, and a new wrong-way arrow fails at once)
-    "icenav.refinement.gating imports icenav.eval.metrics",
-    "icenav.refinement.image_search imports icenav.eval.metrics",
-    "icenav.refinement.image_search imports icenav.sim.anatomy",
-}
+KNOWN: set[str] = set()
+"""Wrong-way arrows left by the layout move (all gone): a new one fails at once."""
 
 
 def test_no_import_points_the_wrong_way() -> None:

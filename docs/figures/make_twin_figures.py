@@ -206,8 +206,8 @@ def widths() -> None:
 
 def contact_pass() -> None:
     """Contact force and tip deflection along a pass of the AP knob into the RA wall."""
-    from icenav.refinement.image_search import SimClock
     from icenav.sim.anatomy import BASE2ANATOMY, default_phantom
+    from icenav.sim.beat_imager import SimClock
     from icenav.sim.contact import ContactModel, Walls
     from icenav.sim.disturbed import DisturbedPlant
 
@@ -270,7 +270,7 @@ def breathing_trace() -> None:
 def stick_slip_returns() -> None:
     """The shaft's lost motion (translation, roll) at the end of 16 identical moves to a view,
     in the phantom and in vivo."""
-    from icenav.refinement.image_search import SimClock
+    from icenav.sim.beat_imager import SimClock
     from icenav.sim.conditions import build_twin
 
     fig, ax = plt.subplots(1, 2, figsize=(9, 3.6))

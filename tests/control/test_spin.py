@@ -14,7 +14,7 @@ from icenav.errors import InvalidValueError
 from icenav.eval.metrics import rotation_angle
 from icenav.geometry.kinematics import DEFAULT_GEOMETRY, forward
 from icenav.geometry.trajectories import spin_trajectory
-from icenav.refinement.image_search import SimClock
+from icenav.sim.beat_imager import SimClock
 from icenav.sim.plant import CatheterPlant
 from icenav.sim.tracker import EMTracker
 

@@ -253,9 +253,9 @@ def test_repaired_trees_stay_exact_while_the_roadmap_grows(seed: int) -> None:
                 fresh = dijkstra(rm.csr(), directed=False, indices=goal)[rm.current_vertex]
                 assert path_length(rm, ids) == pytest.approx(fresh, rel=1e-9, abs=1e-9)
                 assert ids[0] == rm.current_vertex and ids[-1] == goal
-    assert len(rm._trees) == 2
+    assert len(rm.cached_tree_goals) == 2
     rm.prepare(0)
-    assert len(rm._trees) == 3
+    assert len(rm.cached_tree_goals) == 3
     with pytest.raises(PlanningError, match="not in the roadmap"):
         rm.prepare(rm.n_vertices)
 
@@ -574,10 +574,10 @@ def test_tree_cache_keeps_the_most_recently_used_trees() -> None:
     goals = [0, 50, 100, 150]
     for g in goals:
         rm.shortest_path_ids(rm.current_vertex, g)
-    assert list(rm._trees) == [50, 100, 150]  # the least recently used (0) was dropped
+    assert rm.cached_tree_goals == [50, 100, 150]  # the least recently used (0) was dropped
     rm.shortest_path_ids(rm.current_vertex, 50)  # used again: now the most recent
     rm.install_tree(0, rm.tree_job(0)())
-    assert list(rm._trees) == [150, 50, 0]
+    assert rm.cached_tree_goals == [150, 50, 0]
     ids = rm.shortest_path_ids(rm.current_vertex, 0)
     fresh = dijkstra(rm.csr(), directed=False, indices=0)[rm.current_vertex]
     assert path_length(rm, ids) == pytest.approx(fresh, rel=1e-12)

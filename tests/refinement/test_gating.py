@@ -9,9 +9,10 @@ import pytest
 from numpy.typing import NDArray
 
 from icenav.errors import ConfigurationError
+from icenav.recovery.beats import BeatClip
 from icenav.refinement.gating import GatedBeatImager, PhantomRespiration
-from icenav.refinement.image_search import BeatClip, SimClock, SimulatedBeatImager
 from icenav.sim.anatomy import default_phantom
+from icenav.sim.beat_imager import SimClock, SimulatedBeatImager
 from icenav.sim.ultrasound import ProbeConfig, UltrasoundRenderer
 from tests.refinement.test_image_search import TrackedPlant
 

@@ -12,18 +12,17 @@ from icenav.devices.sim_robot import IdealPlant, SimulatedRobot
 from icenav.errors import ConfigurationError, ShapeError
 from icenav.eval.metrics import beat_similarity, rotation_angle
 from icenav.geometry.kinematics import forward
+from icenav.recovery.beats import BeatClip
 from icenav.refinement.image_search import (
-    BeatClip,
     NeighbourhoodError,
     RefinementConfig,
     RefinementStatus,
     RefinementTask,
-    SimClock,
-    SimulatedBeatImager,
-    beat_score,
     refine,
 )
+from icenav.refinement.similarity import beat_score
 from icenav.sim.anatomy import EXAMPLE_VIEWS, default_phantom
+from icenav.sim.beat_imager import SimClock, SimulatedBeatImager
 from icenav.sim.plant import CatheterPlant
 from icenav.sim.ultrasound import ProbeConfig, UltrasoundRenderer
 

@@ -12,7 +12,7 @@ from icenav.devices.sim_robot import SimulatedRobot
 from icenav.errors import ConfigurationError, ShapeError
 from icenav.eval.metrics import rotation_angle
 from icenav.geometry.kinematics import forward
-from icenav.refinement.image_search import NeighbourhoodError, SimClock
+from icenav.refinement.image_search import NeighbourhoodError
 from icenav.refinement.pose_stage import (
     PoseStageConfig,
     PoseStageStatus,
@@ -21,6 +21,7 @@ from icenav.refinement.pose_stage import (
     pose_stage,
 )
 from icenav.sim.anatomy import EXAMPLE_VIEWS
+from icenav.sim.beat_imager import SimClock
 from icenav.sim.plant import CatheterPlant
 from icenav.sim.tracker import EMTracker, rotvec_to_matrix
 
@@ -236,3 +237,44 @@ def test_bad_pose_stage_config_is_rejected(kwargs: dict[str, object], match: str
 
 
 # --- respiratory gating ----------------------------------------------------------------------
+
+
+class _WorseWithEveryMove:
+    """A pose sensor that reads the saved pose offset by 1 mm, plus 20 mm per radian (or
+    mm) the commanded state moved from where the stage started: every step looks worse."""
+
+    def __init__(self, robot: SimulatedRobot, q0: Array) -> None:
+        self.robot, self.q0 = robot, q0.copy()
+
+    def measure_tip2base(self, n_average: int = 1) -> Array:
+        moved = float(np.abs(np.asarray(self.robot.read_state().q) - self.q0).sum())
+        out = np.eye(4)
+        out[0, 3] = 1.0 + 20.0 * moved
+        return out
+
+
+def test_a_stage_that_made_it_worse_goes_back_to_where_it_started() -> None:
+    """The stage never ends farther from the saved pose than it started, as its own
+    estimator tells: worse after its steps, it re-approaches the start state."""
+    clock, plant, robot, _ = _em_bench(110)
+    q0 = np.array([0.05, -0.05, 0.3, 2.0])
+    robot.command_position(q0)
+    clock.advance(0.5)
+    sensor = _WorseWithEveryMove(robot, q0)
+    cfg = PoseStageConfig(max_iterations=2, reapproach_first=False, hold_s=0.1)
+    res = pose_stage(robot, q0, np.eye(4), sensor, config=cfg, sleep=clock.advance,
+                     arrival_direction=(1, 1, 1, 1))  # fmt: skip
+    assert res.undone
+    # roll and translation are re-approached exactly; the knobs are never reversed (their
+    # tendon play), so they stay where the one-sided steps left them
+    np.testing.assert_allclose(res.q_final[2:], q0[2:], atol=1e-12)
+    np.testing.assert_allclose(res.q_final[:2], q0[:2], atol=1e-3)
+    assert res.final is not None and res.final.position_mm == pytest.approx(1.0, abs=0.05)
+    assert res.final.position_mm < max(m.position_mm for m in res.measurements)
+    assert len(res.measurements) >= 3  # the start, the steps, and after going back
+    off = PoseStageConfig(max_iterations=2, reapproach_first=False, hold_s=0.1,
+                          undo_if_worse=False)  # fmt: skip
+    robot.command_position(q0)
+    res2 = pose_stage(robot, q0, np.eye(4), sensor, config=off, sleep=clock.advance,
+                      arrival_direction=(1, 1, 1, 1))  # fmt: skip
+    assert not res2.undone

@@ -9,9 +9,9 @@ import pytest
 
 from icenav.devices.sim_robot import SimulatedRobot
 from icenav.errors import ConfigurationError
-from icenav.refinement.image_search import SimClock
+from icenav.sim.beat_imager import SimClock
 from icenav.sim.conditions import CONDITIONS, DISTURBANCES, build_twin, condition
-from icenav.sim.disturbed import DisturbedPlant, DisturbedTracker, mean_pose
+from icenav.sim.disturbed import DisturbedPlant, DisturbedTracker, TwinForceSensor, mean_pose
 from icenav.sim.plant import CatheterPlant
 from icenav.sim.tracker import EMTracker, TrackerConfig
 
@@ -76,6 +76,56 @@ def test_the_tracker_averages_over_its_window() -> None:
     keys = np.round(times * 40.0) / 40.0
     expected = mean_pose(np.stack([twin.plant.pose_at(t) for t in keys]))
     np.testing.assert_allclose(measured, expected, atol=1e-9)
+
+
+def test_the_tracker_keeps_its_samples_with_their_times() -> None:
+    """sample_window: one sample per 1 / rate up to now, each the true pose at its time (a
+    jitter-free tracker); the force channel reads the last solved contact force."""
+    clock = SimClock()
+    twin = build_twin("in-vivo", 100, 1, clock.now)
+    exact = EMTracker(
+        twin.plant.inner, seed=1, clock=clock.now,
+        config=TrackerConfig(
+            position_jitter_rms_mm=0.0, rotation_jitter_rms_rad=0.0, position_bias_rms_mm=0.0,
+            rotation_bias_rms_rad=0.0, dropout_probability=0.0,
+        ),
+    )  # fmt: skip
+    tracker = DisturbedTracker(exact, twin.plant)
+    twin.plant.move(np.asarray(twin.views["aortic_valve"]))
+    clock.advance(3.0)
+    times, poses = tracker.sample_window(2.0, 10.0)
+    np.testing.assert_allclose(times, clock.now() - np.arange(20)[::-1] / 10.0)
+    for t, p in zip(times[::5], poses[::5], strict=True):
+        np.testing.assert_allclose(p, twin.plant.pose_at(float(t)), atol=1e-9)
+    assert np.ptp(poses[:, :3, 3], axis=0).max() > 0.1  # the tip moves with breathing
+    sensor = TwinForceSensor(twin.plant)
+    now = twin.plant.state.contact_force_n  # solves the state now
+    assert sensor.contact_force_n() == pytest.approx(now)
+    with pytest.raises(ConfigurationError):
+        tracker.sample_window(0.0, 10.0)
+
+
+def test_a_patient_shift_moves_the_walls_not_the_motors() -> None:
+    """The anatomy moves by the shift in the base frame: a catheter held near a wall meets
+    it (more contact force), and the shift back restores the state."""
+    clock = SimClock()
+    twin = build_twin("phantom", 100, 0, clock.now)
+    q = np.asarray(twin.views["mitral_valve"])
+    twin.plant.move(q)
+    clock.advance(0.5)
+    before = twin.plant.state.contact_force_n
+    b2a = twin.base2anatomy.copy()
+    twin.shift_patient([0.0, 15.0, 0.0])
+    np.testing.assert_allclose(
+        np.linalg.inv(twin.base2anatomy) @ b2a @ np.array([0, 0, 0, 1.0]),
+        [0, 15.0, 0, 1],
+        atol=1e-9,
+    )  # an anatomy point now sits 15 mm further along base y
+    shifted = twin.plant.state.contact_force_n
+    assert shifted > before + 0.02
+    twin.shift_patient([0.0, -15.0, 0.0])
+    assert twin.plant.state.contact_force_n == pytest.approx(before, abs=1e-9)
+    np.testing.assert_allclose(twin.plant.state.q_motor, q)
 
 
 def test_conditions_switch_disturbances_off() -> None:

@@ -4,7 +4,9 @@
 :class:`Done` or :class:`Failed` (with the reason); the controller never guesses an outcome
 from ``None`` or from attributes a task may or may not have. Here:
 
-- :class:`PathTask`: follow a motor-space polyline at bounded speed (a go to view);
+- :class:`PathTask`: follow a motor-space polyline at bounded speed (a go to view); with a
+  force channel and the operator's recorded forces, it stops when the contact force
+  exceeds them by a margin (:mod:`icenav.recovery.force`);
 - :class:`PlanningTask`: a go to view on a large roadmap: hold while a worker computes the
   shortest-path tree, then plan and follow the path;
 - :class:`MotionAdapter`: any motion generator with ``next_command(q, dt) -> q | None`` (the
@@ -29,6 +31,12 @@ import numpy as np
 from icenav._typing import Array
 from icenav.control.modes import Mode
 from icenav.errors import IcenavError, InvalidValueError
+from icenav.recovery.force import (
+    DEFAULT_MARGIN_FRACTION,
+    DEFAULT_MARGIN_N,
+    ForceSensor,
+    force_limit,
+)
 from icenav.recovery.roadmap import Roadmap
 from icenav.recovery.views import View
 
@@ -123,6 +131,17 @@ class PathTask:
     ramp_s: float = 0.3
     """Time to reach full speed from rest, and to stop (s): bounds the acceleration to
     about speed / ramp_s (a trapezoidal profile in path time)."""
+    force_sensor: ForceSensor | None = None
+    """The robot's contact-force channel; None: no force check."""
+    force_profile: Array | None = None
+    """(n,) contact force (N) the operator's trace produced at each path state
+    (:meth:`icenav.recovery.force.ForceMap.profile`); None: no force check."""
+    force_margin_n: float = DEFAULT_MARGIN_N
+    """Absolute margin of the force check, Eq. (F1) of :mod:`icenav.recovery.force` (N)."""
+    force_margin_fraction: float = DEFAULT_MARGIN_FRACTION
+    """Relative margin of the force check (fraction of the recorded force)."""
+    failure: str | None = field(default=None, init=False)
+    """Why the task stopped early (the force check), None while it has not."""
     _cum_time: Array = field(init=False, repr=False)
     _t: float = field(default=0.0, init=False, repr=False)
     _elapsed: float = field(default=0.0, init=False, repr=False)
@@ -139,6 +158,17 @@ class PathTask:
             raise InvalidValueError(
                 f"max_velocity * speed_scale must be 4 values > 0 (rad/s, mm/s), got {v}"
             )
+        if self.force_profile is not None:
+            fp = np.asarray(self.force_profile, dtype=np.float64)
+            if fp.shape != (len(p),) or not np.all(np.isfinite(fp)):
+                raise InvalidValueError(
+                    f"force_profile must be {len(p)} finite forces (N), got shape {fp.shape}"
+                )
+            self.force_profile = fp
+        for name in ("force_margin_n", "force_margin_fraction"):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value >= 0):
+                raise InvalidValueError(f"{name} must be finite and >= 0, got {value}")
         seg = np.abs(np.diff(p, axis=0)) / v if len(p) > 1 else np.zeros((0, 4))
         durations = seg.max(axis=1) if len(seg) else np.zeros(0)
         self._cum_time = np.concatenate([[0.0], np.cumsum(durations)])
@@ -152,10 +182,22 @@ class PathTask:
     def progress(self) -> float:
         return 1.0 if self.duration == 0 else min(1.0, self._t / self.duration)
 
+    @property
+    def path_index(self) -> int:
+        """Index of the path state the last set-point left (0 .. n - 1)."""
+        i = int(np.searchsorted(self._cum_time, self._t, side="right")) - 1
+        return min(max(i, 0), len(self.path) - 1)
+
     def step(self, q_measured: Array, dt: float) -> TaskStatus:
         """The next point of the path, or Done at its end."""
+        if self.failure is not None:
+            return Failed(self.failure)
         if self._t >= self.duration:
             return Done()
+        if self.force_sensor is not None and self.force_profile is not None:
+            stop = self._force_check()
+            if stop is not None:
+                return stop
         # path-time rate r in (0, 1]: ramps up over ramp_s, and down to stop at the end
         # (r <= sqrt(2 * remaining / ramp_s)); never 0, so the task always finishes
         self._elapsed += dt
@@ -168,9 +210,31 @@ class PathTask:
         s = 1.0 if t1 <= t0 else (self._t - t0) / (t1 - t0)
         return Running(np.asarray(self.path[i] + s * (self.path[i + 1] - self.path[i])))
 
+    def _force_check(self) -> Failed | None:
+        """Eq. (F1) at the state last commanded: Failed (and the path stops) when the force
+        read exceeds what the operator's trace produced there plus the margin."""
+        sensor, profile = self.force_sensor, self.force_profile
+        if sensor is None or profile is None:
+            return None
+        f = sensor.contact_force_n()
+        if f is None:
+            return None
+        i = self.path_index
+        recorded, limit = force_limit(profile, i, self.force_margin_n, self.force_margin_fraction)
+        if f <= limit:
+            return None
+        self.failure = (
+            f"{self.label}: stopped at path state {i} of {len(self.path) - 1}: contact force "
+            f"{f:.2f} N exceeds the {recorded:.2f} N the operator's trace produced there by "
+            f"more than the margin (limit {limit:.2f} N: + {self.force_margin_n:.2f} N "
+            f"+ {100 * self.force_margin_fraction:.0f} %; has the patient moved?); "
+            "the robot holds"
+        )
+        return Failed(self.failure)
+
     def next_command(self, q_measured: Array, dt: float) -> Array | None:
         """As :meth:`step`, for a caller that drives the path itself (the evaluations): the
-        next set-point, or None at the end."""
+        next set-point, or None at the end (or when it stopped: see :attr:`failure`)."""
         status = self.step(q_measured, dt)
         return status.q if isinstance(status, Running) else None
 

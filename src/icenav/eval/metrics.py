@@ -1,11 +1,8 @@
 """Image and pose metrics of the paper's view-recovery evaluation (Table II).
 
-- :func:`ncc`: zero-mean normalised cross-correlation of two images (the paper's "image
-  cross-correlation"); :func:`beat_similarity`: frames of two one-beat clips matched by
-  cardiac phase, NCC per matched pair, mean over the beat.
-- :func:`blurred_ncc`: NCC of Gaussian-blurred, down-sampled images. Raw speckle
-  decorrelates within a fraction of a millimetre, so raw NCC is rough in pose; the blurred
-  version varies smoothly with pose and is the one to climb in a control loop.
+- :func:`ncc`, :func:`beat_similarity`, :func:`blurred_ncc`, :func:`match_by_phase`: the
+  image similarity of :mod:`icenav.refinement.similarity` (re-exported: one NCC for the
+  refinement and the evaluation).
 - :func:`roi_centroid_distance`: Euclidean distance of ROI centroids (mm).
 - :func:`geometric_median`, :func:`geometric_median_index`: the paper's reference return
   is the sample nearest the geometric median of the returns.
@@ -15,18 +12,16 @@
 
 from __future__ import annotations
 
-import math
-from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
-import scipy.ndimage as ndi
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import ArrayLike
 
 from icenav._typing import Array
-from icenav._validation import check_finite, check_positive, check_transform
-from icenav.errors import InvalidValueError, ShapeError
+from icenav._validation import check_finite, check_transform
+from icenav.errors import ShapeError
 from icenav.geometry.se3 import rotation_angle
+from icenav.refinement.similarity import beat_similarity, blurred_ncc, match_by_phase, ncc
 
 __all__ = [
     "ErrorStats",
@@ -44,139 +39,14 @@ __all__ = [
 ]
 
 
-def _pair(a: ArrayLike, b: ArrayLike, name: str) -> tuple[Array, Array]:
-    x = check_finite(a, f"{name} a")
-    y = check_finite(b, f"{name} b")
-    if x.shape != y.shape or x.ndim < 1 or x.size < 2:
-        raise ShapeError(
-            f"{name}: images must have the same shape with >= 2 pixels, got {x.shape} and {y.shape}"
-        )
-    return x, y
-
-
-def ncc(a: ArrayLike, b: ArrayLike, mask: ArrayLike | None = None) -> float:
-    """Zero-mean normalised cross-correlation of two images, in [-1, 1].
-
-    Parameters
-    ----------
-    a, b : array-like, same shape
-        Images (any numeric dtype).
-    mask : array-like of bool, same shape, optional
-        Pixels to use (e.g. the sector); all if omitted.
-
-    Returns
-    -------
-    float
-        sum((a - mean a)(b - mean b)) / sqrt(sum (a - mean a)^2 sum (b - mean b)^2);
-        0 if either image is constant.
-    """
-    x, y = _pair(a, b, "ncc")
-    if mask is not None:
-        m = np.asarray(mask, dtype=bool)
-        if m.shape != x.shape:
-            raise ShapeError(f"ncc: mask shape {m.shape} differs from image shape {x.shape}")
-        x, y = x[m], y[m]
-    x = x.ravel() - x.mean()
-    y = y.ravel() - y.mean()
-    den = math.sqrt(float(x @ x) * float(y @ y))
-    if den == 0.0:
-        return 0.0
-    return float(x @ y) / den
-
-
-def blurred_ncc(
-    a: ArrayLike,
-    b: ArrayLike,
-    *,
-    sigma_px: float = 4.0,
-    factor: int = 4,
-    mask: ArrayLike | None = None,
-) -> float:
-    """NCC of Gaussian-blurred, down-sampled images (smooth in pose; for control loops).
-
-    Parameters
-    ----------
-    a, b : array-like, shape (H, W)
-        Images.
-    sigma_px : float
-        Gaussian sigma (pixels of the input) applied before down-sampling.
-    factor : int
-        Down-sampling factor (every ``factor``-th pixel in each direction).
-    mask : array-like of bool, shape (H, W), optional
-        Pixels to use, down-sampled with the images.
-    """
-    x, y = _pair(a, b, "blurred_ncc")
-    if x.ndim != 2:
-        raise ShapeError(f"blurred_ncc: images must be 2-D, got shape {x.shape}")
-    check_positive(sigma_px, "sigma_px", "px")
-    if not isinstance(factor, int) or factor < 1:
-        raise InvalidValueError(f"factor must be an int >= 1, got {factor!r}")
-    xs = ndi.gaussian_filter(x, sigma_px)[::factor, ::factor]
-    ys = ndi.gaussian_filter(y, sigma_px)[::factor, ::factor]
-    m = None if mask is None else np.asarray(mask, dtype=bool)[::factor, ::factor]
-    return ncc(xs, ys, m)
-
-
-def match_by_phase(phases_a: ArrayLike, phases_b: ArrayLike) -> NDArray[np.intp]:
-    """For each phase in ``phases_b``, the index of the nearest phase in ``phases_a``.
-
-    Phases are fractions of the beat in [0, 1) and wrap (0.98 is near 0.01).
-    """
-    pa = check_finite(phases_a, "phases_a").ravel()
-    pb = check_finite(phases_b, "phases_b").ravel()
-    if pa.size == 0 or pb.size == 0:
-        raise ShapeError("match_by_phase: phase lists must not be empty")
-    d = np.abs(np.mod(pb[:, None] - pa[None, :] + 0.5, 1.0) - 0.5)
-    out: NDArray[np.intp] = np.argmin(d, axis=1)
-    return out
-
-
-def beat_similarity(
-    clip: Sequence[ArrayLike],
-    phases: ArrayLike,
-    reference: Sequence[ArrayLike],
-    reference_phases: ArrayLike,
-    *,
-    mask: ArrayLike | None = None,
-    blurred: bool = False,
-) -> float:
-    """Mean image similarity over one beat, frames matched by cardiac phase (the paper's).
-
-    Each reference frame is compared (NCC) with the ``clip`` frame nearest in cardiac
-    phase; the result is the mean over the reference frames.
-
-    Parameters
-    ----------
-    clip, reference : sequences of images, shape (H, W) each
-        One heart beat each.
-    phases, reference_phases : array-like, shape (n,), (m,)
-        Cardiac phase of each frame (fraction of the beat, 0 = R wave).
-    mask : array-like of bool, shape (H, W), optional
-        Pixels to compare (e.g. the sector).
-    blurred : bool
-        Use :func:`blurred_ncc` instead of raw :func:`ncc`.
-
-    Returns
-    -------
-    float
-        Mean NCC in [-1, 1] (multiply by 100 for the paper's %).
-    """
-    if len(clip) != np.size(phases) or len(reference) != np.size(reference_phases):
-        raise ShapeError(
-            f"beat_similarity: {len(clip)} frames with {np.size(phases)} phases, "
-            f"{len(reference)} reference frames with {np.size(reference_phases)} phases"
-        )
-    idx = match_by_phase(phases, reference_phases)
-    values = [
-        blurred_ncc(clip[i], ref, mask=mask) if blurred else ncc(clip[i], ref, mask)
-        for i, ref in zip(idx, reference, strict=True)
-    ]
-    return float(np.mean(values))
-
-
 def roi_centroid_distance(a_mm: ArrayLike, b_mm: ArrayLike) -> float:
     """Euclidean distance (mm) between two ROI centroids (2-D image plane or 3-D)."""
-    x, y = _pair(a_mm, b_mm, "roi_centroid_distance")
+    x = check_finite(a_mm, "ROI centroid a (mm)")
+    y = check_finite(b_mm, "ROI centroid b (mm)")
+    if x.shape != y.shape or x.shape not in ((2,), (3,)):
+        raise ShapeError(
+            f"ROI centroids must both have shape (2,) or (3,), got {x.shape}, {y.shape}"
+        )
     return float(np.linalg.norm(x - y))
 
 

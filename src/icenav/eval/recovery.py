@@ -17,14 +17,22 @@ Protocol (the phantom study of Section IV, with the in-vivo metrics of Table II)
    refinement moves) is added to the roadmap, so the recorded trace stays contiguous.
 3. Two modes, run one after the other on the same catheter and roadmap: ``open_loop``
    (the paper's system) and ``refined``: after each return the EM pose stage
-   (:class:`icenav.refinement.pose_stage.PoseStageTask`: servo the averaged EM-measured tip
-   pose onto the EM pose saved with the view, 64 samples averaged at saving) and then the
-   image stage (:func:`icenav.refinement.image_search.refine`, centred where the pose stage
-   ended, scoring respiratory-gated beats); every set-point of both is recorded.
-4. After every return (and refinement) two beats are recorded: one ECG-gated beat at
-   whatever respiratory phase it falls (``clip``), and one gated on ECG *and* respiration
-   to the saved beat (``gated_clip``, :class:`icenav.refinement.gating.GatedBeatImager`: the
-   catheter held still for 5 beats).
+   (:class:`icenav.refinement.pose_stage.PoseStageTask`: servo the EM-measured tip pose onto
+   the EM pose saved with the view; on a disturbed twin both are averaged over complete
+   breaths, or beats without breathing, :mod:`icenav.refinement.cycle_pose`, with the
+   settings :data:`CYCLE_POSE_STAGE`; on today's twin 64 samples) and then, unless
+   ``image_stage`` is off, the image stage (:func:`icenav.refinement.image_search.refine`,
+   centred where the pose stage ended, scoring respiratory-gated beats); without the pose
+   stage (``--no-em``) the image stage alone. Every set-point of both is recorded.
+   Returns check the contact force against the operator's trace (Eq. F1 of
+   :mod:`icenav.recovery.force`) on a twin with contact; a stopped return is counted and
+   finished without the check.
+4. After every return (and refinement) the catheter is held still for the cycle window and
+   the twin's true pose averaged over its complete breaths (beats) is recorded
+   (``static_tip2base``: the refinement's target is measured on it); then two beats: one
+   ECG-gated beat at whatever respiratory phase it falls (``clip``), and one gated on ECG
+   *and* respiration to the saved beat (``gated_clip``,
+   :class:`icenav.refinement.gating.GatedBeatImager`: the catheter held still for 5 beats).
 
 Conditions (``--condition``, :mod:`icenav.sim.conditions`): ``none`` (today's twin, the
 default: nothing disturbs a return), ``phantom`` (the paper's bench study) and ``in-vivo``
@@ -52,7 +60,7 @@ import numpy as np
 
 from icenav._typing import Array
 from icenav.errors import ConfigurationError, IcenavError
-from icenav.eval.recovery_bench import DT, Bench
+from icenav.eval.recovery_bench import DT, FORCE_MARGIN_N, Bench
 from icenav.eval.recovery_report import (
     RecoveryRecord,
     format_table,
@@ -62,13 +70,18 @@ from icenav.eval.recovery_report import (
     roi_error,
     summary_table,
 )
+from icenav.recovery.beats import BeatClip
+from icenav.recovery.force import DEFAULT_MARGIN_FRACTION
 from icenav.recovery.views import View
 from icenav.refinement.gating import GatedBeatImager
-from icenav.refinement.image_search import BeatClip, RefinementConfig, refine
+from icenav.refinement.image_search import RefinementConfig, refine
 from icenav.refinement.pose_stage import PoseStageConfig, pose_stage
+from icenav.refinement.retry import RetryConfig, retry_return
 from icenav.sim.conditions import CONDITIONS, DISTURBANCES
 
 __all__ = [
+    "CYCLE_POSE_STAGE",
+    "FORCE_MARGIN_N",
     "MODES",
     "RecoveryConfig",
     "RecoveryRecord",
@@ -81,10 +94,30 @@ __all__ = [
     "run_recovery",
 ]
 
+_DEG = math.pi / 180.0
+
+
 TARGETS = ("aortic_valve", "mitral_valve", "tricuspid_valve")
 """The paper's three imaging targets (names of the views and ROI labels)."""
 MODES = ("open_loop", "refined")
 """Open-loop return (the paper) and return + closed-loop refinement."""
+
+
+CYCLE_POSE_STAGE = PoseStageConfig(
+    max_iterations=3,
+    max_step=(2.0 * _DEG, 2.0 * _DEG, 4.0 * _DEG, 2.0),
+    step_from_last=True,
+    tolerance_mm=0.6,
+    tolerance_rad=0.8 * _DEG,
+    min_decrease_mm=0.3,
+    reapproach_first=False,
+    max_duration_s=60.0,
+)
+"""The pose stage on the cycle-averaged estimator: at most 2 corrections, larger ones, each
+measured over complete breaths; tolerances and the least decrease that counts above the
+estimator's scatter between breaths (about 0.4 mm on the twin: a still catheter's static
+pose wanders that much), no re-approach of the start (a stick-slip move of its own), back
+to the start when it ended worse."""
 
 
 @dataclass(frozen=True)
@@ -139,6 +172,35 @@ class RecoveryConfig:
     """The image stage scores respiratory-gated beats (else plain ECG-gated beats)."""
     refinement: RefinementConfig = field(default_factory=RefinementConfig)
     """Closed-loop refinement (image stage) settings."""
+    em_estimator: str = "cycle"
+    """EM pose of the pose stage and of the saved view on a disturbed twin: ``cycle``
+    (averaged over complete breaths / beats, :mod:`icenav.refinement.cycle_pose`) or
+    ``average`` (``em_average_saved`` consecutive samples, at any respiratory phase)."""
+    cycle_window_s: float | None = None
+    """Window of the cycle-averaged estimates (s); None: 9 s with breathing, 3 s without."""
+    cycle_rate_hz: float = 10.0
+    """EM (and truth) samples per second of the cycle-averaged estimates (Hz)."""
+    cycle_pose_stage: PoseStageConfig = field(default_factory=lambda: CYCLE_POSE_STAGE)
+    """Pose stage settings with the cycle-averaged estimator (its hold is set to the
+    window): few, deliberate corrections."""
+    image_stage: bool = False
+    """On a disturbed twin, run the image stage after the EM stage too (it always runs when
+    there is no EM stage, ``--no-em``, and on today's twin); off by default: under the
+    disturbances its many small moves added error."""
+    refine_strategy: str = "pose_stage"
+    """EM stage on a disturbed twin: ``pose_stage`` (corrective steps,
+    :data:`CYCLE_POSE_STAGE`) or ``retry`` (measured re-approach,
+    :mod:`icenav.refinement.retry`)."""
+    retry: RetryConfig = field(default_factory=RetryConfig)
+    """Settings of the ``retry`` strategy."""
+    force_check: bool = True
+    """Returns read the twin's contact force and stop above the operator's + the margin
+    (:mod:`icenav.recovery.force`; a disturbed twin with contact only)."""
+    force_margin_n: float | None = None
+    """Absolute margin of the force check (N); None: ``FORCE_MARGIN_N`` of the condition
+    (:mod:`icenav.eval.recovery_bench`)."""
+    force_margin_fraction: float = DEFAULT_MARGIN_FRACTION
+    """Relative margin of the force check (fraction of the operator's force)."""
 
 
 @dataclass(frozen=True)
@@ -181,6 +243,16 @@ class ReturnSample:
     """Controller time of the image stage (s)."""
     refine_trace: tuple[float, ...] = ()
     """Blurred similarity of each refinement measurement."""
+    static_tip2base: Array = field(default_factory=lambda: np.eye(4))
+    """(4, 4) the true pose averaged over complete breaths / beats after the return (mm)."""
+    pose_stage_undone: bool = False
+    """The pose stage ended worse than it started and went back to the start state."""
+    force_margin_use: float = 0.0
+    """Largest fraction of the force check's margin used along the return (> 1: stopped)."""
+    force_margin_needed_n: float = 0.0
+    """The absolute margin (N) this return needed not to stop (at the relative margin)."""
+    return_stopped: str | None = None
+    """Why the return stopped early (the force check), None when it arrived."""
 
 
 @dataclass(frozen=True)
@@ -205,6 +277,8 @@ class RecoveryRun:
     """Wall time of the run (s)."""
     saved_dct_tip2base: dict[str, Array] = field(default_factory=dict)
     """True pose at each saved view averaged over the DCT window (mm)."""
+    saved_static_tip2base: dict[str, Array] = field(default_factory=dict)
+    """True pose at each saved view averaged over complete breaths / beats (mm)."""
 
 
 def run_recovery(cfg: RecoveryConfig | None = None) -> RecoveryRun:
@@ -216,6 +290,7 @@ def run_recovery(cfg: RecoveryConfig | None = None) -> RecoveryRun:
     saved_pose: dict[str, Array] = {}
     saved_dct: dict[str, Array] = {}
     saved_em: dict[str, Array] = {}
+    saved_static: dict[str, Array] = {}
     saved_clip: dict[str, BeatClip] = {}
     refine_refs: dict[str, list[BeatClip]] = {}
     ceiling: dict[str, tuple[float, float, float]] = {}
@@ -225,9 +300,14 @@ def run_recovery(cfg: RecoveryConfig | None = None) -> RecoveryRun:
         pose = b.true_pose()
         views[name] = b.roadmap.make_view(name, created_s=b.clock.now(), tip2base=pose)
         saved_pose[name] = pose
-        em = b.tracker.measure_tip2base(n_average=cfg.em_average_saved)
+        b.hold_still(b.cycle_window_s)
+        if b.cycle_sensor is not None:
+            em = b.cycle_sensor.measure_tip2base()
+        else:
+            em = b.tracker.measure_tip2base(n_average=cfg.em_average_saved)
         if em is not None:
             saved_em[name] = np.asarray(em, np.float64)
+        saved_static[name] = b.static_pose()
         clips = [b.acquire() for _ in range(cfg.ceiling_beats + 1)]
         saved_clip[name] = clips[0]
         refine_refs[name] = [c.subsampled(cfg.refine_subsample) for c in clips]
@@ -265,6 +345,7 @@ def run_recovery(cfg: RecoveryConfig | None = None) -> RecoveryRun:
                     saved_dct[name],
                     saved_clip[name],
                     ceiling[name],
+                    saved_static[name],
                 )  # fmt: skip
             )
     return RecoveryRun(
@@ -277,6 +358,7 @@ def run_recovery(cfg: RecoveryConfig | None = None) -> RecoveryRun:
         saved_em,
         time.perf_counter() - t_wall,
         saved_dct,
+        saved_static,
     )
 
 
@@ -292,18 +374,46 @@ def _one_return(
     """Return to ``view`` (and refine it in the refined mode); measure the result."""
     name = view.name
     b.go(view)
-    extra: dict[str, Any] = {}
-    if mode == "refined":
+    extra: dict[str, Any] = {
+        "force_margin_use": b.last_force_margin_use,
+        "force_margin_needed_n": b.last_force_margin_needed_n,
+        "return_stopped": b.last_stop,
+    }
+    if mode == "refined" and b.last_stop is None:
         q_centre = np.asarray(view.q, np.float64)
-        if cfg.pose_stage is not None and name in saved_em:
+        cycle = b.cycle_sensor
+        if cfg.refine_strategy == "retry" and cycle is not None and name in saved_em:
+            t0 = b.clock.now()
+
+            def measure() -> Array | None:
+                b.hold_still(b.cycle_window_s + 0.05)
+                return cycle.measure_tip2base()
+
+            rr = retry_return(saved_em[name], measure, lambda: b.go(view), config=cfg.retry)
+            extra.update(
+                pose_stage_tip2base=b.true_pose(),
+                pose_stage_status=f"retry x{rr.moves}",
+                pose_stage_measurements=len(rr.errors_mm),
+                pose_stage_s=b.clock.now() - t0,
+                pose_stage_trace=tuple(zip(rr.position_mm, rr.rotation_deg, strict=True)),
+                pose_stage_undone=rr.ended_worse,
+            )
+        elif cfg.pose_stage is not None and name in saved_em:
+            sensor: Any = b.tracker
+            ps_cfg = cfg.pose_stage
+            if b.cycle_sensor is not None:
+                sensor = b.cycle_sensor
+                ps_cfg = replace(
+                    cfg.cycle_pose_stage, hold_s=b.cycle_window_s + cfg.cycle_pose_stage.settle_s
+                )
             ps = pose_stage(
                 b.robot,
                 view.q,
                 saved_em[name],
-                b.tracker,
+                sensor,
                 arrival_direction=view.arrival_direction,
                 start_direction=tuple(int(d) for d in b.last_direction),
-                config=cfg.pose_stage,
+                config=ps_cfg,
                 dt=DT,
                 sleep=b.clock.advance,
                 on_command=b.record,
@@ -317,31 +427,15 @@ def _one_return(
                 pose_stage_trace=tuple(
                     (m.position_mm, math.degrees(m.rotation_rad)) for m in ps.measurements
                 ),
+                pose_stage_undone=ps.undone,
             )
-        refs = refine_refs[name]
-        imager: Any = b.refine_imager
-        if cfg.image_stage_gated:
-            imager = GatedBeatImager(b.refine_imager, b.respiration, refs[0], cfg.gate_window_beats)
-        res = refine(
-            b.robot,
-            q_centre,
-            refs,
-            imager,
-            arrival_direction=view.arrival_direction,
-            config=cfg.refinement,
-            dt=DT,
-            sleep=b.clock.advance,
-            on_command=b.record,
-        )
-        extra.update(
-            refine_evaluations=len(res.trials),
-            refine_moved=res.n_commands > 0,
-            refine_s=res.duration_s,
-            refine_trace=tuple(t.score for t in res.trials),
-        )
+        if cfg.image_stage or b.cycle_sensor is None or "pose_stage_status" not in extra:
+            extra.update(_image_stage(b, cfg, view, q_centre, refine_refs[name]))
         b.clock.advance(0.2)
+    b.hold_still(b.cycle_window_s)
     em = b.tracker.measure_tip2base(n_average=cfg.em_average)
     true = b.true_pose()
+    static = b.static_pose()
     clip = b.acquire()
     gated = b.acquire_gated(saved_clip[name])
     return ReturnSample(
@@ -354,8 +448,35 @@ def _one_return(
         gated_clip=gated,
         dct_tip2base=b.dct_pose(),
         max_contact_force_n=b.contact_peak(),
+        static_tip2base=static,
         **extra,
     )
+
+
+def _image_stage(
+    b: Bench, cfg: RecoveryConfig, view: View, q_centre: Array, refs: list[BeatClip]
+) -> dict[str, Any]:
+    """The image stage centred at ``q_centre``; what it did."""
+    imager: Any = b.refine_imager
+    if cfg.image_stage_gated:
+        imager = GatedBeatImager(b.refine_imager, b.respiration, refs[0], cfg.gate_window_beats)
+    res = refine(
+        b.robot,
+        q_centre,
+        refs,
+        imager,
+        arrival_direction=view.arrival_direction,
+        config=cfg.refinement,
+        dt=DT,
+        sleep=b.clock.advance,
+        on_command=b.record,
+    )
+    return {
+        "refine_evaluations": len(res.trials),
+        "refine_moved": res.n_commands > 0,
+        "refine_s": res.duration_s,
+        "refine_trace": tuple(t.score for t in res.trials),
+    }
 
 
 # --- CLI ------------------------------------------------------------------------------------
@@ -406,6 +527,9 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--plots", type=Path, help="write recovery_*.png here (first run)")
     p.add_argument("--open-loop-only", action="store_true", help="skip the refined mode (faster)")
     p.add_argument(
+        "--no-em", action="store_true", help="refine from the images alone (no EM pose stage)"
+    )
+    p.add_argument(
         "--quick", action="store_true", help="2 rounds, 6 frames per beat, small budgets (tests)"
     )
     p.add_argument(
@@ -443,9 +567,12 @@ def config_from_args(args: argparse.Namespace, seed: int | None = None,
             wander_moves=3,
             ceiling_beats=1,
             refinement=replace(cfg.refinement, max_evaluations=6),
+            cycle_rate_hz=5.0,
         )
     if args.open_loop_only:
         cfg = replace(cfg, modes=("open_loop",))
+    if args.no_em:
+        cfg = replace(cfg, pose_stage=None)
     return cfg
 
 

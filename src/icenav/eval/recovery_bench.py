@@ -12,23 +12,33 @@ from numpy.typing import NDArray
 from icenav._typing import Array
 from icenav.control.controller import ControllerConfig, PathTask
 from icenav.devices.sim_robot import SimulatedRobot
+from icenav.geometry.se3 import pose_mean
+from icenav.recovery.beats import BeatClip
+from icenav.recovery.force import DEFAULT_MARGIN_N, ForceMap, force_limit
 from icenav.recovery.roadmap import Roadmap
 from icenav.recovery.views import View
+from icenav.refinement.cycle_pose import CycleAveragedPose, complete_cycles
 from icenav.refinement.gating import GatedBeatImager, PhantomRespiration
-from icenav.refinement.image_search import BeatClip, SimClock, SimulatedBeatImager
 from icenav.sim.anatomy import EXAMPLE_VIEWS, default_phantom
+from icenav.sim.beat_imager import SimClock, SimulatedBeatImager
 from icenav.sim.conditions import Twin, build_twin, condition
-from icenav.sim.disturbed import mean_pose
+from icenav.sim.disturbed import TwinForceSensor, mean_pose
 from icenav.sim.operator import ScriptedOperator
 from icenav.sim.plant import CatheterPlant
 from icenav.sim.plugins import make_plant
 from icenav.sim.tracker import EMTracker
 from icenav.sim.ultrasound import ProbeConfig, UltrasoundRenderer
 
-__all__ = ["Bench", "DT", "TwinBeatImager"]
+__all__ = ["Bench", "DT", "FORCE_MARGIN_N", "TwinBeatImager"]
 
 DT = 0.01
 """Control period of the simulated controller (s)."""
+
+FORCE_MARGIN_N = {"phantom": DEFAULT_MARGIN_N, "in-vivo": 0.25}
+"""Absolute margin of the force check per condition (N), at the relative margin of 100 %:
+set on the development catheters and patients (100-104 / 0-4), where no return stopped
+without a patient shift (the phantom needed up to 0.05 N, in vivo up to 0.10 N); too narrow
+for the held-out pairs (``docs/results.md``, Table II)."""
 
 
 class TwinBeatImager(SimulatedBeatImager):
@@ -64,7 +74,7 @@ class TwinBeatImager(SimulatedBeatImager):
         """Frames at ``times`` (s), each at the catheter's true pose then."""
         frames = tuple(
             self.renderer.render(  # type: ignore[attr-defined]
-                self.base2anatomy @ self.twin.plant.pose_at(float(t)), float(t), check=False
+                self.twin.base2anatomy @ self.twin.plant.pose_at(float(t)), float(t), check=False
             )
             for t in times
         )
@@ -112,6 +122,43 @@ class Bench:
             self.refine_imager = TwinBeatImager(twin, self.renderer, self.clock.now, n_ref)
             self.respiration = twin.monitor
             self.views = twin.views
+        self.cycle_window_s = 0.0
+        """Window of the cycle-averaged estimates (s; 0: not used)."""
+        self.cycle_sensor: CycleAveragedPose | None = None
+        """The EM pose cut at complete breaths / beats, Eq. (R1) (None: the plain average)."""
+        if self.twin is not None:
+            breathing = self.twin.breathing
+            self.cycle_window_s = float(
+                cfg.cycle_window_s
+                if cfg.cycle_window_s is not None
+                else (9.0 if breathing is not None else 3.0)
+            )
+            if cfg.em_estimator == "cycle":
+                self.cycle_sensor = CycleAveragedPose(
+                    self.twin.tracker,
+                    breathing,
+                    self.twin.rhythm.phase,
+                    window_s=self.cycle_window_s,
+                    rate_hz=cfg.cycle_rate_hz,
+                )
+        self.forces = ForceMap()
+        """Per roadmap vertex, the contact force of the operator's trace (N)."""
+        self.force_sensor: TwinForceSensor | None = None
+        """The robot's contact-force channel (None on today's twin, or switched off)."""
+        if self.twin is not None and cfg.force_check and self.twin.plant.contact is not None:
+            self.force_sensor = TwinForceSensor(self.twin.plant)
+        self.force_margin_n = float(
+            cfg.force_margin_n
+            if cfg.force_margin_n is not None
+            else FORCE_MARGIN_N.get(cfg.condition, DEFAULT_MARGIN_N)
+        )
+        """Absolute margin of the force check (N)."""
+        self.last_force_margin_use = 0.0
+        """Largest fraction of the force margin the last return used (> 1: stopped)."""
+        self.last_force_margin_needed_n = 0.0
+        """The absolute margin (N) the last return needed not to stop, at the relative one."""
+        self.last_stop: str | None = None
+        """Why the last return stopped (the force check), None if it arrived."""
         self.robot = SimulatedRobot(self.plant, clock=self.clock.now)
         self.robot.enable()
         self.roadmap = Roadmap(epsilon=1.0)
@@ -135,10 +182,13 @@ class Bench:
         return self.imager.beat_duration_s
 
     def drive(self, trace: Array) -> None:
-        """Command an operator trace at the control rate."""
+        """Command an operator trace at the control rate; the contact force read at each
+        recorded state is the operator's (:class:`icenav.recovery.force.ForceMap`)."""
         for q in trace:
             self.robot.command_position(q)
             self.record(q)
+            if self.force_sensor is not None:
+                self.forces.record(self.roadmap.current_vertex, self.force_sensor.contact_force_n())
             self.clock.advance(DT)
 
     def acquire(self) -> BeatClip:
@@ -155,18 +205,56 @@ class Bench:
         return gated.acquire_beat()
 
     def go(self, view: View) -> None:
-        """Return to ``view`` along the roadmap (with the approach), as the controller does."""
+        """Return to ``view`` along the roadmap (with the approach), as the controller does,
+        with the force check when the twin has contact (Eq. F1); a return the check stops
+        is noted (:attr:`last_stop`) and then finished without the check, as an operator
+        who looked would, so the experiment goes on."""
+        check = self.cfg.force_check and self.force_sensor is not None
+        self.last_stop = None
+        self.last_force_margin_needed_n = 0.0
+        self.last_force_margin_use = self._follow(view, check=check)
+        if self.last_stop is not None:
+            self._follow(view, check=False)
+        self.clock.advance(0.2)  # settle
+
+    def _follow(self, view: View, *, check: bool) -> float:
+        """Plan from here to ``view`` and follow the path; the largest fraction of the force
+        margin used (excess over the trace's force / margin; > 1 stops a checked path)."""
         q0 = np.asarray(self.robot.read_state().q, np.float64)
         path = self.roadmap.plan(q0, view, approach=True)
-        task = PathTask(path, np.array(ControllerConfig().max_velocity))
+        profile = None
+        if self.force_sensor is not None:
+            profile = self.forces.profile(self.roadmap, path)
+        cfg = self.cfg
+        margin = self.force_margin_n
+        task = PathTask(
+            path,
+            np.array(ControllerConfig().max_velocity),
+            force_sensor=self.force_sensor if check else None,
+            force_profile=profile if check else None,
+            force_margin_n=margin,
+            force_margin_fraction=float(cfg.force_margin_fraction),
+        )
+        use = 0.0
         while True:
+            if self.force_sensor is not None and profile is not None:
+                f = float(self.force_sensor.contact_force_n() or 0.0)
+                rec, limit = force_limit(
+                    profile, task.path_index, margin, cfg.force_margin_fraction
+                )
+                use = max(use, (f - rec) / (limit - rec) if limit > rec else 0.0)
+                self.last_force_margin_needed_n = max(
+                    self.last_force_margin_needed_n, f - rec * (1.0 + cfg.force_margin_fraction)
+                )
             q = task.next_command(np.asarray(self.robot.read_state().q), DT)
             if q is None:
                 break
             self.robot.command_position(q)
             self.record(q)  # every visited state is recorded (Alg. 1)
             self.clock.advance(DT)
-        self.clock.advance(0.2)  # settle
+        if task.failure is not None:
+            self.last_stop = task.failure
+        return use
 
     def true_pose(self) -> Array:
         """(4, 4) the twin's true tip pose now (mm)."""
@@ -181,6 +269,32 @@ class Bench:
         now = self.clock.now()
         times = np.linspace(now - self.cfg.dct_window_s, now, self.cfg.dct_samples)
         return mean_pose(np.stack([self.twin.plant.pose_at(float(t)) for t in times]))
+
+    def hold_still(self, seconds: float) -> None:
+        """Advance time until the catheter has been still for ``seconds`` (s)."""
+        if self.twin is None:
+            return
+        still = self.clock.now() - self.twin.plant.last_move_s
+        if still < seconds:
+            self.clock.advance(seconds - still)
+
+    def static_pose(self) -> Array:
+        """(4, 4) the twin's true tip pose averaged over the complete breaths (else beats)
+        of the last cycle window (mm), Eq. (R1) on the truth sampled at the estimator's
+        rate: the catheter's pose with the periodic motion averaged out. The catheter must
+        have been still over the window (:meth:`hold_still`); on today's twin the pose now."""
+        if self.twin is None:
+            return self.true_pose()
+        now = self.clock.now()
+        rate = float(self.cfg.cycle_rate_hz)
+        n = max(2, int(round(self.cycle_window_s * rate)))
+        times = now - (n - 1 - np.arange(n)) / rate
+        poses = np.stack([self.twin.plant.pose_at(float(t)) for t in times])
+        br = self.twin.breathing
+        resp = None if br is None else np.asarray(br.signal(times), np.float64)
+        phase = np.array([self.twin.rhythm.phase(float(t)) for t in times])
+        sel, _ = complete_cycles(times, resp, phase)
+        return pose_mean(poses[sel])
 
     def contact_peak(self) -> float:
         """Largest total contact force since the last call (N); 0 on today's twin."""

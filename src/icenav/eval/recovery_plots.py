@@ -10,7 +10,7 @@ import numpy as np
 
 from icenav.eval.metrics import geometric_median_index, match_by_phase
 from icenav.eval.recovery_report import raw_similarity
-from icenav.refinement.image_search import BeatClip
+from icenav.recovery.beats import BeatClip
 
 if TYPE_CHECKING:
     from icenav.eval.recovery import RecoveryRun, ReturnSample

@@ -20,7 +20,7 @@ Spaces (units as the project's: rad, mm, s)
   box stops at its edge (``info["clipped"]``).
 - reward: ``s - 1 - contact_penalty_per_n * F`` (+ ``success_bonus`` on success), with ``s``
   the blurred NCC of the picture with the target frame nearest in cardiac phase, over the
-  sector (:func:`icenav.refinement.image_search.beat_score`, in [-1, 1]) and ``F`` the
+  sector (:func:`icenav.refinement.similarity.beat_score`, in [-1, 1]) and ``F`` the
   contact force of the catheter on the anatomy (N), read as
   ``getattr(plant.state, "contact_force_n", 0.0)``: 0 for a plant without contact, the
   force once the twin models contact. Every step costs, less the closer the view.
@@ -50,7 +50,8 @@ from icenav.gym.population import (
     default_plant_factory,
     sample_patient,
 )
-from icenav.refinement.image_search import BeatClip, beat_score
+from icenav.recovery.beats import BeatClip
+from icenav.refinement.similarity import beat_score
 from icenav.sim.anatomy import EXAMPLE_VIEWS
 from icenav.sim.params import Vessel
 from icenav.sim.ultrasound import Frame, ProbeConfig, UltrasoundRenderer

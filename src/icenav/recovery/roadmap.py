@@ -5,13 +5,8 @@ and is connected to every vertex within ``epsilon``; a return to a saved view is
 A* search over this graph, so the catheter only passes through states the operator has
 already visited. What we add (see ``docs/view-recovery.md``):
 
-* The metric. The paper assumes 1 mm == 1 deg. We map a motor state ``q = (phi1, phi2,
-  phi3, d4)`` (rad, rad, rad, mm) to *metric coordinates* ``x = scale * q`` with
-  ``scale = (kw * 180/pi, kw * 180/pi, rw * 180/pi, tw)`` (a frozen :class:`RoadmapMetric`,
-  all weights 1 by default: one degree of knob, one degree of roll and one millimetre of
-  translation each count as one metric unit) and use the Euclidean distance in ``x``.
-  Roll is a multi-turn motor angle and is not wrapped (360 deg apart is a different motor
-  state: the shaft has wound up).
+* The metric (:mod:`icenav.recovery.metric`): ``x = scale * q``, 1 mm == 1 deg by default,
+  Euclidean in ``x``; roll is a multi-turn motor angle and is not wrapped.
 * Consecutive trace states are always connected (the operator travelled between them, even
   when a fast move jumps more than ``epsilon``).
 * Near-duplicate states (within ``merge_radius``, default ``epsilon / 4``) are merged into
@@ -19,12 +14,9 @@ already visited. What we add (see ``docs/view-recovery.md``):
 * Neighbour search by spatial hashing on a grid of cell size ``4 * epsilon`` (an
   ``epsilon``-ball touches at most 2 cells per axis, about 5 on average in 4-D), not a scan
   of every vertex.
-* Vertices and edges live in numpy arrays grown by doubling; a CSR matrix is built lazily
-  when planning, and the shortest-path tree to each goal (``scipy.sparse.csgraph.dijkstra``
-  from the goal) is cached and, when the graph grows, repaired with the new edges only
-  (adding edges can only shorten distances). A pure-Python A* with the Euclidean
-  heuristic over the same CSR arrays is available (``method="astar"``) and returns paths
-  exactly as short (the heuristic is consistent: edge weights are Euclidean distances).
+* Vertices and edges live in numpy arrays grown by doubling; the planner
+  (:mod:`icenav.recovery.planner`) searches them (cached, incrementally repaired Dijkstra
+  trees, or A*), exactly.
 * A vertex budget (``RoadmapConfig.max_vertices``, default 250,000) bounds memory over a
   long procedure: coarse merging from 80 % of it, no new territory recorded from 90 %
   except the excursions that lead to a saved view or to the start of a return; nothing is
@@ -37,28 +29,35 @@ already visited. What we add (see ``docs/view-recovery.md``):
 from __future__ import annotations
 
 import array
-import atexit
-import heapq
 import itertools
 import math
-import threading
-from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from collections.abc import Callable
 from typing import Any, Literal
 
 import numpy as np
 import scipy.sparse as sp
 from numpy.typing import ArrayLike, NDArray
-from scipy.sparse.csgraph import dijkstra
 
 from icenav._typing import Array
-from icenav._validation import check_joint_state, check_positive
+from icenav._validation import check_joint_state
 from icenav.errors import (
     ConfigurationError,
-    GoalUnreachableError,
     PlanningError,
     RoadmapFullError,
     ShapeError,
+)
+from icenav.recovery.metric import (
+    DirectionTracker,
+    RoadmapConfig,
+    RoadmapMetric,
+    approach_ids,
+    direction_tracker,
+)
+from icenav.recovery.planner import (
+    PreparedTree,
+    ShortestPathTrees,
+    plan_path,
+    warm_up_planner,
 )
 from icenav.recovery.views import View
 
@@ -71,168 +70,11 @@ __all__ = [
     "warm_up_planner",
 ]
 
-_DEG_PER_RAD = 180.0 / math.pi
 _EXCURSION_MAX = 2048
 """Longest excursion trail kept while the vertex budget is closed (states more than
 epsilon apart, so at least 2048 metric units of travel)."""
 
 IntArray = NDArray[np.int64]
-
-
-@dataclass(frozen=True)
-class RoadmapMetric:
-    """How joint motions are weighed: metric units per degree of knob / roll, per mm.
-
-    The distance between two motor states is ``|scale * (q_a - q_b)|`` (Euclidean) with
-    ``scale = (kw*180/pi, kw*180/pi, rw*180/pi, tw)``. The paper's metric (1 mm == 1 deg,
-    for the knobs and, as we read it, for roll too) is the default.
-    """
-
-    knob_weight: float = 1.0
-    """Metric units per degree of either knob (phi1, phi2)."""
-    roll_weight: float = 1.0
-    """Metric units per degree of bulk rotation (phi3)."""
-    translation_weight: float = 1.0
-    """Metric units per millimetre of translation (d4)."""
-
-    def __post_init__(self) -> None:
-        check_positive(self.knob_weight, "knob_weight", "metric units/deg")
-        check_positive(self.roll_weight, "roll_weight", "metric units/deg")
-        check_positive(self.translation_weight, "translation_weight", "metric units/mm")
-
-    @property
-    def scale(self) -> Array:
-        """(4,) metric units per motor unit (per rad, rad, rad, mm)."""
-        kw = self.knob_weight * _DEG_PER_RAD
-        return np.array([kw, kw, self.roll_weight * _DEG_PER_RAD, self.translation_weight])
-
-    def distance(self, q_a: ArrayLike, q_b: ArrayLike) -> Array:
-        """Distance(s) between motor states, shape (...,), in metric units."""
-        d = (np.asarray(q_a, np.float64) - np.asarray(q_b, np.float64)) * self.scale
-        return np.asarray(np.sqrt(np.sum(d * d, axis=-1)))
-
-
-@dataclass(frozen=True)
-class RoadmapConfig:
-    """Settings of a :class:`Roadmap` (all distances in metric units, see RoadmapMetric)."""
-
-    epsilon: float = 1.0
-    """Density parameter of Algorithm 1: vertices closer than this are connected."""
-    merge_radius: float | None = None
-    """A state within this distance of an existing vertex is merged into it (not a new
-    vertex); ``None`` means ``epsilon / 4``. Must be < epsilon."""
-    metric: RoadmapMetric = field(default_factory=RoadmapMetric)
-    """Weights of the joints in the distance."""
-    direction_threshold: float = 2.0
-    """A joint motion larger than this (in that joint's metric units) sets the joint's
-    arrival direction; smaller reversals are ignored (noise, dither). The recorded approach
-    of a view reaches back until each joint moved twice this towards it, so it should be of
-    the order of the transmission's backlash (on the twin's catheter, 2 gave 4-10x smaller
-    return errors than no approach, 5 (with approach_length 40) about 15-100x)."""
-    approach_length: float = 20.0
-    """Longest recorded trace (path length) kept as a view's same-direction approach."""
-    max_vertices: int | None = 250_000
-    """Vertex budget (None: unbounded). From 80 % of it on, a state merges into any vertex
-    within epsilon (coarse merging); from ``max_vertices - view_reserve`` (90 %) on, a
-    state farther than epsilon from every vertex is not recorded (the trace is broken
-    there) until a view is saved out there: then the stretch travelled since the roadmap
-    was left is recorded from the reserve, so the view stays reachable. See
-    ``docs/view-recovery.md`` ("Vertex budget")."""
-    tree_cache: int = 8
-    """Shortest-path trees kept (least recently used dropped), each 12 bytes a vertex."""
-
-    def __post_init__(self) -> None:
-        eps = check_positive(self.epsilon, "epsilon", "metric units (1 mm == 1 deg)")
-        if self.max_vertices is not None and (
-            isinstance(self.max_vertices, bool)
-            or not isinstance(self.max_vertices, int | np.integer)
-            or self.max_vertices < 1000
-        ):
-            raise ConfigurationError(
-                f"max_vertices must be None or an integer >= 1000 vertices, got "
-                f"{self.max_vertices!r}"
-            )
-        if (
-            isinstance(self.tree_cache, bool)
-            or not isinstance(self.tree_cache, int | np.integer)
-            or not 1 <= self.tree_cache <= 1024
-        ):
-            raise ConfigurationError(
-                f"tree_cache must be an integer in [1, 1024] trees, got {self.tree_cache!r}"
-            )
-        if self.merge_radius is not None:
-            r = check_positive(self.merge_radius, "merge_radius", "metric units")
-            if r >= eps:
-                raise ConfigurationError(
-                    f"merge_radius must be < epsilon = {eps} metric units, got {r}"
-                )
-        check_positive(self.direction_threshold, "direction_threshold", "metric units")
-        check_positive(self.approach_length, "approach_length", "metric units")
-
-    @property
-    def resolution(self) -> float:
-        """The merge radius in use (metric units)."""
-        return self.epsilon / 4.0 if self.merge_radius is None else float(self.merge_radius)
-
-    @property
-    def view_reserve(self) -> int:
-        """Vertex slots kept for views (and the excursion trails that lead to them) at the
-        end of the budget (10 %, at least 64)."""
-        if self.max_vertices is None:
-            return 0
-        return max(64, int(self.max_vertices) // 10)
-
-
-def direction_tracker(
-    path: ArrayLike, threshold: ArrayLike, initial: Sequence[int] = (0, 0, 0, 0)
-) -> tuple[int, int, int, int]:
-    """Arrival direction of each joint after moving along ``path``.
-
-    Parameters
-    ----------
-    path : array-like, shape (n, 4)
-        Motor states (rad, rad, rad, mm), in order.
-    threshold : array-like, shape (4,)
-        Per joint, the smallest reversal (motor units) that changes the direction.
-    initial : 4 ints in (-1, 0, 1)
-        Direction before the path.
-
-    Returns
-    -------
-    direction : tuple of 4 ints in (-1, 0, 1)
-        Sign of the last significant motion of each joint.
-    """
-    p = np.asarray(path, np.float64)
-    thr = np.asarray(threshold, np.float64)
-    tracker = _DirectionTracker(thr, p[0], initial)
-    for q in p[1:]:
-        tracker.update(q)
-    return tracker.direction
-
-
-class _DirectionTracker:
-    """Per joint: sign of the last motion exceeding a threshold (a backlash-side tracker)."""
-
-    def __init__(self, threshold: Array, q0: Array, initial: Sequence[int] = (0, 0, 0, 0)):
-        self.threshold = [float(t) for t in threshold]
-        self.anchor = [float(v) for v in q0]
-        self.dirs = [int(d) for d in initial]
-
-    def update(self, q: Array | list[float]) -> None:
-        for j in range(4):
-            v = float(q[j])
-            delta = v - self.anchor[j]
-            d = self.dirs[j]
-            if d != 0 and delta * d >= 0.0:
-                self.anchor[j] = v  # still moving (or resting) the same way
-            elif abs(delta) > self.threshold[j]:
-                self.dirs[j] = 1 if delta > 0 else -1
-                self.anchor[j] = v
-
-    @property
-    def direction(self) -> tuple[int, int, int, int]:
-        d = self.dirs
-        return (d[0], d[1], d[2], d[3])
 
 
 class Roadmap:
@@ -275,16 +117,10 @@ class Roadmap:
         self._current = -1
         self._cur_x: list[float] = []  # metric coordinates of the current vertex
         self._prev_list: list[float] | None = None
-        self._tracker: _DirectionTracker | None = None
+        self._tracker: DirectionTracker | None = None
         self._thr = cfg.direction_threshold / self._scale
         self._version = 0
-        self._csr: sp.csr_matrix | None = None  # edges (u, v) as stored: one direction
-        self._csr_t: sp.csr_matrix | None = None  # its transpose (the other direction)
-        self._csr_version = -1
-        self._csr_m = 0  # edges [0, _csr_m) are in the CSR
-        self._delta: sp.csr_matrix | None = None  # symmetric CSR of edges [_csr_m, m)
-        self._delta_key = (-1, -1, -1)  # (_csr_m, m, n) the delta was built for
-        self._trees: dict[int, _Tree] = {}  # least recently used first
+        self._planner = ShortestPathTrees(self, cfg.tree_cache)
         # the vertex budget (see RoadmapConfig.max_vertices)
         big = np.iinfo(np.int64).max
         mv = cfg.max_vertices
@@ -395,6 +231,24 @@ class Roadmap:
         uv = np.stack([eu[start:m], ev[start:m]], axis=1).astype(np.int64)
         return uv, ew[start:m].copy()
 
+    def edge_views(
+        self, start: int = 0, stop: int | None = None
+    ) -> tuple[NDArray[np.int32], NDArray[np.int32], Array]:
+        """Edges ``start..stop-1`` (default: to the end) as read-only views, no copy: (k,)
+        vertex ids u, (k,) ids v, (k,) lengths (metric units). Safe from another thread
+        as :meth:`vertices` is (the planner snapshots the graph with it)."""
+        m = self._m if stop is None else stop
+        out = (self._eu[start:m], self._ev[start:m], self._ew[start:m])
+        for a in out:
+            a.flags.writeable = False
+        return out
+
+    def metric_vertices(self, start: int = 0, stop: int | None = None) -> Array:
+        """(k, 4) metric coordinates of vertices ``start..stop-1`` (read-only view)."""
+        x = self._x[start : self._n if stop is None else stop]
+        x.flags.writeable = False
+        return x
+
     def trace(self, start: int = 0, stop: int | None = None) -> IntArray:
         """Vertex ids visited in order (consecutive duplicates removed), ``start..stop-1``
         (default: to the end). Safe from another thread as :meth:`vertices` is."""
@@ -444,7 +298,7 @@ class Roadmap:
         if not force_vertex and ql == self._prev_list:
             return self._current  # Algorithm 1, line 6: q_before == q_n
         if self._tracker is None:
-            self._tracker = _DirectionTracker(self._thr, np.array(ql))
+            self._tracker = DirectionTracker(self._thr, np.array(ql))
         else:
             self._tracker.update(ql)
         self._prev_list = ql
@@ -770,173 +624,24 @@ class Roadmap:
         )
 
     def _approach_ids(self, vid: int) -> list[int]:
-        """Recorded trace vertices that led to ``vid`` (oldest first, ending at vid).
-
-        Walks back along the trace until every joint with an arrival direction has moved at
-        least twice the direction threshold towards the view, or until ``approach_length``.
-        """
+        """Recorded trace vertices that led to ``vid`` (oldest first, ending at vid)."""
         if self._t == 0 or self._trace[self._t - 1] != vid:
             return [vid]
-        direction = np.array(self.arrival_direction, np.float64)
-        need = direction != 0
-        q_view = self._q[vid]
-        ids = [vid]
-        length = 0.0
-        reached = np.zeros(4, bool)
-        limit = self._config.approach_length
-        for k in range(self._t - 2, -1, -1):
-            if not np.any(need & ~reached):
-                break
-            u = int(self._trace[k])
-            step = float(np.sqrt(np.sum((self._x[u] - self._x[ids[-1]]) ** 2)))
-            if length + step > limit:
-                break
-            if step > self._eps and (min(u, ids[-1]), max(u, ids[-1])) not in self._long_edges:
-                break  # the trace broke here (restart, unrecorded stretch): not travelled
-            length += step
-            ids.append(u)
-            reached |= (q_view - self._q[u]) * direction >= 2.0 * self._thr
-        ids.reverse()
-        return ids
+        return approach_ids(
+            self._trace[: self._t], self._q, self._x, self.arrival_direction, self._thr,
+            self._config.approach_length, self._eps, self._long_edges,
+        )  # fmt: skip
 
-    # --- planning ---------------------------------------------------------------------------
-
-    def _half(self) -> sp.csr_matrix:
-        """The (n, n) CSR of the edges in one direction (as stored), rebuilt when the graph
-        changed; ``scipy.sparse.csgraph`` treats it as undirected (``directed=False``).
-        Building it is linear (the edge arrays are nearly sorted by construction)."""
-        if self._csr is None or self._csr_version != self._version:
-            n, m = self._n, self._m
-            u, v, w = self._eu[:m], self._ev[:m], self._ew[:m]
-            self._csr = sp.coo_matrix((w, (u, v)), shape=(n, n)).tocsr()
-            self._csr_t = None
-            self._csr_version = self._version
-            self._csr_m = m
-            self._delta = None
-        return self._csr
-
-    def _both_halves(self) -> tuple[sp.csr_matrix, sp.csr_matrix]:
-        """The last built half CSR and its transpose (possibly older than the graph: the
-        edges added since are in the delta adjacency)."""
-        half = self._csr if self._csr is not None else self._half()
-        if self._csr_t is None:
-            self._csr_t = half.T.tocsr()
-        return half, self._csr_t
+    # --- planning (icenav.recovery.planner) ------------------------------------------------
 
     def csr(self) -> sp.csr_matrix:
         """The (n, n) symmetric adjacency matrix (edge lengths, metric units)."""
-        half = self._half()
-        return (half + half.T).tocsr()
+        return self._planner.csr()
 
-    def _adjacency_delta(self) -> sp.csr_matrix:
-        """Symmetric (n, n) CSR of the edges added since the CSR was built (numpy arrays,
-        not Python objects: it may hold as many edges as the CSR itself)."""
-        key = (self._csr_m, self._m, self._n)
-        if self._delta is None or self._delta_key != key:
-            lo, m, n = key
-            u, v, w = self._eu[lo:m], self._ev[lo:m], self._ew[lo:m]
-            self._delta = sp.coo_matrix(
-                (np.concatenate([w, w]), (np.concatenate([u, v]), np.concatenate([v, u]))),
-                shape=(n, n),
-            ).tocsr()
-            self._delta_key = key
-        return self._delta
-
-    def _tree(self, goal: int) -> tuple[Array, NDArray[np.int32]]:
-        """Shortest-path tree to ``goal``: (n,) distances and (n,) predecessors (-9999 at
-        the goal and at unreachable vertices).
-
-        The first request runs scipy's Dijkstra from the goal on the CSR; later requests
-        repair the cached tree with the edges added since (distances can only decrease when
-        edges are added: relax the new edges, then propagate the decreases Dijkstra-style),
-        which costs time proportional to the change, not to the graph.
-        """
-        tree = self._trees.pop(goal, None)
-        if tree is None:
-            dist, pred = dijkstra(
-                self._half(), directed=False, indices=goal, return_predecessors=True
-            )
-            tree = _Tree(m=self._m, dist=dist, pred=pred.astype(np.int32))
-            self._cache_tree(goal, tree)
-            return tree.dist, tree.pred
-        self._cache_tree(goal, tree)  # now the most recently used
-        if tree.m < self._m or len(tree.dist) < self._n:
-            self._repair(tree)
-        return tree.dist, tree.pred
-
-    def _cache_tree(self, goal: int, tree: _Tree) -> None:
-        """Keep ``tree`` as the most recently used; drop the least recently used beyond
-        ``config.tree_cache`` (each tree holds 12 bytes a vertex)."""
-        self._trees.pop(goal, None)
-        self._trees[goal] = tree
-        while len(self._trees) > self._config.tree_cache:
-            self._trees.pop(next(iter(self._trees)))
-
-    def _repair(self, tree: _Tree) -> None:
-        n, m = self._n, self._m
-        if len(tree.dist) < n:
-            k = len(tree.dist)
-            tree.dist = np.concatenate([tree.dist, np.full(n - k, np.inf)])
-            tree.pred = np.concatenate([tree.pred, np.full(n - k, -9999, np.int32)])
-        dist, pred = tree.dist, tree.pred
-        heap: list[tuple[float, int]] = []
-        lo = tree.m
-        for a, b, w in zip(
-            self._eu[lo:m].tolist(),
-            self._ev[lo:m].tolist(),
-            self._ew[lo:m].tolist(),
-            strict=True,
-        ):
-            da, db = float(dist[a]), float(dist[b])
-            if da + w < db:
-                dist[b] = da + w
-                pred[b] = a
-                heapq.heappush(heap, (da + w, b))
-            elif db + w < da:
-                dist[a] = db + w
-                pred[a] = b
-                heapq.heappush(heap, (db + w, a))
-        if heap:
-            if self._csr is None or m - self._csr_m > max(100_000, self._csr_m):
-                self._half()  # fold a large delta into the CSR (amortised O(1) per edge)
-            neighbours = self._neighbour_function()
-            while heap:
-                d, u = heapq.heappop(heap)
-                if d > dist[u]:
-                    continue
-                for v, w in neighbours(u):
-                    dv = d + w
-                    if dv < dist[v]:
-                        dist[v] = dv
-                        pred[v] = u
-                        heapq.heappush(heap, (dv, v))
-        tree.m = m
-
-    def _neighbour_function(self) -> Callable[[int], list[tuple[int, float]]]:
-        """u -> [(v, w), ...] over the whole current graph: the last built CSR halves plus
-        the edges added since."""
-        half, other = self._both_halves()
-        n_csr = half.shape[0]
-        p1, i1, d1 = half.indptr, half.indices, half.data
-        p2, i2, d2 = other.indptr, other.indices, other.data
-        delta = self._adjacency_delta()
-        p3, i3, d3 = delta.indptr, delta.indices, delta.data
-        n_delta = delta.shape[0] if delta.nnz else 0
-
-        def neighbours(u: int) -> list[tuple[int, float]]:
-            out: list[tuple[int, float]] = []
-            if u < n_csr:
-                a, b = int(p1[u]), int(p1[u + 1])
-                out.extend(zip(i1[a:b].tolist(), d1[a:b].tolist(), strict=True))
-                a, b = int(p2[u]), int(p2[u + 1])
-                out.extend(zip(i2[a:b].tolist(), d2[a:b].tolist(), strict=True))
-            if u < n_delta:
-                a, b = int(p3[u]), int(p3[u + 1])
-                if b > a:
-                    out.extend(zip(i3[a:b].tolist(), d3[a:b].tolist(), strict=True))
-            return out
-
-        return neighbours
+    @property
+    def cached_tree_goals(self) -> list[int]:
+        """Goal vertices with a cached shortest-path tree, least recently used first."""
+        return self._planner.cached_goals
 
     def prepare(self, goal: View | int, *, approach: bool = False) -> None:
         """Compute (or repair) the shortest-path tree to ``goal`` now, so that the next
@@ -946,7 +651,7 @@ class Roadmap:
         gv = self._search_goal(goal, approach)
         if not 0 <= gv < self._n:
             raise PlanningError(f"goal vertex {gv} is not in the roadmap (0..{self._n - 1})")
-        self._tree(gv)
+        self._planner.tree(gv)
 
     def break_trace(self) -> None:
         """The next state was not reached from the last one (a restart, a re-homed or moved
@@ -968,42 +673,18 @@ class Roadmap:
 
     def tree_job(
         self, goal: View | int, *, approach: bool = False, isolate: bool = False
-    ) -> Callable[[], _PreparedTree]:
+    ) -> Callable[[], PreparedTree]:
         """Snapshot the graph now and return a job that computes the shortest-path tree to
         ``goal`` from the snapshot, safe to run in another thread while :meth:`add` goes on;
         hand its result to :meth:`install_tree` (in the thread that owns the roadmap).
-
-        The snapshot is free (views of the append-only edge arrays: entries below the
-        current edge count are never written again); the job builds the CSR and runs the
-        Dijkstra (about half a second at 1e6 vertices). ``approach`` as in :meth:`plan`:
-        with True, the tree is the one a plan with ``approach=True`` searches (to the start
-        of the view's recorded approach).
-
-        ``isolate=True`` runs the Dijkstra in a worker process (one, started at the first
-        use): scipy's ``dijkstra`` holds the GIL for its whole run, so in a thread it stalls
-        every other thread of the process, the control loop included (measured: a 0.5 s
-        stall at 3e5 vertices). The job thread only waits for the answer. If the worker
-        cannot be used, the job falls back to the Dijkstra in its own thread.
-        """
+        ``approach`` as in :meth:`plan`; ``isolate``: in the worker process (see
+        :meth:`icenav.recovery.planner.ShortestPathTrees.tree_job`)."""
         gv = self._search_goal(goal, approach)
         if not 0 <= gv < self._n:
             raise PlanningError(f"goal vertex {gv} is not in the roadmap (0..{self._n - 1})")
-        n, m = self._n, self._m
-        u, v, w = self._eu[:m], self._ev[:m], self._ew[:m]
+        return self._planner.tree_job(gv, isolate=isolate)
 
-        def job() -> _PreparedTree:
-            half = sp.coo_matrix((w, (u, v)), shape=(n, n)).tocsr()
-            dist_pred: tuple[Array, NDArray[np.int32]] | None = None
-            if isolate:
-                dist_pred = _dijkstra_isolated(half, gv)
-            if dist_pred is None:
-                dist_pred = _dijkstra_tree(half.indptr, half.indices, half.data, n, gv)
-            tree = _Tree(m=m, dist=dist_pred[0], pred=dist_pred[1])
-            return _PreparedTree(goal=gv, tree=tree, half=half, half_t=half.T.tocsr())
-
-        return job
-
-    def install_tree(self, goal: View | int, prepared: _PreparedTree) -> None:
+    def install_tree(self, goal: View | int, prepared: PreparedTree) -> None:
         """Cache a tree from :meth:`tree_job` (repaired for later edges at the next plan),
         and its CSR when it is newer than the roadmap's own; a cached tree that already
         covers more edges is kept."""
@@ -1013,30 +694,14 @@ class Roadmap:
             raise PlanningError(
                 f"the prepared tree is for vertex {gv}, not {' or '.join(map(str, allowed))}"
             )
-        tree = prepared.tree
-        old = self._trees.get(gv)
-        self._cache_tree(gv, tree if old is None or old.m < tree.m else old)
-        if self._csr is None or self._csr_m < tree.m:
-            self._csr = prepared.half
-            self._csr_t = prepared.half_t
-            self._csr_m = tree.m
-            self._csr_version = -1  # older than the graph: _half() rebuilds when asked
-            self._delta = None
+        self._planner.install(prepared)
 
     def shortest_path_ids(
         self, start: int, goal: int, method: Literal["tree", "astar"] = "tree"
     ) -> IntArray:
-        """Vertex ids of a shortest path from vertex ``start`` to vertex ``goal``.
-
-        ``method="tree"``: Dijkstra from the goal (scipy), cached per goal and repaired
-        incrementally as the graph grows; ``"astar"``: A* with the Euclidean heuristic.
-        Both are exact.
-
-        Raises
-        ------
-        GoalUnreachableError
-            The goal is not connected to the start.
-        """
+        """Vertex ids of a shortest path from vertex ``start`` to vertex ``goal``, exact:
+        ``method="tree"`` (cached, repaired Dijkstra tree) or ``"astar"``;
+        GoalUnreachableError when they are not connected (:mod:`icenav.recovery.planner`)."""
         n = self._n
         for name, v in (("start", start), ("goal", goal)):
             if not 0 <= v < n:
@@ -1044,58 +709,10 @@ class Roadmap:
         if start == goal:
             return np.array([start], np.int64)
         if method == "astar":
-            return self._astar(start, goal)
+            return self._planner.path_by_astar(start, goal)
         if method != "tree":
             raise ConfigurationError(f"method must be 'tree' or 'astar', got {method!r}")
-        dist, pred = self._tree(goal)
-        if not np.isfinite(dist[start]):
-            raise GoalUnreachableError(
-                f"goal vertex {goal} is not connected to start vertex {start} in the roadmap"
-            )
-        path = [start]
-        v = start
-        while v != goal:
-            v = int(pred[v])
-            path.append(v)
-        return np.array(path, np.int64)
-
-    def _astar(self, start: int, goal: int) -> IntArray:
-        neighbours = self._neighbour_function()
-        x = self._x
-        xg = x[goal]
-        h_all: dict[int, float] = {}
-
-        def h(v: int) -> float:
-            hv = h_all.get(v)
-            if hv is None:
-                d = x[v] - xg
-                hv = float(np.sqrt(d @ d))
-                h_all[v] = hv
-            return hv
-
-        best = {start: 0.0}
-        parent = {start: -1}
-        closed: set[int] = set()
-        heap = [(h(start), 0.0, start)]
-        while heap:
-            _, gu, u = heapq.heappop(heap)
-            if u in closed:
-                continue
-            if u == goal:
-                path = [u]
-                while parent[path[-1]] >= 0:
-                    path.append(parent[path[-1]])
-                return np.array(path[::-1], np.int64)
-            closed.add(u)
-            for v, w in neighbours(u):
-                gv = gu + w
-                if gv < best.get(v, math.inf):
-                    best[v] = gv
-                    parent[v] = u
-                    heapq.heappush(heap, (gv + h(v), gv, v))
-        raise GoalUnreachableError(
-            f"goal vertex {goal} is not connected to start vertex {start} in the roadmap"
-        )
+        return self._planner.path_by_tree(start, goal)
 
     def plan(
         self,
@@ -1105,69 +722,10 @@ class Roadmap:
         approach: bool = False,
         method: Literal["tree", "astar"] = "tree",
     ) -> Array:
-        """Plan a return from the current state to a view (or a recorded state).
-
-        Parameters
-        ----------
-        start : array-like, shape (4,)
-            Current motor state (rad, rad, rad, mm); snapped to its nearest vertex, which
-            must lie within epsilon.
-        goal : View, int or array-like (4,)
-            A saved view, a vertex id, or a recorded motor state.
-        approach : bool
-            End with the view's recorded approach (the trace that led to it), so every
-            joint arrives from the same side as when the view was saved.
-        method : "tree" or "astar"
-            Exact shortest path by cached Dijkstra tree or by A*.
-
-        Returns
-        -------
-        path : ndarray, shape (n, 4)
-            Motor states: ``path[0]`` is ``start``, ``path[-1]`` is exactly the goal state;
-            each step is at most epsilon or an edge the operator travelled.
-
-        Raises
-        ------
-        PlanningError
-            Empty roadmap, start farther than epsilon from the roadmap, goal not recorded.
-        GoalUnreachableError
-            The goal is not connected to the start.
-        """
-        q_start = check_joint_state(start, name="start")
-        if q_start.shape != (4,):
-            raise PlanningError(f"start must have shape (4,), got {q_start.shape}")
-        s, d_s = self.nearest(q_start)
-        if d_s > self._eps:
-            raise PlanningError(
-                f"start state is {d_s:.3g} metric units from the nearest recorded state, more "
-                f"than epsilon = {self._eps:g} (1 mm == 1 deg): record it first"
-            )
-        tail: list[int] = []
-        if isinstance(goal, View):
-            gv = goal.vertex
-            if gv >= self._n or not np.array_equal(self._q[gv], goal.q):
-                raise PlanningError(
-                    f"view {goal.name!r} does not match roadmap vertex {gv}: "
-                    "was it saved on another roadmap?"
-                )
-            if approach and len(goal.approach) >= 2:
-                if max(goal.approach) >= self._n or min(goal.approach) < 0:
-                    raise PlanningError(
-                        f"view {goal.name!r}: its approach refers to vertices not in the roadmap"
-                    )
-                tail = list(goal.approach[1:])
-                gv = goal.approach[0]
-        elif isinstance(goal, (int, np.integer)):
-            gv = int(goal)
-        else:
-            gv = self.vertex_of(goal)
-        ids = self.shortest_path_ids(s, gv, method)
-        if tail:
-            ids = np.concatenate([ids, np.array(tail, np.int64)])
-        path = self._q[ids].copy()
-        if not np.array_equal(path[0], q_start):
-            path = np.vstack([q_start[None, :], path])
-        return path
+        """Plan a return from ``start`` (4,) to a view, a vertex id or a recorded state:
+        (n, 4) motor states from ``start`` to exactly the goal state; see
+        :func:`icenav.recovery.planner.plan_path` (parameters, errors)."""
+        return plan_path(self, start, goal, approach=approach, method=method)
 
     # --- persistence --------------------------------------------------------------------
 
@@ -1220,91 +778,12 @@ class Roadmap:
             rm._current = int(tr[-1])
             rm._prev_list = rm._q[rm._current].tolist()
             rm._cur_x = rm._x[rm._current].tolist()
-            tracker = _DirectionTracker(rm._thr, rm._q[int(tr[0])])
+            tracker = DirectionTracker(rm._thr, rm._q[int(tr[0])])
             for v in tr[1:].tolist():
                 tracker.update(rm._q[v])
             rm._tracker = tracker
         rm._version = 1
         return rm
-
-
-@dataclass
-class _Tree:
-    """A cached shortest-path tree to one goal, valid for edges [0, m)."""
-
-    m: int
-    dist: Array
-    pred: NDArray[np.int32]
-
-
-@dataclass
-class _PreparedTree:
-    """A tree computed off the control thread, with the CSR halves it was computed on."""
-
-    goal: int
-    tree: _Tree
-    half: sp.csr_matrix
-    half_t: sp.csr_matrix
-
-
-def _dijkstra_tree(
-    indptr: NDArray[Any], indices: NDArray[Any], data: Array, n: int, goal: int
-) -> tuple[Array, NDArray[np.int32]]:
-    """Shortest-path tree to ``goal`` over the undirected graph of a half CSR (the worker
-    process runs this too, so it takes plain arrays)."""
-    half = sp.csr_matrix((data, indices, indptr), shape=(n, n))
-    dist, pred = dijkstra(half, directed=False, indices=goal, return_predecessors=True)
-    return np.asarray(dist, np.float64), pred.astype(np.int32)
-
-
-_WORKER: Any = None  # the planning worker process (concurrent.futures), started lazily
-_WORKER_LOCK = threading.Lock()
-
-
-def _dijkstra_isolated(half: sp.csr_matrix, goal: int) -> tuple[Array, NDArray[np.int32]] | None:
-    """:func:`_dijkstra_tree` in the worker process; None when the worker fails (broken,
-    killed, cannot start): the caller then runs it in its own thread."""
-    global _WORKER
-    import concurrent.futures
-    import multiprocessing
-
-    try:
-        with _WORKER_LOCK:
-            if _WORKER is None:
-                _WORKER = concurrent.futures.ProcessPoolExecutor(
-                    max_workers=1, mp_context=multiprocessing.get_context("spawn")
-                )
-                atexit.register(_stop_worker)  # before the interpreter tears modules down
-            worker = _WORKER
-        future = worker.submit(
-            _dijkstra_tree, half.indptr, half.indices, half.data, half.shape[0], goal
-        )
-        result: tuple[Array, NDArray[np.int32]] = future.result()
-        return result
-    except Exception:  # noqa: BLE001 - BrokenProcessPool, OSError, pickling: fall back
-        with _WORKER_LOCK:
-            if _WORKER is not None:
-                _WORKER.shutdown(wait=False, cancel_futures=True)
-            _WORKER = None
-        return None
-
-
-def warm_up_planner() -> bool:
-    """Start the planning worker process now and wait until it has run a (trivial) search:
-    spawning it imports numpy and scipy, 1-3 s on a busy machine, which would otherwise
-    delay the first background plan. True when the worker runs (False: plans will run in
-    threads)."""
-    empty = sp.csr_matrix((1, 1), dtype=np.float64)
-    return _dijkstra_isolated(empty, 0) is not None
-
-
-def _stop_worker() -> None:
-    """Shut the planning worker process down (at exit)."""
-    global _WORKER
-    with _WORKER_LOCK:
-        worker, _WORKER = _WORKER, None
-    if worker is not None:
-        worker.shutdown(wait=True, cancel_futures=True)
 
 
 def _grow(a: NDArray[Any], size: int | None = None) -> NDArray[Any]:

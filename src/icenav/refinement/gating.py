@@ -6,16 +6,38 @@ state, so that a returned view is compared with the saved one as consecutive bea
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from typing import Protocol
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from icenav.errors import ConfigurationError
-from icenav.eval.metrics import match_by_phase
-from icenav.refinement.image_search import BeatClip, SimulatedBeatImager
+from icenav.recovery.beats import BeatClip
+from icenav.refinement.similarity import match_by_phase
 
-__all__ = ["GatedBeatImager", "PhantomRespiration", "RespiratoryMonitor"]
+__all__ = ["GatedBeatImager", "PhantomRespiration", "RespiratoryMonitor", "TimedBeatImager"]
+
+
+class TimedBeatImager(Protocol):
+    """An ECG-gated imager that can render frames at chosen past times (a cine loop kept by
+    the scanner): the twin's :class:`icenav.sim.beat_imager.SimulatedBeatImager`."""
+
+    @property
+    def beat_duration_s(self) -> float:
+        """One heart beat (s)."""
+        ...
+
+    clock: Callable[[], float]
+    """Current time (s)."""
+
+    def frame_times(self, now: float) -> NDArray[np.float64]:
+        """(n,) times (s) of one ECG-gated beat ending at ``now``, frame k at phase k / n."""
+        ...
+
+    def clip_at_times(self, times: NDArray[np.float64]) -> BeatClip:
+        """Frames at ``times`` (s) from the current pose, in the order given."""
+        ...
 
 
 class RespiratoryMonitor(Protocol):
@@ -59,17 +81,17 @@ class GatedBeatImager:
 
     The catheter is held still for ``window_beats`` heart beats. For each cardiac phase
     ``k / n`` there is one frame per beat of that window (retrospective ECG gating, as
-    :class:`SimulatedBeatImager`); of these, the one whose respiratory signal is nearest to
-    the reference beat's at the same cardiac phase is kept (retrospective respiratory
-    gating, as clinical 4-D imaging bins frames by respiration). The result is one beat
-    whose frames match the reference in cardiac phase *and* respiratory state. With
-    ``window_beats`` about one breath (5 beats at 72 /min and 4.1 s per breath) the
-    respiratory phase of each kept frame is within about 0.05 breath of the reference's
-    signal value.
+    :class:`icenav.sim.beat_imager.SimulatedBeatImager`); of these, the one whose
+    respiratory signal is nearest to the reference beat's at the same cardiac phase is kept
+    (retrospective respiratory gating, as clinical 4-D imaging bins frames by respiration).
+    The result is one beat whose frames match the reference in cardiac phase *and*
+    respiratory state. With ``window_beats`` about one breath (5 beats at 72 /min and 4.1 s
+    per breath) the respiratory phase of each kept frame is within about 0.05 breath of the
+    reference's signal value.
 
     Parameters
     ----------
-    imager : SimulatedBeatImager
+    imager : TimedBeatImager
         Renders the kept frames (at the plant's true pose).
     monitor : RespiratoryMonitor
         The respiratory signal.
@@ -81,7 +103,7 @@ class GatedBeatImager:
 
     def __init__(
         self,
-        imager: SimulatedBeatImager,
+        imager: TimedBeatImager,
         monitor: RespiratoryMonitor,
         reference: BeatClip,
         window_beats: int = 5,

@@ -34,7 +34,7 @@ Safety
   as when the view was saved (the plant is history dependent).
 * Bounded time and evaluations; abortable between any two control cycles.
 
-Image similarity: blurred, down-sampled NCC (:func:`icenav.eval.metrics.blurred_ncc`'s
+Image similarity: blurred, down-sampled NCC (:func:`icenav.refinement.similarity.blurred_ncc`'s
 recipe, reference frames blurred once), averaged over the reference beat with frames
 matched by cardiac phase; it varies smoothly with pose where raw speckle NCC does not. With
 several saved beats the score is the best match over them, which makes it nearly
@@ -49,8 +49,8 @@ moves irreversible, hence the gate in step 1.
 
 Two ways to run it: :class:`RefinementTask` (an ``AutomaticTask`` for the controller, one
 set-point per cycle) and :func:`refine` (blocking; drives a ``RobotBackend`` with the same
-task). Images come from a :class:`BeatImager`; :class:`SimulatedBeatImager` renders them on
-the digital twin.
+task). Images come from a :class:`~icenav.recovery.beats.BeatImager`;
+:class:`icenav.sim.beat_imager.SimulatedBeatImager` renders them on the digital twin.
 
 The EM pose stage that runs before the image search is :mod:`icenav.refinement.pose_stage`, the
 respiratory gating of beats :mod:`icenav.refinement.gating`, and both stages as one controller task
@@ -63,17 +63,17 @@ import enum
 import math
 from collections.abc import Callable, Generator, Sequence
 from dataclasses import dataclass, field
-from typing import Any, Protocol
+from typing import Protocol
 
 import numpy as np
-import scipy.ndimage as ndi
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import ArrayLike
 
 from icenav._typing import Array
-from icenav._validation import check_finite, check_joint_state, check_positive
+from icenav._validation import check_joint_state, check_positive
 from icenav.devices.robot import RobotBackend
 from icenav.errors import ConfigurationError, NeighbourhoodError, ShapeError
-from icenav.eval.metrics import match_by_phase
+from icenav.recovery.beats import BeatClip, BeatImager
+from icenav.refinement.similarity import beat_score, blur_frames, match_by_phase, ncc_rows
 
 __all__ = [
     "BeatClip",
@@ -83,8 +83,6 @@ __all__ = [
     "RefinementResult",
     "RefinementStatus",
     "RefinementTask",
-    "SimClock",
-    "SimulatedBeatImager",
     "TrialRecord",
     "beat_score",
     "drive_task",
@@ -92,224 +90,6 @@ __all__ = [
 ]
 
 _DEG = math.pi / 180.0
-
-
-@dataclass(frozen=True)
-class BeatClip:
-    """One heart beat of ultrasound images from a still catheter."""
-
-    images: NDArray[np.float64]
-    """(n, H, W) grey images (any scale; NCC is scale free)."""
-    phases: NDArray[np.float64]
-    """(n,) cardiac phase of each frame (fraction of the beat, 0 = R wave)."""
-    mask: NDArray[np.bool_] | None = None
-    """(H, W) pixels inside the imaging sector, or None for all pixels."""
-    t0: float = 0.0
-    """Acquisition time of the first frame (s)."""
-    frames: tuple[object, ...] = ()
-    """The source frames with their ground truth (e.g. ``icenav.sim.ultrasound.Frame``),
-    when the imager keeps them (evaluation only)."""
-    times: NDArray[np.float64] | None = None
-    """(n,) acquisition time of each frame (s), if known (needed for respiratory gating)."""
-
-    def __post_init__(self) -> None:
-        img = np.asarray(self.images, dtype=np.float64)
-        ph = check_finite(self.phases, "phases").ravel()
-        if img.ndim != 3 or img.shape[0] < 1:
-            raise ShapeError(f"images must have shape (n >= 1, H, W), got {img.shape}")
-        if ph.shape != (img.shape[0],):
-            raise ShapeError(f"{img.shape[0]} images need {img.shape[0]} phases, got {ph.size}")
-        if self.mask is not None:
-            m = np.asarray(self.mask, dtype=bool)
-            if m.shape != img.shape[1:]:
-                raise ShapeError(f"mask shape {m.shape} differs from the images' {img.shape[1:]}")
-            object.__setattr__(self, "mask", m)
-        object.__setattr__(self, "images", img)
-        object.__setattr__(self, "phases", ph)
-        if self.times is not None:
-            tt = check_finite(self.times, "times").ravel()
-            if tt.shape != ph.shape:
-                raise ShapeError(f"{ph.size} frames need {ph.size} times, got {tt.size}")
-            object.__setattr__(self, "times", tt)
-
-    def subsampled(self, k: int) -> BeatClip:
-        """Every ``k``-th frame (k >= 1) of the beat, with its phases, times and frames."""
-        if isinstance(k, bool) or int(k) != k or k < 1:
-            raise ConfigurationError(f"k must be an int >= 1, got {k!r}")
-        return BeatClip(
-            self.images[::k],
-            self.phases[::k],
-            self.mask,
-            self.t0,
-            self.frames[::k],
-            None if self.times is None else self.times[::k],
-        )
-
-
-class BeatImager(Protocol):
-    """Source of live ultrasound beats for the refinement."""
-
-    @property
-    def beat_duration_s(self) -> float:
-        """Length of one heart beat (s): how long the catheter is held still per measure."""
-        ...
-
-    def acquire_beat(self) -> BeatClip:
-        """The heart beat recorded up to now from the current (still) catheter pose."""
-        ...
-
-
-class SimClock:
-    """A settable simulation clock (s): ``now()`` for the backends, ``advance(dt)`` to step."""
-
-    def __init__(self, t0: float = 0.0) -> None:
-        self.t = float(t0)
-
-    def now(self) -> float:
-        """Current time (s)."""
-        return self.t
-
-    def advance(self, dt: float) -> None:
-        """Move time forward by ``dt`` >= 0 s (usable as an injected ``sleep``)."""
-        if not dt >= 0.0:
-            raise ConfigurationError(f"time can only advance: dt must be >= 0 s, got {dt} s")
-        self.t += float(dt)
-
-
-class SimulatedBeatImager:
-    """Renders one beat on the digital twin at the plant's true tip pose.
-
-    Parameters
-    ----------
-    plant : object with ``state.tip2base`` (4, 4)
-        The catheter plant (:class:`icenav.sim.plant.CatheterPlant`).
-    renderer : icenav.sim.ultrasound.UltrasoundRenderer
-        The ICE image renderer (its phantom sets the heart rate).
-    clock : callable returning s
-        Simulation time.
-    frames_per_beat : int
-        Frames rendered per beat.
-    ecg_gated : bool
-        Frames at the phases ``k / frames_per_beat`` within the last beat-long window
-        (retrospective ECG gating); otherwise at ``now - beat + k beat / n``.
-    base2anatomy : (4, 4), optional
-        Registration of the robot base in the anatomy frame (default the phantom's).
-    """
-
-    def __init__(
-        self,
-        plant: object,
-        renderer: object,
-        clock: Callable[[], float],
-        frames_per_beat: int = 10,
-        base2anatomy: ArrayLike | None = None,
-        ecg_gated: bool = True,
-    ) -> None:
-        from icenav.sim.anatomy import BASE2ANATOMY
-
-        if isinstance(frames_per_beat, bool) or int(frames_per_beat) < 2:
-            raise ConfigurationError(f"frames_per_beat must be an int >= 2, got {frames_per_beat}")
-        self.plant = plant
-        self.renderer = renderer
-        self.clock = clock
-        self.frames_per_beat = int(frames_per_beat)
-        self.base2anatomy = np.asarray(
-            BASE2ANATOMY if base2anatomy is None else base2anatomy, dtype=np.float64
-        )
-        self._phantom = renderer.phantom  # type: ignore[attr-defined]
-        self._beat = float(self._phantom.motion.period_s)
-        self.ecg_gated = bool(ecg_gated)
-
-    @property
-    def beat_duration_s(self) -> float:
-        """One heart beat (s)."""
-        return self._beat
-
-    def frame_times(self, now: float) -> NDArray[np.float64]:
-        """Acquisition times (s) of the frames :meth:`acquire_beat` returns at ``now``.
-
-        All lie in the last beat-long window ``[now - beat, now)``, so the whole beat was
-        recorded while the catheter was held still for at least a beat. ECG gated: frame k
-        is the instant of that window at cardiac phase ``k / n`` (retrospective gating, as
-        scanners sort frames by the ECG); otherwise evenly spaced from ``now - beat``.
-        """
-        n = self.frames_per_beat
-        start = now - self._beat
-        k = np.arange(n) / n
-        if not self.ecg_gated:
-            return start + k * self._beat
-        offset = np.mod(k - self._phantom.cardiac_phase(start), 1.0)
-        out: NDArray[np.float64] = start + offset * self._beat
-        return out
-
-    def acquire_beat(self) -> BeatClip:
-        """One beat at the plant's true pose, frames at :meth:`frame_times` (phase order)."""
-        return self.clip_at_times(self.frame_times(float(self.clock())))
-
-    def clip_at_times(self, times: NDArray[np.float64]) -> BeatClip:
-        """Frames at the plant's true pose at ``times`` (s), in the order given."""
-        pose = self.base2anatomy @ np.asarray(self.plant.state.tip2base)  # type: ignore[attr-defined]
-        frames = tuple(
-            self.renderer.render(pose, float(t), check=False)  # type: ignore[attr-defined]
-            for t in times
-        )
-        return self._clip(frames, float(times.min()))
-
-    def clip_at(self, tip2anatomy: ArrayLike, t0: float) -> BeatClip:
-        """One beat from ``tip2anatomy`` (4, 4): frames at ``t0 + k beat / n`` (s)."""
-        n = self.frames_per_beat
-        frames = self.renderer.render_clip(  # type: ignore[attr-defined]
-            tip2anatomy, t0, n, self._beat / n
-        )
-        return self._clip(tuple(frames), t0)
-
-    @staticmethod
-    def _clip(frames: tuple[Any, ...], t0: float) -> BeatClip:
-        images = np.stack([f.image for f in frames]).astype(np.float64)
-        phases = np.array([f.cardiac_phase for f in frames])
-        times = np.array([f.t for f in frames], dtype=np.float64)
-        mask = frames[0].labels >= 0
-        return BeatClip(images, phases, mask, t0, frames, times)
-
-
-def _blur(images: NDArray[np.float64], sigma_px: float, factor: int) -> NDArray[np.float64]:
-    out: NDArray[np.float64] = ndi.gaussian_filter(images, (0.0, sigma_px, sigma_px))[
-        :, ::factor, ::factor
-    ]
-    return out
-
-
-def _ncc_rows(a: NDArray[np.float64], b: NDArray[np.float64]) -> NDArray[np.float64]:
-    """Row-wise zero-mean NCC of (n, p) arrays (0 where a row is constant)."""
-    a = a - a.mean(axis=1, keepdims=True)
-    b = b - b.mean(axis=1, keepdims=True)
-    den = np.sqrt(np.sum(a * a, axis=1) * np.sum(b * b, axis=1))
-    num = np.sum(a * b, axis=1)
-    out: NDArray[np.float64] = np.divide(num, den, out=np.zeros_like(num), where=den > 0)
-    return out
-
-
-def beat_score(
-    clip: BeatClip, reference: BeatClip, *, sigma_px: float = 2.0, factor: int = 2
-) -> float:
-    """Blurred beat similarity in [-1, 1]: each reference frame against the clip frame
-    nearest in cardiac phase, blurred NCC over the reference's sector mask, mean over the
-    reference beat (the same value as ``beat_similarity(..., blurred=True)`` with this
-    blur)."""
-    check_positive(sigma_px, "sigma_px", "px")
-    if clip.images.shape[1:] != reference.images.shape[1:]:
-        raise ShapeError(
-            f"clip images {clip.images.shape[1:]} differ from the reference's "
-            f"{reference.images.shape[1:]}"
-        )
-    idx = match_by_phase(clip.phases, reference.phases)
-    a = _blur(clip.images[idx], sigma_px, factor)
-    b = _blur(reference.images, sigma_px, factor)
-    m = reference.mask
-    if m is not None:
-        ms = m[::factor, ::factor]
-        return float(np.mean(_ncc_rows(a[:, ms], b[:, ms])))
-    return float(np.mean(_ncc_rows(a.reshape(len(a), -1), b.reshape(len(b), -1))))
 
 
 def _four(values: Sequence[float], name: str, unit: str) -> tuple[float, float, float, float]:
@@ -588,7 +368,7 @@ class RefinementTask:
         self.references = refs
         self.imager = imager
         self._abort = abort
-        self._ref_blur = [_blur(r.images, cfg.blur_sigma_px, cfg.blur_factor) for r in refs]
+        self._ref_blur = [blur_frames(r.images, cfg.blur_sigma_px, cfg.blur_factor) for r in refs]
         m = refs[0].mask
         self._mask = None if m is None else m[:: cfg.blur_factor, :: cfg.blur_factor]
         self.ceiling = self._ceiling()
@@ -641,12 +421,12 @@ class RefinementTask:
     def _score_one(self, clip: BeatClip, j: int) -> float:
         cfg = self.config
         ref, ref_blur = self.references[j], self._ref_blur[j]
-        a = _blur(clip.images[match_by_phase(clip.phases, ref.phases)], cfg.blur_sigma_px,
+        a = blur_frames(clip.images[match_by_phase(clip.phases, ref.phases)], cfg.blur_sigma_px,
                   cfg.blur_factor)  # fmt: skip
         if self._mask is not None:
-            return float(np.mean(_ncc_rows(a[:, self._mask], ref_blur[:, self._mask])))
+            return float(np.mean(ncc_rows(a[:, self._mask], ref_blur[:, self._mask])))
         n = len(a)
-        return float(np.mean(_ncc_rows(a.reshape(n, -1), ref_blur.reshape(n, -1))))
+        return float(np.mean(ncc_rows(a.reshape(n, -1), ref_blur.reshape(n, -1))))
 
     # --- the search (a generator of move / measure requests) --------------------------------
     def _approach(self, q_from: Array, trial: Array) -> list[Array]:

@@ -133,9 +133,25 @@ class PoseStageConfig:
     """Joint speed of the stage's moves (rad/s, rad/s, rad/s, mm/s)."""
     settle_s: float = 0.05
     """Hold after a move before a measurement (s)."""
+    hold_s: float | None = None
+    """Whole hold before a measurement (s); None: ``settle_s + n_average / sample_rate_hz``.
+    With a cycle-averaged sensor (:class:`icenav.refinement.cycle_pose.CycleAveragedPose`)
+    at least its window, so every sample it averages was taken after the move."""
+    step_from_last: bool = False
+    """Each correction starts from the last commanded state with the last measured error
+    (integral action: a step the shaft's stiction swallowed is added to by the next, not
+    retried from the best state at half the gain), and the stage does not go back to the
+    best state at the end (that would be one more stick-slip move); with the cycle-averaged
+    estimator."""
+    undo_if_worse: bool = True
+    """At the end, if the last measurement is worse than the first (the stage made it
+    worse), go back to the start state (re-approached) and stop there: never farther from
+    the saved pose than it started, as far as the estimator can tell."""
 
     def __post_init__(self) -> None:
         unit = "(rad, rad, rad, mm)"
+        if self.hold_s is not None:
+            check_positive(self.hold_s, "hold_s", "s")
         for name in ("radius", "max_step"):
             object.__setattr__(self, name, _four(getattr(self, name), name, unit))
         back = tuple(float(x) for x in self.backoff)
@@ -239,6 +255,8 @@ class PoseStageResult:
     """Set-points sent."""
     max_offset: Array
     """(4,) largest |set-point - q_view| per joint over the run (rad, rad, rad, mm)."""
+    undone: bool = False
+    """The stage ended worse than it started and went back to the start state."""
 
 
 @dataclass(frozen=True)
@@ -348,7 +366,9 @@ class PoseStageTask:
         self._run.last_dir = np.array(start_dir, np.float64)
         w = cfg.rotation_weight_mm_per_rad
         self._w = np.array([1.0, 1.0, 1.0, w, w, w])
-        self._hold_s = cfg.settle_s + cfg.n_average / cfg.sample_rate_hz
+        self._hold_s = (
+            cfg.settle_s + cfg.n_average / cfg.sample_rate_hz if cfg.hold_s is None else cfg.hold_s
+        )
         self._gen = self._servo()
         self._gen_done = False
         self._measuring = False
@@ -357,6 +377,7 @@ class PoseStageTask:
         self._meas: list[PoseMeasurement] = []
         self._final: PoseMeasurement | None = None
         self._best_q = self.q_start.copy()
+        self._undone = False
 
     # --- the servo (a generator of requests) ----------------------------------------------
     def _engaged(self) -> Array:
@@ -428,6 +449,7 @@ class PoseStageTask:
         if self._within(m):
             self._status = PoseStageStatus.AT_VIEW
             return
+        first = m
         best = m
         self._best_q = m.q.copy()
         q = self._run.cmd.copy()
@@ -451,8 +473,13 @@ class PoseStageTask:
                 self._status = PoseStageStatus.STALLED
                 break
             iterations += 1
-            target = self._step(best.q.copy(), best.error, gain)
-            for t in self._approach(target, force=not np.array_equal(self._run.cmd, best.q)):
+            if cfg.step_from_last:
+                target = self._step(self._run.cmd.copy(), m.error)
+                moves = self._approach(target)
+            else:
+                target = self._step(best.q.copy(), best.error, gain)
+                moves = self._approach(target, force=not np.array_equal(self._run.cmd, best.q))
+            for t in moves:
                 yield _Move(t)
             m2 = yield _MeasurePose()
             if m2 is None:
@@ -462,17 +489,35 @@ class PoseStageTask:
             self._final = m
             if self._cost(m) < self._cost(best) - cfg.min_decrease_mm:
                 best, self._best_q = m, m.q.copy()
-            else:
+            elif not cfg.step_from_last:
                 gain *= 0.5  # the step did not pay: a shorter one from the best state
         else:
             self._status = PoseStageStatus.CONVERGED
             return
-        if self._cost(m) > self._cost(best) and not np.array_equal(self._run.cmd, best.q):
+        if (
+            not cfg.step_from_last
+            and self._cost(m) > self._cost(best)
+            and not np.array_equal(self._run.cmd, best.q)
+        ):
             for t in self._approach(best.q, force=True):
                 yield _Move(t)
             m3 = yield _MeasurePose()
             if m3 is not None:
                 self._final = m3
+        last = self._final
+        if (
+            cfg.undo_if_worse
+            and last is not None
+            and self._cost(last) > self._cost(first)
+            and not np.array_equal(self._run.cmd, self.q_start)
+        ):
+            # worse than at the start, as the same estimator tells: back to the start state
+            self._undone = True
+            for t in self._approach(self.q_start, force=True):
+                yield _Move(t)
+            m4 = yield _MeasurePose()
+            if m4 is not None:
+                self._final = m4
 
     # --- the controller interface ---------------------------------------------------------
     @property
@@ -555,6 +600,7 @@ class PoseStageTask:
             duration_s=run.elapsed,
             n_commands=run.n_cmd,
             max_offset=run.max_off.copy(),
+            undone=self._undone,
         )
 
 

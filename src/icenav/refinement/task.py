@@ -10,9 +10,8 @@ from collections.abc import Callable, Sequence
 from numpy.typing import ArrayLike
 
 from icenav._typing import Array
+from icenav.recovery.beats import BeatClip, BeatImager
 from icenav.refinement.image_search import (
-    BeatClip,
-    BeatImager,
     RefinementConfig,
     RefinementResult,
     RefinementTask,

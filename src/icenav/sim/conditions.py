@@ -180,6 +180,20 @@ class Twin:
     views: dict[str, tuple[float, float, float, float]]
     """Model joint states of the views an operator finds in this heart."""
 
+    def shift_patient(self, translation_mm: Any) -> None:
+        """The patient (the whole anatomy) moves by ``translation_mm`` (3,) in the robot's
+        base frame (mm), as when the patient is repositioned on the table: the walls, the
+        images and the flow follow; the catheter's motors stay."""
+        v = np.asarray(translation_mm, np.float64).reshape(3)
+        if not np.all(np.isfinite(v)):
+            raise ConfigurationError(f"translation_mm must be finite (mm), got {v}")
+        b2a = np.array(self.base2anatomy, np.float64)
+        b2a[:3, 3] -= b2a[:3, :3] @ v  # a base point now sits at anatomy x - R v
+        self.base2anatomy = b2a
+        if self.plant.contact is not None:
+            self.plant.contact.set_registration(b2a)
+        self.plant.anatomy_moved()
+
 
 def build_twin(
     cond: Condition | str,

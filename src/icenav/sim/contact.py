@@ -449,6 +449,24 @@ class ContactModel:
             inflow = inflow / np.linalg.norm(inflow)
             self._flow_dirs = (caval @ rot, inflow @ rot)  # anatomy -> base
 
+    def set_registration(self, base2anatomy: Array) -> None:
+        """Move the anatomy relative to the base by a translation (a patient shift): the
+        walls and the atrium's entry plane follow (the flow directions, set by the rotation,
+        stay)."""
+        b2a = np.asarray(base2anatomy, np.float64)
+        if b2a.shape != (4, 4):
+            raise ConfigurationError(f"base2anatomy must have shape (4, 4), got {b2a.shape}")
+        old = self._b2a if self._b2a is not None else (
+            self.walls.base2anatomy if self.walls is not None else None
+        )  # fmt: skip
+        if old is not None and not np.allclose(old[:3, :3], b2a[:3, :3], atol=1e-12):
+            raise ConfigurationError("a patient shift is a translation: the rotation must stay")
+        if self.walls is not None:
+            self.walls.base2anatomy = b2a.copy()
+            self.walls._rot = self.walls.base2anatomy[:3, :3]  # noqa: SLF001 - same module
+        if self._b2a is not None:
+            self._b2a = b2a.copy()
+
     # --- shape and compliance ---------------------------------------------------------------
 
     def shape(self, tip2base: Array) -> _Shape:

@@ -34,7 +34,13 @@ from icenav.geometry.kinematics import DEFAULT_GEOMETRY
 from icenav.sim.contact import ContactForce, ContactModel
 from icenav.sim.introducer import ShaftFriction
 
-__all__ = ["DisturbedPlant", "DisturbedState", "DisturbedTracker", "mean_pose"]
+__all__ = [
+    "DisturbedPlant",
+    "DisturbedState",
+    "DisturbedTracker",
+    "TwinForceSensor",
+    "mean_pose",
+]
 
 _DISTURBANCE_RATE_HZ = 40.0
 """Rate at which a tracker's averaged samples see the disturbance (Hz)."""
@@ -119,6 +125,7 @@ class DisturbedPlant:
         self.geometry = getattr(plant, "geometry", DEFAULT_GEOMETRY)
         self.peak_contact_force_n = 0.0
         """Largest total contact force of a solved state since :meth:`reset_peak` (N)."""
+        self._last_force = 0.0
         self._moves = 0
         self._cache: tuple[float, int, DisturbedState] | None = None
         self._solved: tuple[float, Array] = (-math.inf, np.eye(4))
@@ -176,6 +183,18 @@ class DisturbedPlant:
         """Start a new peak of :attr:`peak_contact_force_n`."""
         self.peak_contact_force_n = 0.0
 
+    @property
+    def last_contact_force_n(self) -> float:
+        """Total contact force of the last solved state (N): free to read while commands
+        stream in (solved at most every ``solve_period_s``)."""
+        return self._last_force
+
+    def anatomy_moved(self) -> None:
+        """Forget the solved states: the walls moved (a patient shift), the next state is
+        solved anew."""
+        self._cache = None
+        self._solved = (-math.inf, np.eye(4))
+
     def _new_motor_state(self, q: Array, t: float) -> None:
         self._q = q.copy()
         self._q.setflags(write=False)
@@ -230,6 +249,7 @@ class DisturbedPlant:
             t, self._q, pose, self._plant_pose, contacts, s, rho, deflection, self._inner_state
         )
         self.peak_contact_force_n = max(self.peak_contact_force_n, st.contact_force_n)
+        self._last_force = st.contact_force_n
         self._cache = (t, self._moves, st)
         return st
 
@@ -248,6 +268,34 @@ def mean_pose(poses: Array) -> Array:
     d = np.sign(np.linalg.det(u @ vt))
     out[:3, :3] = u @ np.diag([1.0, 1.0, d]) @ vt
     return out
+
+
+class TwinForceSensor:
+    """The robot's contact-force reading on the twin: the total contact force of the
+    catheter now (N), as a force/tension channel of a robot would estimate it (e.g. from the
+    drive currents or a load cell at the sheath); ``noise_n`` adds Gaussian noise (seeded).
+
+    Parameters
+    ----------
+    plant : DisturbedPlant
+    noise_n : float
+        Standard deviation of the reading's noise (N).
+    seed : int
+    """
+
+    def __init__(self, plant: DisturbedPlant, noise_n: float = 0.0, seed: int = 0) -> None:
+        if not (math.isfinite(noise_n) and noise_n >= 0):
+            raise ConfigurationError(f"noise_n must be >= 0 N, got {noise_n}")
+        self.plant = plant
+        self.noise_n = float(noise_n)
+        self._rng = np.random.default_rng([int(seed), 0xF0])
+
+    def contact_force_n(self) -> float | None:
+        """Total contact force now (N)."""
+        f = self.plant.last_contact_force_n
+        if self.noise_n:
+            f = max(0.0, f + self.noise_n * float(self._rng.standard_normal()))
+        return float(f)
 
 
 class DisturbedTracker:
@@ -304,6 +352,34 @@ class DisturbedTracker:
         if not samples:
             return None
         return mean_pose(np.stack(samples))
+
+    def sample_window(self, duration_s: float, rate_hz: float | None = None) -> tuple[Array, Array]:
+        """The individual samples of the last ``duration_s`` (s) at ``rate_hz`` (default the
+        tracker's rate), as a tracker's sample buffer holds them: (n,) times (s) and
+        (n, 4, 4) tip2base (mm); dropped samples left out. The catheter is assumed still
+        over the window (each sample at its own time of the disturbance)."""
+        rate = self.rate_hz if rate_hz is None else float(rate_hz)
+        if not (math.isfinite(rate) and rate > 0):
+            raise ConfigurationError(f"rate_hz must be > 0 Hz, got {rate_hz}")
+        if not (math.isfinite(duration_s) and duration_s > 0):
+            raise ConfigurationError(f"duration_s must be > 0 s, got {duration_s}")
+        n = max(1, int(round(float(duration_s) * rate)))
+        now = float(self.plant.clock())
+        pp = self.plant.state_at(now).plant_tip2base
+        plant_inv = np.eye(4)
+        plant_inv[:3, :3] = pp[:3, :3].T
+        plant_inv[:3, 3] = -pp[:3, :3].T @ pp[:3, 3]
+        times, poses = [], []
+        for k in range(n):
+            m = self.inner.measure_tip2base(1)
+            if m is None:
+                continue
+            t = now - (n - 1 - k) / rate
+            times.append(t)
+            poses.append(self.plant.pose_at(t) @ plant_inv @ np.asarray(m, np.float64))
+        if not poses:
+            return np.zeros(0), np.zeros((0, 4, 4))
+        return np.asarray(times), np.stack(poses)
 
     def __getattr__(self, name: str) -> Any:
         # registration, start, stop, ... of the wrapped tracker

@@ -236,8 +236,16 @@ class HeartPhantom:
         self._base_centre = (
             np.mean(valve_centres, axis=0) if valve_centres else np.zeros(3, dtype=np.float64)
         )
+        # In systole the atrioventricular plane descends towards the apex (the long-axis
+        # shortening of the ventricles; mitral annular plane systolic excursion 12-15 mm,
+        # tricuspid 20-25 mm in adults: Hu et al., Clin Physiol Funct Imaging 33:250, 2013;
+        # Rudski et al., J Am Soc Echocardiogr 23:685, 2010): the direction from the valve
+        # plane towards the LV centre along the LV's long axis, whichever way it is given.
         lv = [c for c in chambers if c.name == "lv"]
-        self._apex_dir = -_unit(lv[0].long_axis) if lv else np.array([0.0, 0.0, -1.0])
+        apex = _unit(lv[0].long_axis) if lv else np.array([0.0, 0.0, -1.0])
+        if lv and float(apex @ (np.asarray(lv[0].centre) - self._base_centre)) < 0.0:
+            apex = -apex
+        self._apex_dir = apex
 
     # --- time ---------------------------------------------------------------------------
     def cardiac_phase(self, t: float) -> float:

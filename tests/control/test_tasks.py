@@ -1,0 +1,98 @@
+"""Go-to-view paths: the force check of a return, Eq. (F1) of icenav.recovery.force."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from icenav.control.tasks import Done, Failed, PathTask, Running
+from icenav.devices.sim_robot import SimulatedRobot
+from icenav.errors import InvalidValueError
+from icenav.recovery.force import ForceMap
+from icenav.recovery.roadmap import Roadmap
+from icenav.sim.beat_imager import SimClock
+from icenav.sim.conditions import build_twin
+from icenav.sim.disturbed import TwinForceSensor
+
+V_MAX = np.array([0.5, 0.5, 0.5, 5.0])
+
+
+class _Sensor:
+    def __init__(self, values: list[float | None]) -> None:
+        self.values = values
+
+    def contact_force_n(self) -> float | None:
+        return self.values.pop(0) if len(self.values) > 1 else self.values[0]
+
+
+def _run(task: PathTask, n: int = 10_000) -> tuple[object, int]:
+    status: object = None
+    for k in range(n):
+        status = task.step(np.zeros(4), 0.01)
+        if not isinstance(status, Running):
+            return status, k
+    return status, n
+
+
+def test_a_path_stops_when_the_force_exceeds_the_trace_plus_the_margin() -> None:
+    path = np.zeros((3, 4))
+    path[:, 3] = [0.0, 1.0, 2.0]
+    ok = PathTask(path, V_MAX, force_sensor=_Sensor([0.1]), force_profile=np.full(3, 0.05),
+                  force_margin_n=0.06, force_margin_fraction=0.0)  # fmt: skip
+    assert isinstance(_run(ok)[0], Done)
+    over = PathTask(path, V_MAX, force_sensor=_Sensor([0.1] * 20 + [0.2]),
+                    force_profile=np.full(3, 0.05), force_margin_n=0.04,
+                    force_margin_fraction=0.4)  # fmt: skip
+    status, k = _run(over)
+    assert isinstance(status, Failed) and k == 20
+    assert "0.20 N" in status.reason and "0.05 N" in status.reason and "margin" in status.reason
+    assert over.failure == status.reason
+    assert isinstance(over.step(np.zeros(4), 0.01), Failed)  # stays stopped: the robot holds
+    blind = PathTask(path, V_MAX, force_sensor=_Sensor([None]), force_profile=np.zeros(3))
+    assert isinstance(_run(blind)[0], Done)  # no reading: no check
+    with pytest.raises(InvalidValueError):
+        PathTask(path, V_MAX, force_profile=np.zeros(2))
+
+
+def test_a_return_into_a_shifted_patient_stops_and_says_so() -> None:
+    """The operator drives to a view and back (forces recorded per vertex); the patient
+    then moves 20 mm on the table; the return replays the recorded states, meets more force
+    than the trace did, and stops with the reason. Without the shift it arrives."""
+    outcomes = []
+    for shift in (False, True):
+        clock = SimClock()
+        twin = build_twin("phantom", 100, 0, clock.now)
+        robot = SimulatedRobot(twin.plant, clock=clock.now)
+        robot.enable()
+        sensor = TwinForceSensor(twin.plant)
+        roadmap, forces = Roadmap(epsilon=1.0), ForceMap()
+        q_view = np.asarray(twin.views["mitral_valve"])
+        out_and_back = np.concatenate(
+            [np.linspace(np.zeros(4), q_view, 120), np.linspace(q_view, np.zeros(4), 120)]
+        )
+        for q in out_and_back:  # the operator's trace
+            robot.command_position(q)
+            roadmap.add(q)
+            forces.record(roadmap.current_vertex, sensor.contact_force_n())
+            clock.advance(0.02)
+        if shift:
+            twin.shift_patient([0.0, 20.0, 0.0])
+        path = roadmap.plan(np.zeros(4), q_view)
+        profile = forces.profile(roadmap, path)
+        assert profile is not None
+        task = PathTask(path, V_MAX, force_sensor=sensor, force_profile=profile)
+        status: object = None
+        for _ in range(20_000):
+            status = task.step(np.asarray(robot.read_state().q), 0.02)
+            if not isinstance(status, Running):
+                break
+            robot.command_position(status.q)
+            clock.advance(0.02)
+        held = np.asarray(robot.read_state().q).copy()
+        outcomes.append((status, task.path_index, len(path), held))
+    (arrived, _, _, q_end), (stopped, index, n, q_held) = outcomes
+    assert isinstance(arrived, Done)
+    np.testing.assert_allclose(q_end, q_view, atol=1e-9)
+    assert isinstance(stopped, Failed), stopped
+    assert "contact force" in stopped.reason and "patient" in stopped.reason
+    assert index < n - 1 and not np.allclose(q_held, q_view)  # held on the way
