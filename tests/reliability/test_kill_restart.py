@@ -22,10 +22,14 @@ from icenav.persistence.store import SessionStore
 # is "saving to disk"), then keeps driving until it is killed. The next view is saved only
 # after the previous one was reported saved: on a busy machine a commit can take longer
 # than 150 cycles, and a later "saving to disk" would hide the earlier "saved"; and the
-# motion stays inside the joint limits, whose message would hide it too.
+# motion stays inside the joint limits, whose message would hide it too. The procedure runs
+# at most 2.5x faster than real time (4 ms per 10 ms cycle): as fast as it goes, the loop
+# queues state batches faster than the store's writer thread commits them, and a view's
+# commit waits behind an ever longer queue (tens of thousands of cycles per view).
 SCRIPT = textwrap.dedent(
     """
     import sys
+    import time
     from icenav.apps.wiring import make_sim_controller
 
     t = [0.0]
@@ -46,6 +50,7 @@ SCRIPT = textwrap.dedent(
         ctrl.jog(v, "knob")
         t[0] += ctrl.config.dt
         state = ctrl.step()
+        time.sleep(0.004)
         if pending is not None and state.message == f"view {pending!r} saved":
             print("SAVED", pending, flush=True)
             n_saved += 1

@@ -86,6 +86,7 @@ __all__ = [
     "CONDITIONS",
     "Calibrations",
     "CatheterRun",
+    "FILE",
     "PlantSpec",
     "Rig",
     "SpinRecord",
@@ -99,7 +100,6 @@ __all__ = [
     "run_spin",
     "run_spin_closed_loop",
     "run_vessel",
-    "FILE",
 ]
 
 OURS = "dense+hysteresis"
