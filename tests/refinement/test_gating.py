@@ -14,7 +14,7 @@ from icenav.refinement.gating import GatedBeatImager, PhantomRespiration
 from icenav.sim.anatomy import default_phantom
 from icenav.sim.beat_imager import SimClock, SimulatedBeatImager
 from icenav.sim.ultrasound import ProbeConfig, UltrasoundRenderer
-from tests.refinement.test_image_search import TrackedPlant
+from tests.support.refinement import TrackedPlant
 
 Array = NDArray[np.float64]
 DEG = math.pi / 180

@@ -25,48 +25,10 @@ from icenav.sim.anatomy import EXAMPLE_VIEWS, default_phantom
 from icenav.sim.beat_imager import SimClock, SimulatedBeatImager
 from icenav.sim.plant import CatheterPlant
 from icenav.sim.ultrasound import ProbeConfig, UltrasoundRenderer
+from tests.support.refinement import BlobImager, TrackedPlant, reference
 
 Array = NDArray[np.float64]
 DEG = math.pi / 180
-
-
-class BlobImager:
-    """Cheap synthetic imager: a Gaussian blob whose place and size follow the commanded
-    motor state, plus seeded noise (so the search sees a smooth but noisy landscape)."""
-
-    def __init__(self, robot: SimulatedRobot, q_best: Array, noise: float, seed: int) -> None:
-        self.robot = robot
-        self.q_best = np.asarray(q_best, np.float64)
-        self.noise = noise
-        self.rng = np.random.default_rng(seed)
-        y, x = np.mgrid[0:32, 0:32]
-        self.yx = (y.astype(np.float64), x.astype(np.float64))
-        self.calls = 0
-
-    @property
-    def beat_duration_s(self) -> float:
-        return 0.5
-
-    def image_at(self, q: Array) -> Array:
-        d = (q - self.q_best) * np.array([1 / DEG, 1 / DEG, 1 / DEG, 1.0])
-        cy, cx = 14 + 1.5 * d[0] + 0.3 * d[3], 14 + 1.5 * d[1] - 0.5 * d[2]
-        w = 4.0 + 0.4 * d[2]
-        y, x = self.yx
-        blob = np.exp(-((y - cy) ** 2 + (x - cx) ** 2) / (2 * w * w))
-        dy = 24 + 1.5 * d[3]  # a second structure that only translation moves
-        return blob + np.exp(-((y - dy) ** 2 + (x - 24) ** 2) / 8.0)
-
-    def acquire_beat(self) -> BeatClip:
-        self.calls += 1
-        q = np.asarray(self.robot.read_state().q, np.float64)
-        base = self.image_at(q)
-        imgs = np.stack([base + self.rng.normal(0, self.noise, base.shape) for _ in range(3)])
-        return BeatClip(imgs, np.array([0.0, 1 / 3, 2 / 3]))
-
-
-def _reference(imager: BlobImager) -> BeatClip:
-    base = imager.image_at(imager.q_best)
-    return BeatClip(np.stack([base] * 3), np.array([0.0, 1 / 3, 2 / 3]))
 
 
 def test_never_leaves_its_neighbourhood_random_cases() -> None:
@@ -107,7 +69,7 @@ def test_never_leaves_its_neighbourhood_random_cases() -> None:
         res = refine(
             robot,
             q_view,
-            _reference(imager),
+            reference(imager),
             imager,
             arrival_direction=tuple(int(x) for x in rng.integers(-1, 2, 4)),
             config=cfg,
@@ -134,28 +96,11 @@ def test_climbs_a_smooth_landscape_to_its_optimum() -> None:
     robot.command_position(q_view)
     imager = BlobImager(robot, q_best, noise=0.0, seed=0)
     cfg = RefinementConfig(max_evaluations=200, min_improvement=0.0, stop_within=0.0)
-    res = refine(robot, q_view, _reference(imager), imager, config=cfg)
+    res = refine(robot, q_view, reference(imager), imager, config=cfg)
     assert res.status == RefinementStatus.CONVERGED
     assert res.best_score > res.start_score
     err = np.abs(res.q_final - q_best)
     assert np.all(err <= np.array(cfg.min_step) * 2 + 1e-12)
-
-
-class TrackedPlant:
-    """The ideal (model) catheter with the ``state.tip2base`` the imager reads."""
-
-    class _State:
-        tip2base: Array = np.eye(4)
-
-    def __init__(self) -> None:
-        self.state = self._State()
-
-    def move(self, q_motor: Array) -> Array:
-        self.state.tip2base = forward(np.asarray(q_motor, np.float64))
-        return self.state.tip2base
-
-    def reset(self, q_motor: Array | None = None) -> None:
-        self.move(np.zeros(4) if q_motor is None else q_motor)
 
 
 @pytest.fixture(scope="module")
@@ -246,7 +191,7 @@ def test_abort_stops_at_once() -> None:
 
     sent: list[Array] = []
     cfg = RefinementConfig(stop_within=0.0, max_evaluations=100)
-    res = refine(robot, q_view, _reference(imager), imager, config=cfg, abort=abort,
+    res = refine(robot, q_view, reference(imager), imager, config=cfg, abort=abort,
                  on_command=sent.append)  # fmt: skip
     assert res.status == RefinementStatus.ABORTED
     assert len(sent) <= 120
@@ -256,7 +201,7 @@ def test_abort_stops_at_once() -> None:
 def test_timeout_ends_at_the_incumbent_within_the_box() -> None:
     robot, imager, q_view = _blob_setup()
     cfg = RefinementConfig(stop_within=0.0, max_evaluations=100, max_duration_s=3.0)
-    res = refine(robot, q_view, _reference(imager), imager, config=cfg)
+    res = refine(robot, q_view, reference(imager), imager, config=cfg)
     assert res.status == RefinementStatus.TIMEOUT
     assert res.duration_s < 3.0 + 2.0  # the final move to the incumbent is short
     np.testing.assert_allclose(robot.read_state().q, res.q_final)
@@ -266,7 +211,7 @@ def test_timeout_ends_at_the_incumbent_within_the_box() -> None:
 def test_task_protocol_and_progress() -> None:
     robot, imager, q_view = _blob_setup()
     task = RefinementTask(
-        q_view, _reference(imager), imager, config=RefinementConfig(max_evaluations=5)
+        q_view, reference(imager), imager, config=RefinementConfig(max_evaluations=5)
     )
     assert task.progress == 0.0
     n = 0
@@ -283,7 +228,7 @@ def test_task_protocol_and_progress() -> None:
 def test_start_outside_the_neighbourhood_is_refused() -> None:
     robot, imager, q_view = _blob_setup()
     with pytest.raises(NeighbourhoodError, match="outside the refinement radius"):
-        RefinementTask(q_view, _reference(imager), imager, q_start=q_view + [0, 0, 0, 5.0])
+        RefinementTask(q_view, reference(imager), imager, q_start=q_view + [0, 0, 0, 5.0])
 
 
 @pytest.mark.parametrize(
@@ -305,12 +250,12 @@ def test_bad_config_is_rejected(kwargs: dict[str, object], match: str) -> None:
 def test_bad_inputs_are_rejected() -> None:
     robot, imager, q_view = _blob_setup()
     with pytest.raises(ConfigurationError, match="arrival_direction"):
-        RefinementTask(q_view, _reference(imager), imager, arrival_direction=(2, 0, 0, 0))
+        RefinementTask(q_view, reference(imager), imager, arrival_direction=(2, 0, 0, 0))
     with pytest.raises(ShapeError, match="phases"):
         BeatClip(np.zeros((3, 8, 8)), np.zeros(2))
     with pytest.raises(ShapeError, match="mask"):
         BeatClip(np.zeros((3, 8, 8)), np.zeros(3), mask=np.ones((4, 4), bool))
-    task = RefinementTask(q_view, _reference(imager), imager)
+    task = RefinementTask(q_view, reference(imager), imager)
     with pytest.raises(ShapeError, match="differ"):
         task.score(BeatClip(np.zeros((3, 8, 8)), np.zeros(3)))
 

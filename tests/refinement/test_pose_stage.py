@@ -10,7 +10,6 @@ from numpy.typing import NDArray
 
 from icenav.devices.sim_robot import SimulatedRobot
 from icenav.errors import ConfigurationError, ShapeError
-from icenav.eval.metrics import rotation_angle
 from icenav.geometry.kinematics import forward
 from icenav.refinement.image_search import NeighbourhoodError
 from icenav.refinement.pose_stage import (
@@ -21,31 +20,11 @@ from icenav.refinement.pose_stage import (
     pose_stage,
 )
 from icenav.sim.anatomy import EXAMPLE_VIEWS
-from icenav.sim.beat_imager import SimClock
-from icenav.sim.plant import CatheterPlant
-from icenav.sim.tracker import EMTracker, rotvec_to_matrix
+from icenav.sim.tracker import rotvec_to_matrix
+from tests.support.refinement import em_bench, true_error
 
 Array = NDArray[np.float64]
 DEG = math.pi / 180
-
-
-def _em_bench(
-    seed: int, vessel: str = "moderate"
-) -> tuple[SimClock, CatheterPlant, SimulatedRobot, EMTracker]:
-    clock = SimClock()
-    plant = CatheterPlant(seed=seed, vessel=vessel)
-    robot = SimulatedRobot(plant, clock=clock.now)
-    robot.enable()
-    tracker = EMTracker(plant, seed=seed, clock=clock.now)
-    return clock, plant, robot, tracker
-
-
-def _true_error(plant: CatheterPlant, saved: Array) -> tuple[float, float]:
-    t = plant.state.tip2base
-    return (
-        float(np.linalg.norm(t[:3, 3] - saved[:3, 3])),
-        math.degrees(float(rotation_angle(t[:3, :3], saved[:3, :3]))),
-    )
 
 
 def test_pose_error_recovers_a_known_body_twist() -> None:
@@ -75,7 +54,7 @@ def test_pose_stage_reduces_a_known_play_error_on_the_hysteretic_twin(seed: int)
     knobs a little short of the view: the tip is off by up to millimetres and up to 20 deg.
     The pose stage (EM tracker, averaged samples) brings the true error down to about the
     tracker's averaged noise."""
-    clock, plant, robot, tracker = _em_bench(seed, ("moderate", "steep")[seed % 2])
+    clock, plant, robot, tracker = em_bench(seed, ("moderate", "steep")[seed % 2])
     rng = np.random.default_rng(seed)
     name = ("aortic_valve", "mitral_valve", "tricuspid_valve")[seed % 3]
     q_view = np.array(EXAMPLE_VIEWS[name]) + rng.uniform(-1, 1, 4) * [2 * DEG, 2 * DEG, 5 * DEG, 1]
@@ -88,13 +67,13 @@ def test_pose_stage_reduces_a_known_play_error_on_the_hysteretic_twin(seed: int)
     short = rng.uniform(0.3, 1.0, 2) * DEG
     plant.move(q_view + [-below[0], -below[1], below[2], below[3]])
     robot.command_position(q_view - [short[0], short[1], 0.0, 0.0])
-    d0, a0 = _true_error(plant, saved_true)
+    d0, a0 = true_error(plant, saved_true)
     assert d0 > 0.3 or a0 > 0.5  # the play really is on the other side
     sent: list[Array] = []
     res = pose_stage(robot, q_view, saved_em, tracker, arrival_direction=(1, 1, 1, 1),
                      start_direction=(1, 1, -1, -1), sleep=clock.advance,
                      on_command=sent.append)  # fmt: skip
-    d1, a1 = _true_error(plant, saved_true)
+    d1, a1 = true_error(plant, saved_true)
     assert res.status in (PoseStageStatus.CONVERGED, PoseStageStatus.STALLED)
     assert d1 < 0.3 and a1 < 0.3, (d0, a0, d1, a1, res.status)
     assert d1 < d0 and a1 < a0
@@ -110,7 +89,7 @@ def test_pose_stage_reduces_a_known_play_error_on_the_hysteretic_twin(seed: int)
 
 
 def test_pose_stage_does_nothing_at_the_view() -> None:
-    clock, plant, robot, tracker = _em_bench(120)
+    clock, plant, robot, tracker = em_bench(120)
     q_view = np.array(EXAMPLE_VIEWS["mitral_valve"])
     robot.command_position(q_view)
     saved = tracker.measure_tip2base(n_average=64)
@@ -143,7 +122,7 @@ def test_pose_stage_never_leaves_its_neighbourhood_random_cases() -> None:
     set-point sent stays in the box, within the iteration and time budgets."""
     for seed in range(12):
         rng = np.random.default_rng(seed)
-        clock, plant, robot, tracker = _em_bench(
+        clock, plant, robot, tracker = em_bench(
             130 + seed, ("straight", "moderate", "steep")[seed % 3]
         )
         q_view = np.array([*rng.uniform(-0.4, 0.4, 2), rng.uniform(-2, 2), rng.uniform(-20, 20)])
@@ -176,7 +155,7 @@ def test_pose_stage_never_leaves_its_neighbourhood_random_cases() -> None:
 
 
 def test_pose_stage_stops_on_abort() -> None:
-    clock, plant, robot, tracker = _em_bench(140)
+    clock, plant, robot, tracker = em_bench(140)
     q_view = np.array(EXAMPLE_VIEWS["aortic_valve"])
     robot.command_position(q_view)
     saved = tracker.measure_tip2base(n_average=32)
@@ -201,7 +180,7 @@ def test_pose_stage_stops_on_abort() -> None:
 
 
 def test_pose_stage_timeout_and_bad_inputs() -> None:
-    clock, plant, robot, tracker = _em_bench(141)
+    clock, plant, robot, tracker = em_bench(141)
     q_view = np.array(EXAMPLE_VIEWS["aortic_valve"])
     robot.command_position(q_view)
     far = np.eye(4)
@@ -256,7 +235,7 @@ class _WorseWithEveryMove:
 def test_a_stage_that_made_it_worse_goes_back_to_where_it_started() -> None:
     """The stage never ends farther from the saved pose than it started, as its own
     estimator tells: worse after its steps, it re-approaches the start state."""
-    clock, plant, robot, _ = _em_bench(110)
+    clock, plant, robot, _ = em_bench(110)
     q0 = np.array([0.05, -0.05, 0.3, 2.0])
     robot.command_position(q0)
     clock.advance(0.5)
