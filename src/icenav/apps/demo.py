@@ -272,15 +272,7 @@ def run_console(args: argparse.Namespace) -> int:
 
     bridge = streamer = forwarder = None
     if args.igtl:
-        from icenav.io.igtl import IgtlBridge
-        from icenav.io.igtl_stream import CommandForwarder
-
-        forwarder = CommandForwarder()
-        bridge = IgtlBridge(
-            options.igtl_config(args),
-            on_command=forwarder,
-            on_disconnect=forwarder.disconnected,
-        )
+        bridge, forwarder = options.open_igtl_bridge(args)
     gamepad = Sdl2Gamepad()
     session = make_sim_controller(
         seed=args.seed,

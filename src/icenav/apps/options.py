@@ -23,7 +23,8 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
-    from icenav.io.igtl import IgtlConfig
+    from icenav.io.igtl import IgtlBridge, IgtlConfig
+    from icenav.io.igtl_stream import CommandForwarder
 
 __all__ = [
     "IGTL_COMMAND_NAMES",
@@ -278,6 +279,20 @@ def igtl_config(args: argparse.Namespace) -> IgtlConfig:
         accepted_commands=frozenset(IgtlCommand(n) for n in names),
         token=token,
     )
+
+
+def open_igtl_bridge(args: argparse.Namespace) -> tuple[IgtlBridge, CommandForwarder]:
+    """The OpenIGTLink server of the checked options and its command forwarder (commands and
+    disconnects go to the controller once the forwarder is bound to it,
+    :func:`icenav.io.igtl_stream.attach_bridge`)."""
+    from icenav.io.igtl import IgtlBridge
+    from icenav.io.igtl_stream import CommandForwarder
+
+    forwarder = CommandForwarder()
+    bridge = IgtlBridge(
+        igtl_config(args), on_command=forwarder, on_disconnect=forwarder.disconnected
+    )
+    return bridge, forwarder
 
 
 def check_duration(

@@ -133,15 +133,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         with stop_on_signals(stop):
             start_new_session(args)
             if args.igtl:
-                from icenav.io.igtl import IgtlBridge
-                from icenav.io.igtl_stream import CommandForwarder
-
-                forwarder = CommandForwarder()
-                bridge = IgtlBridge(
-                    options.igtl_config(args),
-                    on_command=forwarder,
-                    on_disconnect=forwarder.disconnected,
-                )
+                bridge, forwarder = options.open_igtl_bridge(args)
             gamepad = None
             if not args.headless:
                 from icenav.devices.gamepad import Sdl2Gamepad

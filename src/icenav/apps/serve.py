@@ -220,8 +220,6 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = parser.parse_args(argv)
     check_args(args, parser)
     from icenav.apps.demo import start_new_session
-    from icenav.io.igtl import IgtlBridge
-    from icenav.io.igtl_stream import CommandForwarder
 
     stop = threading.Event()
     gamepad: Any = None
@@ -230,9 +228,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         with stop_on_signals(stop):
             start_new_session(args)
-            forwarder = CommandForwarder()
-            config: Any = options.igtl_config(args)
-            bridge = IgtlBridge(config, on_command=forwarder, on_disconnect=forwarder.disconnected)
+            bridge, forwarder = options.open_igtl_bridge(args)
+            config = bridge.config
             if not args.no_gamepad:
                 from icenav.devices.gamepad import Sdl2Gamepad
 
