@@ -42,8 +42,10 @@ __all__ = [
     "CatheterPlant",
     "MAX_SUBSTEP_RAD",
     "PlantState",
+    "backbone_points",
     "elastic_tip2base",
     "elastic_tip2base_from_tensions",
+    "move_path",
     "snapshot_state",
 ]
 
@@ -131,6 +133,42 @@ def snapshot_state(plant: Any) -> PlantState:
         twist=plant._twist,
         translation_mm=plant._trans,
     )
+
+
+def move_path(plant: Any, q_path: ArrayLike) -> Array:
+    """Move a twin-section plant (the default twin, the plant families) through the joint
+    states ``q_path`` (n, 4) in order, as n moves; its poses (n, 4, 4) (mm, base frame)."""
+    path = plant._check(q_path)
+    if path.ndim != 2:
+        raise ShapeError(f"q_path must have shape (n, 4), got {path.shape}")
+    out = np.empty((path.shape[0], 4, 4))
+    for i, row in enumerate(path.tolist()):
+        plant._goto(row[0], row[1], row[2], row[3])
+        out[i] = plant._pose
+    return out
+
+
+def backbone_points(plant: Any, n: int) -> Array:
+    """True shape of a twin-section plant's bending section: (n, 3) points from its base to
+    its end (mm, base frame), from its curvature ``_u``, ``_length``, ``_roll``, ``_trans``."""
+    if isinstance(n, bool) or int(n) != n or int(n) < 2:
+        raise ConfigurationError(f"n must be an integer >= 2 points, got {n!r}")
+    s = np.linspace(0.0, plant._length, int(n))
+    ux, uy = plant._u
+    kappa = math.hypot(ux, uy)
+    if kappa * plant._length < 1e-9:
+        pts = np.stack([np.zeros_like(s), np.zeros_like(s), s], axis=-1)
+    else:
+        # arc in the bending plane theta: lateral (1 - cos(kappa s))/kappa, axial sin/kappa
+        theta = math.atan2(-ux, uy)
+        lat = (1.0 - np.cos(kappa * s)) / kappa
+        ax = np.sin(kappa * s) / kappa
+        pts = np.stack([lat * math.cos(theta), lat * math.sin(theta), ax], axis=-1)
+    c, sn = math.cos(plant._roll), math.sin(plant._roll)
+    rz = np.array([[c, -sn, 0.0], [sn, c, 0.0], [0.0, 0.0, 1.0]])
+    pts = pts @ rz.T
+    pts[:, 2] += plant._trans
+    return pts
 
 
 class CatheterPlant:
@@ -231,35 +269,11 @@ class CatheterPlant:
         tip2base : ndarray, shape (n, 4, 4)
             True pose after each move (mm, base frame).
         """
-        path = self._check(q_path)
-        if path.ndim != 2:
-            raise ShapeError(f"q_path must have shape (n, 4), got {path.shape}")
-        out = np.empty((path.shape[0], 4, 4))
-        for i, row in enumerate(path.tolist()):
-            self._goto(row[0], row[1], row[2], row[3])
-            out[i] = self._pose
-        return out
+        return move_path(self, q_path)
 
     def backbone(self, n: int = 50) -> Array:
         """True shape of the bending section: (n, 3) points from its base to its end (mm, base)."""
-        if isinstance(n, bool) or int(n) != n or int(n) < 2:
-            raise ConfigurationError(f"n must be an integer >= 2 points, got {n!r}")
-        s = np.linspace(0.0, self._length, int(n))
-        ux, uy = self._u
-        kappa = math.hypot(ux, uy)
-        if kappa * self._length < 1e-9:
-            pts = np.stack([np.zeros_like(s), np.zeros_like(s), s], axis=-1)
-        else:
-            # arc in the bending plane theta: lateral (1 - cos(kappa s))/kappa, axial sin/kappa
-            theta = math.atan2(-ux, uy)
-            lat = (1.0 - np.cos(kappa * s)) / kappa
-            ax = np.sin(kappa * s) / kappa
-            pts = np.stack([lat * math.cos(theta), lat * math.sin(theta), ax], axis=-1)
-        c, sn = math.cos(self._roll), math.sin(self._roll)
-        rz = np.array([[c, -sn, 0.0], [sn, c, 0.0], [0.0, 0.0, 1.0]])
-        pts = pts @ rz.T
-        pts[:, 2] += self._trans
-        return pts
+        return backbone_points(self, n)
 
     # --- internals -----------------------------------------------------------------------
 

@@ -34,7 +34,13 @@ from icenav.errors import ConfigurationError, ShapeError
 from icenav.geometry.kinematics import DEFAULT_GEOMETRY, CatheterGeometry, forward
 from icenav.sim.bending import PAIR, PULL_SIGN, Section
 from icenav.sim.params import TOLERANCES, PlantParams, Vessel
-from icenav.sim.plant import MAX_SUBSTEP_RAD, PlantState, snapshot_state
+from icenav.sim.plant import (
+    MAX_SUBSTEP_RAD,
+    PlantState,
+    backbone_points,
+    move_path,
+    snapshot_state,
+)
 
 __all__ = [
     "SectionPlant",
@@ -205,33 +211,11 @@ class SectionPlant:
 
     def move_along(self, q_path: ArrayLike) -> Array:
         """Move through ``q_path`` (n, 4) in order (same as n moves); poses (n, 4, 4) (mm)."""
-        path = self._check(q_path)
-        if path.ndim != 2:
-            raise ShapeError(f"q_path must have shape (n, 4), got {path.shape}")
-        out = np.empty((path.shape[0], 4, 4))
-        for i, row in enumerate(path.tolist()):
-            self._goto(row[0], row[1], row[2], row[3])
-            out[i] = self._pose
-        return out
+        return move_path(self, q_path)
 
     def backbone(self, n: int = 50) -> Array:
         """True shape of the bending section: (n, 3) points from its base to its end (mm)."""
-        if isinstance(n, bool) or int(n) != n or int(n) < 2:
-            raise ConfigurationError(f"n must be an integer >= 2 points, got {n!r}")
-        s = np.linspace(0.0, self._length, int(n))
-        ux, uy = self._u
-        kappa = math.hypot(ux, uy)
-        if kappa * self._length < 1e-9:
-            pts = np.stack([np.zeros_like(s), np.zeros_like(s), s], axis=-1)
-        else:
-            theta = math.atan2(-ux, uy)
-            lat = (1.0 - np.cos(kappa * s)) / kappa
-            ax = np.sin(kappa * s) / kappa
-            pts = np.stack([lat * math.cos(theta), lat * math.sin(theta), ax], axis=-1)
-        c, sn = math.cos(self._roll), math.sin(self._roll)
-        pts = pts @ np.array([[c, -sn, 0.0], [sn, c, 0.0], [0.0, 0.0, 1.0]]).T
-        pts[:, 2] += self._trans
-        return pts
+        return backbone_points(self, n)
 
     # --- internals ------------------------------------------------------------------------
 
