@@ -8,11 +8,16 @@ the unit, the range) and what arrived. Hot loops call the public functions with
 
 from __future__ import annotations
 
+import tomllib
+from pathlib import Path
+from typing import Any
+
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from icenav.errors import (
     ConfigurationError,
+    FileFormatError,
     JointLimitError,
     NonFiniteError,
     ShapeError,
@@ -26,6 +31,7 @@ __all__ = [
     "check_joint_state",
     "check_positive",
     "check_transform",
+    "read_toml",
 ]
 
 JOINT_NAMES = ("phi1", "phi2", "phi3", "d4")
@@ -147,3 +153,16 @@ def check_transform(
             f"{np.max(last_err):.3g} (allowed deviation {tol:g})"
         )
     return arr
+
+
+def read_toml(path: str | Path, what: str) -> dict[str, Any]:
+    """The tables of the TOML file ``path``; FileFormatError naming the file for one that
+    cannot be read or is not TOML (``what`` says what the file is, for the message)."""
+    p = Path(path)
+    try:
+        with p.open("rb") as fh:
+            return tomllib.load(fh)
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+        raise FileFormatError(f"{p}: not a valid TOML file (UTF-8): {exc}") from exc
+    except OSError as exc:
+        raise FileFormatError(f"cannot read {what} {p}: {exc}") from exc

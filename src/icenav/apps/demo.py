@@ -30,6 +30,7 @@ import threading
 import time
 from collections.abc import Sequence
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -145,6 +146,20 @@ def start_new_session(args: argparse.Namespace) -> None:
         SessionStore(args.session, new_session=True).close()
 
 
+def _install_calibration(session: Any, args: argparse.Namespace) -> None:
+    """Install ``--calibration`` (if given) on the session's controller and say so; a file
+    that cannot be installed closes the session and raises."""
+    if args.calibration is None:
+        return
+    from icenav.apps.wiring import install_calibration
+
+    try:
+        print(install_calibration(session.controller, args.calibration))
+    except BaseException:
+        session.close()
+        raise
+
+
 def run_headless(args: argparse.Namespace) -> int:
     """A scripted operator: drive, save two views, wander, return to each, spin; check it."""
     from icenav.apps.wiring import make_sim_controller
@@ -188,14 +203,7 @@ def run_headless(args: argparse.Namespace) -> int:
         config=ControllerConfig(image_rate_hz=2.0),  # faster than real time: fewer images
     )
     ctrl = session.controller
-    if args.calibration is not None:
-        from icenav.apps.wiring import install_calibration
-
-        try:
-            print(install_calibration(ctrl, args.calibration))
-        except BaseException:
-            session.close()
-            raise
+    _install_calibration(session, args)
     dt = ctrl.config.dt
     failures: list[str] = []
     # the simulated robot runs faster than real time; emulated drives move in real time
@@ -286,14 +294,7 @@ def run_console(args: argparse.Namespace) -> int:
     ctrl = session.controller
     if args.session is not None:
         print(f"session: {args.session} (views and roadmap kept; --session FILE for another)")
-    if args.calibration is not None:
-        from icenav.apps.wiring import install_calibration
-
-        try:
-            print(install_calibration(ctrl, args.calibration))
-        except BaseException:
-            session.close()
-            raise
+    _install_calibration(session, args)
     if bridge is not None:
         from icenav.io.igtl_stream import attach_bridge
 

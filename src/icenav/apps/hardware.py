@@ -21,7 +21,6 @@ import dataclasses
 import math
 import threading
 import time
-import tomllib
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -30,7 +29,7 @@ from typing import Any
 import numpy as np
 
 from icenav._typing import Array
-from icenav._validation import check_transform
+from icenav._validation import check_transform, read_toml
 from icenav.apps.wiring import SimSession
 from icenav.control.controller import Controller, ControllerConfig
 from icenav.control.teleop import InputSource
@@ -99,13 +98,7 @@ def load_tracker_config(path: str | Path | None) -> TrackerSettings:
     if path is None:
         return TrackerSettings()
     p = Path(path)
-    try:
-        with p.open("rb") as fh:
-            data = tomllib.load(fh)
-    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
-        raise FileFormatError(f"{p}: not a valid TOML file (UTF-8): {exc}") from exc
-    except OSError as exc:
-        raise FileFormatError(f"cannot read the tracker configuration {p}: {exc}") from exc
+    data = read_toml(p, "the tracker configuration")
     unknown = set(data) - {"ndi", "mount", "registration"}
     if unknown:
         raise FileFormatError(

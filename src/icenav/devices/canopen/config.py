@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import enum
 import math
-import tomllib
 from collections.abc import Mapping
 from dataclasses import dataclass
 from importlib import resources
@@ -23,8 +22,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from icenav._validation import JOINT_NAMES, JOINT_UNITS, check_positive
-from icenav.errors import ConfigurationError, FileFormatError
+from icenav._validation import JOINT_NAMES, JOINT_UNITS, check_positive, read_toml
+from icenav.errors import ConfigurationError
 
 __all__ = [
     "BusConfig",
@@ -321,13 +320,7 @@ def load_robot_config(path: str | Path) -> RobotConfig:
     Raises FileFormatError for a file that is not TOML, ConfigurationError for bad values.
     """
     p = Path(path)
-    try:
-        with p.open("rb") as fh:
-            data = tomllib.load(fh)
-    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
-        raise FileFormatError(f"{p}: not a valid TOML file (UTF-8): {exc}") from exc
-    except OSError as exc:
-        raise FileFormatError(f"cannot read robot configuration {p}: {exc}") from exc
+    data = read_toml(p, "robot configuration")
     return RobotConfig.from_mapping(data, base_dir=p.parent)
 
 
