@@ -23,7 +23,8 @@ channel there is no check at all (documented in ``docs/view-recovery.md``).
 from __future__ import annotations
 
 import math
-from typing import Protocol
+import threading
+from typing import Any, Protocol
 
 import numpy as np
 from numpy.typing import ArrayLike
@@ -33,12 +34,18 @@ from icenav.errors import ConfigurationError, ShapeError
 from icenav.recovery.roadmap import Roadmap
 
 __all__ = [
+    "DEFAULT_ANGLE_DEG",
     "DEFAULT_MARGIN_FRACTION",
     "DEFAULT_MARGIN_N",
+    "DEFAULT_RADIUS_MM",
     "ForceMap",
     "ForceSensor",
+    "TipForceMap",
+    "TipTrace",
+    "effective_offset",
     "force_excess",
     "force_limit",
+    "shape_reference",
 ]
 
 DEFAULT_MARGIN_N = 0.1
@@ -151,3 +158,297 @@ def force_excess(
     """How far ``force_n`` exceeds the limit of Eq. (F1) between path states ``index`` and
     ``index + 1`` (N; <= 0: within)."""
     return float(force_n) - force_limit(profile, index, margin_n, margin_fraction)[1]
+
+
+DEFAULT_RADIUS_MM = 2.0
+"""Radius of the tip positions whose recorded forces form the reference of Eq. (F2) (mm)."""
+DEFAULT_ANGLE_DEG = 10.0
+"""Largest angle between the tip's axis now and a recorded one for Eq. (F2) (deg)."""
+
+
+class TipForceMap:
+    """The contact forces the operator's trace produced, keyed by where the catheter *was*:
+    the measured tip position and axis (EM, base frame) of each reading.
+
+    The force follows the catheter's shape, not its motor state: the same motor state with
+    another lost motion of the shaft is another shape (the tip millimetres deeper into a
+    wall), while the same tip pose reached by other motor states touches the same walls.
+    Along a return, with ``p``, ``z`` the measured tip position (mm) and axis now::
+
+        F_ref(p, z) = max { F_k : |p_k - p| <= r, angle(z_k, z) <= a }         (F2)
+
+    over the operator's readings ``k`` (the operator passed there at other moments of the
+    beat and the breath), and the check of Eq. (F1) uses ``F_ref`` in place of the motor
+    state's recorded force. Where the operator never had the tip (no reading within ``r``
+    and ``a``) the motor state's reference of Eq. (F1) stands. The anatomy is fixed in the
+    base frame unless the patient moves: then the same tip pose touches a moved wall, and
+    the force rises above the reference.
+
+    Parameters
+    ----------
+    radius_mm : float
+        ``r`` (mm).
+    angle_deg : float
+        ``a`` (deg).
+    """
+
+    def __init__(
+        self, radius_mm: float = DEFAULT_RADIUS_MM, angle_deg: float = DEFAULT_ANGLE_DEG
+    ) -> None:
+        if not (math.isfinite(radius_mm) and radius_mm > 0):
+            raise ConfigurationError(f"radius_mm must be > 0 mm, got {radius_mm}")
+        if not (math.isfinite(angle_deg) and 0 < angle_deg <= 180):
+            raise ConfigurationError(f"angle_deg must be in (0, 180] deg, got {angle_deg}")
+        self.radius_mm = float(radius_mm)
+        self.angle_deg = float(angle_deg)
+        self._rows: list[tuple[float, float, float, float, float, float, float]] = []
+        self._tree: Any = None
+        self._data: Array = np.zeros((0, 7))
+
+    @property
+    def n_samples(self) -> int:
+        """Readings recorded."""
+        return len(self._rows)
+
+    def record(self, tip2base: ArrayLike | None, force_n: float | None) -> None:
+        """Note ``force_n`` (N) read with the tip at ``tip2base`` (4, 4) (mm) while the
+        operator drove (ignored when either is None)."""
+        if tip2base is None or force_n is None:
+            return
+        f = float(force_n)
+        if not (math.isfinite(f) and f >= 0.0):
+            raise ConfigurationError(f"a contact force must be finite and >= 0 N, got {force_n}")
+        t = np.asarray(tip2base, np.float64)
+        if t.shape != (4, 4) or not np.all(np.isfinite(t)):
+            raise ShapeError(f"tip2base must be a finite (4, 4) pose, got shape {t.shape}")
+        z = t[:3, 2] / max(float(np.linalg.norm(t[:3, 2])), 1e-12)
+        self._rows.append((*(float(v) for v in t[:3, 3]), *(float(v) for v in z), f))
+        self._tree = None
+
+    def samples(self) -> Array:
+        """(n, 7) the readings: tip position (mm), tip axis (unit), force (N)."""
+        self._index()
+        return self._data.copy()
+
+    @classmethod
+    def from_samples(
+        cls,
+        samples: ArrayLike,
+        radius_mm: float = DEFAULT_RADIUS_MM,
+        angle_deg: float = DEFAULT_ANGLE_DEG,
+    ) -> TipForceMap:
+        """A map holding ``samples`` (n, 7) as :meth:`samples` gives them."""
+        a = np.asarray(samples, np.float64)
+        if a.ndim != 2 or a.shape[1] != 7 or not np.all(np.isfinite(a)):
+            raise ShapeError(f"samples must be finite with shape (n, 7), got {a.shape}")
+        out = cls(radius_mm, angle_deg)
+        out._rows = [tuple(float(v) for v in row) for row in a]  # type: ignore[misc]
+        return out
+
+    def _index(self) -> Any:
+        if self._tree is None:
+            from scipy.spatial import cKDTree  # a kept library for the radius queries
+
+            self._data = np.asarray(self._rows, np.float64).reshape(-1, 7)
+            self._tree = cKDTree(self._data[:, :3]) if len(self._data) else False
+        return self._tree
+
+    def reference(self, tip2base: ArrayLike | None) -> float | None:
+        """``F_ref`` of Eq. (F2) at the tip pose ``tip2base`` (4, 4) (N); None when the
+        operator never had the tip within the radius and angle (or no pose was read)."""
+        tree = self._index()
+        if tree is False or tip2base is None:
+            return None
+        t = np.asarray(tip2base, np.float64)
+        if t.shape != (4, 4):
+            raise ShapeError(f"tip2base must be a (4, 4) pose, got shape {t.shape}")
+        ids = tree.query_ball_point(t[:3, 3], self.radius_mm)
+        if not ids:
+            return None
+        rows = self._data[ids]
+        z = t[:3, 2] / max(float(np.linalg.norm(t[:3, 2])), 1e-12)
+        ok = rows[:, 3:6] @ z >= math.cos(math.radians(self.angle_deg))
+        if not ok.any():
+            return None
+        return float(rows[ok, 6].max())
+
+
+class TipTrace:
+    """Per roadmap vertex, the mean measured tip position (EM, base frame, mm) of the
+    operator's trace there: where the catheter *was* at that motor state.
+
+    Parameters
+    ----------
+    capacity : int
+        Initial number of vertex slots (grown by doubling).
+    """
+
+    def __init__(self, capacity: int = 1024) -> None:
+        self._sum = np.zeros((max(16, int(capacity)), 3))
+        self._count = np.zeros(len(self._sum), np.int64)
+        self._n = 0
+
+    @property
+    def n_recorded(self) -> int:
+        """Vertices with a recorded tip position."""
+        return int(np.count_nonzero(self._count[: self._n]))
+
+    def record(self, vertex: int, tip2base: ArrayLike | None) -> None:
+        """Note the tip pose ``tip2base`` (4, 4) (mm) measured at ``vertex`` while the operator
+        drove (ignored when the vertex is -1 or the pose is None)."""
+        if vertex < 0 or tip2base is None:
+            return
+        t = np.asarray(tip2base, np.float64)
+        if t.shape != (4, 4) or not np.all(np.isfinite(t[:3, 3])):
+            raise ShapeError(f"tip2base must be a finite (4, 4) pose, got shape {t.shape}")
+        self._grow(vertex)
+        self._sum[vertex] += t[:3, 3]
+        self._count[vertex] += 1
+        self._n = max(self._n, vertex + 1)
+
+    def rows(self) -> tuple[Array, Array, Array]:
+        """(vertex ids (k,), position sums (k, 3) mm, counts (k,)) of the recorded vertices
+        (what a session stores)."""
+        ids = np.flatnonzero(self._count[: self._n])
+        return ids, self._sum[ids].copy(), self._count[ids].copy()
+
+    def add_rows(self, ids: ArrayLike, sums: ArrayLike, counts: ArrayLike) -> None:
+        """Merge rows as :meth:`rows` gives them (a session reopened)."""
+        i = np.asarray(ids, np.int64).reshape(-1)
+        s = np.asarray(sums, np.float64).reshape(-1, 3)
+        c = np.asarray(counts, np.int64).reshape(-1)
+        if not (len(i) == len(s) == len(c)) or (len(i) and (i.min() < 0 or c.min() < 1)):
+            raise ShapeError("tip trace rows must be ids >= 0, (k, 3) sums and counts >= 1")
+        for v, sv, cv in zip(i, s, c, strict=True):
+            self._grow(int(v))
+            self._sum[v] += sv
+            self._count[v] += cv
+            self._n = max(self._n, int(v) + 1)
+
+    def _grow(self, vertex: int) -> None:
+        if vertex >= len(self._sum):
+            size = max(2 * len(self._sum), vertex + 1)
+            s, c = np.zeros((size, 3)), np.zeros(size, np.int64)
+            s[: len(self._sum)], c[: len(self._count)] = self._sum, self._count
+            self._sum, self._count = s, c
+
+    def mean_at(self, vertices: ArrayLike) -> Array:
+        """(k, 3) mean tip position (mm) at each vertex id (NaN where none)."""
+        ids = np.asarray(vertices, np.int64).reshape(-1)
+        out = np.full((len(ids), 3), np.nan)
+        ok = (ids >= 0) & (ids < self._n)
+        ok[ok] = self._count[ids[ok]] > 0
+        out[ok] = self._sum[ids[ok]] / self._count[ids[ok], None]
+        return out
+
+
+def effective_offset(tip_now: ArrayLike, tip_then: ArrayLike) -> tuple[float, float]:
+    """The shaft's lost motion between the operator's pass and now, from the measured tip
+    positions (mm, base frame) at the same motor state, Eq. (F3)::
+
+        d_rho = atan2(y, x) - atan2(y', x')      (rad, roll about the base axis z)
+        d_s   = z - z'                            (mm, along the base axis)
+
+    The roll is 0 when either tip lies within 1 mm of the base axis."""
+    p = np.asarray(tip_now, np.float64).reshape(3)
+    p0 = np.asarray(tip_then, np.float64).reshape(3)
+    d_rho = 0.0
+    if math.hypot(p[0], p[1]) > 1.0 and math.hypot(p0[0], p0[1]) > 1.0:
+        d_rho = math.atan2(p[1], p[0]) - math.atan2(p0[1], p0[0])
+        d_rho = (d_rho + math.pi) % (2.0 * math.pi) - math.pi
+    return d_rho, float(p[2] - p0[2])
+
+
+def shape_reference(
+    forces: ForceMap,
+    tips: TipTrace,
+    roadmap: Roadmap,
+    q: ArrayLike,
+    tip2base: ArrayLike | None,
+    radius: float | None = None,
+) -> float | None:
+    """The operator's recorded force where the catheter's shape now was (N), Eq. (F3):
+    the lost motion since the operator's pass at motor state ``q`` (4,) from the tip
+    measured now (``tip2base``, (4, 4) mm) and the operator's mean tip at the vertices within
+    ``radius`` (metric units; default the roadmap's epsilon) of ``q``, then the largest force
+    recorded within ``radius`` of the effective state ``q + (0, 0, d_rho, d_s)``: the motor
+    state at which the operator had this shape. None when either is unknown."""
+    if tip2base is None:
+        return None
+    r = roadmap.epsilon if radius is None else float(radius)
+    qa = np.asarray(q, np.float64).reshape(4)
+    ids, _ = roadmap.neighbours(qa, r)
+    then = tips.mean_at(ids)
+    ok = np.isfinite(then[:, 0])
+    if not ok.any():
+        return None
+    d_rho, d_s = effective_offset(np.asarray(tip2base, np.float64)[:3, 3], then[ok][0])
+    q_eff = qa + np.array([0.0, 0.0, d_rho, d_s])
+    eff_ids, _ = roadmap.neighbours(q_eff, r)
+    vals = forces.at(eff_ids)
+    if not np.isfinite(vals).any():
+        return None
+    return float(np.nanmax(vals))
+
+
+class ForceRecord:
+    """The operator's contact forces a session keeps: per roadmap vertex (:class:`ForceMap`,
+    Eq. F1) and per measured tip pose (:class:`TipForceMap`, Eq. F2), with what a store has
+    not written yet.
+
+    Threads: :meth:`record` runs on the thread that drives (the control loop);
+    :meth:`take_vertex_rows` may run on another (a lock guards the changed vertices); a
+    writer may read :meth:`tip_rows` below a count taken before (the tip readings are
+    append-only).
+
+    Parameters
+    ----------
+    forces : ForceMap, optional
+    tips : TipForceMap, optional
+    """
+
+    def __init__(self, forces: ForceMap | None = None, tips: TipForceMap | None = None) -> None:
+        self.forces = forces if forces is not None else ForceMap()
+        self.tips = tips if tips is not None else TipForceMap()
+        self._dirty: set[int] = set()
+        self._lock = threading.Lock()
+
+    def record(self, vertex: int, force_n: float | None, tip2base: ArrayLike | None) -> None:
+        """Note a reading of the operator's trace: the force (N) at ``vertex`` and, with a
+        tip pose (4, 4) (mm), at that pose."""
+        if force_n is None:
+            return
+        self.forces.record(vertex, force_n)
+        if vertex >= 0:
+            with self._lock:
+                self._dirty.add(int(vertex))
+        self.tips.record(tip2base, force_n)
+
+    def take_vertex_rows(self) -> list[tuple[int, float]]:
+        """(vertex, force N) of the vertices changed since the last call (for the store)."""
+        with self._lock:
+            ids = sorted(self._dirty)
+            self._dirty.clear()
+        return [(v, float(f)) for v, f in zip(ids, self.forces.at(ids).tolist(), strict=True)]
+
+    @property
+    def n_tip_rows(self) -> int:
+        """Tip readings recorded (append-only)."""
+        return self.tips.n_samples
+
+    def tip_rows(self, start: int, stop: int) -> list[tuple[float, ...]]:
+        """Tip readings ``start .. stop - 1``: position (mm), axis, force (N)."""
+        return list(self.tips._rows[start:stop])  # noqa: SLF001 - the append-only rows
+
+    @classmethod
+    def from_rows(
+        cls, vertex_rows: ArrayLike, tip_rows: ArrayLike, radius_mm: float = DEFAULT_RADIUS_MM,
+        angle_deg: float = DEFAULT_ANGLE_DEG,
+    ) -> ForceRecord:  # fmt: skip
+        """A record restored from a session: (k, 2) vertex / force rows, (n, 7) tip rows."""
+        vr = np.asarray(vertex_rows, np.float64).reshape(-1, 2)
+        out = cls(tips=TipForceMap.from_samples(np.asarray(tip_rows, np.float64).reshape(-1, 7),
+                                                radius_mm, angle_deg))  # fmt: skip
+        for v, f in vr.tolist():
+            out.forces.record(int(v), f)
+        return out

@@ -1,0 +1,314 @@
+"""The force check of a return under study: false alarms on undisturbed returns and the
+patient shifts it catches, for the motor-state reference of Eq. (F1) and the tip-pose
+reference of Eq. (F2) (:mod:`icenav.recovery.force`).
+
+Protocol, per catheter / patient pair on a disturbed twin (``phantom`` or ``in-vivo``):
+
+1. the scripted operator drives to the three valve views (``eval recovery``'s targets),
+   dwells, then explores (``wander_moves``); every commanded state is recorded in the
+   roadmap with the force read there (:class:`ForceMap`), and the EM tip pose is read with
+   the force every ``em_every`` cycles (:class:`TipForceMap`);
+2. ``rounds`` rounds of returns to the three views, the patient where it was, each after
+   ``moves_between`` more exploration moves of the operator (recorded): every force the
+   check would stop on is a false alarm;
+3. for each shift (``shifts_mm`` along each of the six base-frame axes, the views in turn)
+   the operator explores as before, the patient moves, the catheter returns to the view,
+   the patient moves back.
+
+A return follows its roadmap path without stopping; at each cycle the study notes the force
+read and each reference (the EM pose read every ``em_every`` cycles, the last one held in
+between). What a return needed not to stop, for a relative margin ``c``, is
+``max_k (F_k - (1 + c) F_ref,k)`` (N): the check stops it when that exceeds the absolute
+margin. The summary sweeps the absolute margin and prints, per reference, the false-alarm
+rate and the fraction of shifted returns caught.
+
+``python -m icenav.eval.force_study --condition in-vivo --seed 100-104 --patient 0-4``
+(``--json PATH`` writes the per-return records). Seeds: ``docs/view-recovery.md``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import time
+from collections.abc import Sequence
+from dataclasses import asdict, dataclass, field
+from typing import Any
+
+import numpy as np
+
+from icenav._typing import Array
+from icenav.control.controller import ControllerConfig, PathTask
+from icenav.errors import ConfigurationError
+from icenav.eval.recovery import TARGETS, RecoveryConfig
+from icenav.eval.recovery_bench import DT, Bench
+from icenav.recovery.force import ForceMap, TipForceMap, TipTrace, shape_reference
+
+__all__ = [
+    "FRACTIONS",
+    "ForceStudyConfig",
+    "ReturnForces",
+    "main",
+    "run_force_study",
+    "summarize",
+]
+
+FRACTIONS = (0.0, 0.5, 1.0)
+"""Relative margins ``c`` at which each return's needed absolute margin is noted."""
+
+
+@dataclass(frozen=True)
+class ForceStudyConfig:
+    """One pair of the study (see the module docstring)."""
+
+    condition: str = "in-vivo"
+    """Twin condition: ``phantom`` or ``in-vivo``."""
+    seed: int = 100
+    """Catheter seed."""
+    patient: int = 0
+    """Patient seed."""
+    rounds: int = 4
+    """Undisturbed rounds of returns to the three views."""
+    shifts_mm: tuple[float, ...] = (5.0, 10.0, 20.0)
+    """Patient shifts (mm), each along the six base-frame axes."""
+    wander_moves: int = 12
+    """Exploration moves of the operator after the views."""
+    moves_between: int = 2
+    """Exploration moves of the operator before each return (a return starts where the
+    operator left the catheter)."""
+    em_every: int = 4
+    """Control cycles per EM reading (the twin's contact is solved at 25 Hz)."""
+    tip_keys: tuple[tuple[float, float], ...] = ((2.0, 180.0), (4.0, 180.0), (8.0, 180.0),
+                                                 (4.0, 30.0))  # fmt: skip
+    """(radius mm, angle deg) of each tip-pose reference, Eq. (F2)."""
+    lost_motion_box: tuple[float, float] = (0.3, 4.0)
+    """Roll (rad) and translation (mm) of the ``box`` reference: the largest force recorded
+    at the vertices within the roadmap's epsilon in the steering joints and within these
+    of the current state in roll and translation (the shaft's lost motion, without EM)."""
+
+
+@dataclass(frozen=True)
+class ReturnForces:
+    """What one return met: the margin (N) each reference needed not to stop it."""
+
+    condition: str
+    seed: int
+    patient: int
+    target: str
+    shift_mm: tuple[float, float, float]
+    """Patient shift of this return (mm, base frame; zeros: undisturbed)."""
+    peak_force_n: float
+    """Largest force read along the return (N)."""
+    needed_n: dict[str, dict[str, float]] = field(default_factory=dict)
+    """Per reference (``motor``, ``tip1``, ``tip2``...) and relative margin (``"0.5"``),
+    ``max_k (F_k - (1 + c) F_ref,k)`` (N)."""
+    tip_found: dict[str, float] = field(default_factory=dict)
+    """Per tip reference, the fraction of cycles with a reading within its radius."""
+
+
+def _reference_names(cfg: ForceStudyConfig) -> list[str]:
+    return ["motor", "box", "shape"] + [f"tip{r:g}a{a:g}" for r, a in cfg.tip_keys]
+
+
+def _box_reference(b: Bench, motor: ForceMap, q: Array, box: tuple[float, float]) -> float:
+    """Largest recorded force within the lost-motion box of ``q`` (N; NaN: none)."""
+    verts = b.roadmap.vertices()
+    d = np.abs(verts - q)
+    eps = b.roadmap.epsilon
+    ok = (d[:, 0] <= np.radians(eps)) & (d[:, 1] <= np.radians(eps))
+    ok &= (d[:, 2] <= box[0]) & (d[:, 3] <= box[1])
+    vals = motor.at(np.flatnonzero(ok))
+    return float(np.nanmax(vals)) if np.isfinite(vals).any() else math.nan
+
+
+def run_force_study(cfg: ForceStudyConfig) -> list[ReturnForces]:
+    """Run the protocol of the module docstring for one pair."""
+    b = Bench(
+        RecoveryConfig(
+            condition=cfg.condition,
+            seed=cfg.seed,
+            patient=cfg.patient,
+            wander_moves=cfg.wander_moves,
+            force_check=True,
+        )
+    )
+    if b.twin is None or b.force_sensor is None:
+        raise ConfigurationError(f"condition {cfg.condition!r} has no contact (phantom or in-vivo)")
+    motor = ForceMap()
+    tips = [TipForceMap(r, a) for r, a in cfg.tip_keys]
+    tip_trace = TipTrace()
+
+    def drive(trace: Array) -> None:
+        for k, q in enumerate(trace):
+            b.robot.command_position(q)
+            b.record(q)
+            tip = b.tracker.measure_tip2base(1) if k % cfg.em_every == 0 else None
+            f = b.force_sensor.contact_force_n()  # type: ignore[union-attr]
+            motor.record(b.roadmap.current_vertex, f)
+            tip_trace.record(b.roadmap.current_vertex, tip)
+            for m in tips:
+                m.record(tip, f)
+            b.clock.advance(DT)
+
+    views = {}
+    for name in TARGETS:
+        drive(b.operator.move_to(b.views[name]))
+        drive(b.operator.dwell(0.5))
+        views[name] = b.roadmap.make_view(name, created_s=b.clock.now())
+    drive(b.operator.explore(cfg.wander_moves))
+
+    out: list[ReturnForces] = []
+    plan: list[tuple[float, float, float]] = [(0.0, 0.0, 0.0)] * (cfg.rounds * len(TARGETS))
+    for s in cfg.shifts_mm:
+        for axis in range(3):
+            for sign in (1.0, -1.0):
+                v = [0.0, 0.0, 0.0]
+                v[axis] = sign * s
+                plan.append((v[0], v[1], v[2]))
+    for k, shift in enumerate(plan):
+        drive(b.operator.explore(cfg.moves_between))
+        moved = any(shift)
+        if moved:
+            b.twin.shift_patient(shift)
+        name = TARGETS[k % len(TARGETS)]
+        out.append(_follow(b, cfg, views[name], motor, tips, tip_trace, shift))
+        if moved:
+            b.twin.shift_patient([-x for x in shift])
+    return out
+
+
+def _follow(
+    b: Bench,
+    cfg: ForceStudyConfig,
+    view: Any,
+    motor: ForceMap,
+    tips: list[TipForceMap],
+    trace: TipTrace,
+    shift: tuple[float, float, float],
+) -> ReturnForces:
+    q0 = np.asarray(b.robot.read_state().q, np.float64)
+    path = b.roadmap.plan(q0, view, approach=True)
+    profile = motor.profile(b.roadmap, path)
+    task = PathTask(path, np.array(ControllerConfig().max_velocity))
+    forces: list[float] = []
+    refs: list[list[float]] = []
+    tip_ref: list[float] = [math.nan] * len(tips)
+    held = [math.nan, math.nan]
+    k = 0
+    while True:
+        q = task.next_command(np.asarray(b.robot.read_state().q), DT)
+        if q is None:
+            break
+        b.robot.command_position(q)
+        b.record(q)
+        b.clock.advance(DT)
+        if k % cfg.em_every == 0:
+            tip = b.tracker.measure_tip2base(1)
+            if tip is not None:
+                tip_ref = [math.nan if (r := m.reference(tip)) is None else r for m in tips]
+                sh = shape_reference(motor, trace, b.roadmap, q, tip)
+                held = [_box_reference(b, motor, q, cfg.lost_motion_box),
+                        math.nan if sh is None else sh]  # fmt: skip
+        k += 1
+        f = float(b.force_sensor.contact_force_n() or 0.0)  # type: ignore[union-attr]
+        i = task.path_index
+        m_ref = math.nan
+        if profile is not None:
+            m_ref = max(float(profile[i]), float(profile[min(i + 1, len(profile) - 1)]))
+        forces.append(f)
+        refs.append([m_ref, *held, *tip_ref])
+    b.clock.advance(0.2)
+    fa = np.asarray(forces)
+    ra = np.asarray(refs).reshape(len(fa), 3 + len(tips))
+    needed: dict[str, dict[str, float]] = {}
+    found: dict[str, float] = {}
+    for j, name in enumerate(_reference_names(cfg)):
+        ref = ra[:, j].copy()
+        if j > 0:  # the larger of Eq. (F1)'s and this one where it has one
+            found[name] = float(np.mean(np.isfinite(ref))) if len(ref) else 0.0
+            ref = np.fmax(ref, ra[:, 0])
+        ok = np.isfinite(ref)
+        needed[name] = {
+            f"{c:g}": float(np.max(fa[ok] - (1.0 + c) * ref[ok])) if ok.any() else -math.inf
+            for c in FRACTIONS
+        }
+    return ReturnForces(
+        cfg.condition,
+        cfg.seed,
+        cfg.patient,
+        view.name,
+        shift,
+        float(fa.max()) if len(fa) else 0.0,
+        needed,
+        found,
+    )
+
+
+def summarize(
+    records: Sequence[ReturnForces], fraction: float = 1.0, margins_n: Sequence[float] = ()
+) -> str:
+    """Per reference and absolute margin: false alarms on undisturbed returns and the
+    shifted returns caught (per shift magnitude), at the relative margin ``fraction``."""
+    if not records:
+        return "(no returns)"
+    key = f"{fraction:g}"
+    names = list(records[0].needed_n)
+    margins = list(margins_n) or [0.1, 0.25, 0.5, 0.75, 1.0, 1.5]
+    still = [r for r in records if not any(r.shift_mm)]
+    mags = sorted({round(max(abs(x) for x in r.shift_mm), 3) for r in records if any(r.shift_mm)})
+    lines = [f"relative margin {100 * fraction:.0f} %; undisturbed returns {len(still)}"]
+    for name in names:
+        need = [r.needed_n[name][key] for r in still]
+        top = max(need) if need else math.nan
+        lines.append(f"  {name}: largest margin needed without a shift {top:.2f} N")
+        for m in margins:
+            fa = sum(n > m for n in need)
+            parts = [f"false alarms {fa}/{len(need)}"]
+            for s in mags:
+                sh = [r for r in records if round(max(abs(x) for x in r.shift_mm), 3) == s]
+                caught = sum(r.needed_n[name][key] > m for r in sh)
+                parts.append(f"{s:g} mm caught {caught}/{len(sh)}")
+            lines.append(f"    margin {m:.2f} N: " + ", ".join(parts))
+    return "\n".join(lines)
+
+
+def _seeds(text: str) -> list[int]:
+    out: list[int] = []
+    for part in text.split(","):
+        lo, _, hi = part.partition("-")
+        out.extend(range(int(lo), int(hi or lo) + 1))
+    return out
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """``python -m icenav.eval.force_study`` (see the module docstring)."""
+    ap = argparse.ArgumentParser(prog="python -m icenav.eval.force_study", description=__doc__)
+    ap.add_argument("--condition", default="in-vivo", choices=("phantom", "in-vivo"))
+    ap.add_argument("--seed", default="100", help="catheter seeds, e.g. 100-104")
+    ap.add_argument("--patient", default="0", help="patient seeds, paired in order")
+    ap.add_argument("--rounds", type=int, default=4)
+    ap.add_argument("--fraction", type=float, default=1.0, help="relative margin of the summary")
+    ap.add_argument("--json", default=None, help="write the per-return records here")
+    args = ap.parse_args(argv)
+    seeds, patients = _seeds(args.seed), _seeds(args.patient)
+    if len(patients) == 1:
+        patients = patients * len(seeds)
+    if len(seeds) != len(patients):
+        ap.error("--seed and --patient must pair in order (or one patient for all)")
+    records: list[ReturnForces] = []
+    for s, p in zip(seeds, patients, strict=True):
+        t0 = time.perf_counter()
+        cfg = ForceStudyConfig(condition=args.condition, seed=s, patient=p, rounds=args.rounds)
+        records.extend(run_force_study(cfg))
+        print(f"catheter {s} / patient {p}: {time.perf_counter() - t0:.0f} s", flush=True)
+    for c in FRACTIONS:
+        print(summarize(records, c))
+    if args.json:
+        with open(args.json, "w", encoding="utf-8") as fh:
+            json.dump([asdict(r) for r in records], fh, indent=1)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
