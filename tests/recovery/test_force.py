@@ -5,8 +5,17 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from icenav.errors import ConfigurationError
-from icenav.recovery.force import ForceMap, force_excess, force_limit
+from icenav.errors import ConfigurationError, ShapeError
+from icenav.recovery.force import (
+    ForceMap,
+    ForceRecord,
+    TipForceMap,
+    TipTrace,
+    effective_offset,
+    force_excess,
+    force_limit,
+    shape_reference,
+)
 from icenav.recovery.roadmap import Roadmap
 
 
@@ -38,3 +47,72 @@ def test_the_limit_is_the_larger_end_of_the_segment_plus_the_margin() -> None:
     assert force_excess(profile, 1, 0.7, 0.25, 0.0) == pytest.approx(0.05)
     assert force_excess(profile, 2, 0.5, 0.25, 0.0) == pytest.approx(0.05)  # the end: itself
     assert force_limit(profile, 1, 0.05, 0.5) == pytest.approx((0.4, 0.65))
+
+
+def _pose(p: list[float], z: list[float] | None = None) -> np.ndarray:
+    t = np.eye(4)
+    t[:3, 3] = p
+    if z is not None:  # a rotation taking the z axis to ``z`` (about x)
+        zz = np.asarray(z, float) / np.linalg.norm(z)
+        t[:3, 2] = zz
+        t[:3, 1] = np.cross(zz, t[:3, 0])
+    return t
+
+
+def test_the_tip_reference_is_the_largest_force_where_the_operator_had_the_tip() -> None:
+    tips = TipForceMap(radius_mm=2.0, angle_deg=10.0)
+    assert tips.reference(_pose([0, 0, 0])) is None  # nothing recorded
+    tips.record(_pose([0, 0, 0]), 0.5)
+    tips.record(_pose([1.5, 0, 0]), 0.8)
+    tips.record(_pose([0, 3.0, 0]), 2.0)  # 3 mm away: outside the radius
+    tips.record(_pose([0.5, 0, 0], [0, 0.5, 1.0]), 5.0)  # tilted 27 deg: outside the angle
+    tips.record(None, 9.0)
+    tips.record(_pose([0, 0, 0]), None)
+    assert tips.n_samples == 4
+    assert tips.reference(_pose([0.5, 0, 0])) == pytest.approx(0.8)
+    assert tips.reference(_pose([0, 2.5, 0])) == pytest.approx(2.0)
+    assert tips.reference(_pose([10, 0, 0])) is None
+    assert tips.reference(None) is None
+    again = TipForceMap.from_samples(tips.samples(), 2.0, 10.0)
+    assert again.reference(_pose([0.5, 0, 0])) == pytest.approx(0.8)
+    with pytest.raises(ConfigurationError):
+        tips.record(_pose([0, 0, 0]), float("nan"))
+    with pytest.raises(ShapeError):
+        tips.record(np.eye(3), 1.0)
+    with pytest.raises(ConfigurationError):
+        TipForceMap(radius_mm=0.0)
+
+
+def test_the_effective_state_offsets_roll_and_translation_from_the_tips() -> None:
+    d_rho, d_s = effective_offset([0.0, 10.0, 5.0], [10.0, 0.0, 3.0])
+    assert d_rho == pytest.approx(np.pi / 2) and d_s == pytest.approx(2.0)
+    assert effective_offset([0.5, 0.0, 1.0], [10.0, 0.0, 0.0])[0] == 0.0  # on the axis
+    rm = Roadmap(epsilon=1.0)
+    forces, trace = ForceMap(), TipTrace(capacity=1)
+    for d4 in (0.0, 3.0):  # two vertices 3 mm apart, the tip 3 mm further at the second
+        v = rm.add([0.0, 0.0, 0.0, d4])
+        forces.record(v, 0.2 if d4 == 0.0 else 1.5)
+        trace.record(v, _pose([10.0, 0.0, 50.0 + d4]))
+    assert trace.n_recorded == 2
+    # at the first motor state with the tip where the second put it (3 mm of lost motion):
+    # the force the operator produced with that shape
+    now = _pose([10.0, 0.0, 53.0])
+    assert shape_reference(forces, trace, rm, [0, 0, 0, 0], now) == pytest.approx(1.5)
+    assert shape_reference(forces, trace, rm, [0, 0, 0, 0], None) is None
+    ids, sums, counts = trace.rows()
+    copy = TipTrace()
+    copy.add_rows(ids, sums, counts)
+    np.testing.assert_allclose(copy.mean_at([0, 1, 7]), trace.mean_at([0, 1, 7]))
+
+
+def test_the_record_hands_the_store_each_changed_vertex_once() -> None:
+    rec = ForceRecord()
+    rec.record(3, 0.4, _pose([0, 0, 0]))
+    rec.record(3, 0.2, None)
+    rec.record(5, None, _pose([0, 0, 0]))  # no force: nothing
+    assert rec.take_vertex_rows() == [(3, 0.4)]
+    assert rec.take_vertex_rows() == []
+    assert rec.n_tip_rows == 1 and len(rec.tip_rows(0, 1)[0]) == 7
+    back = ForceRecord.from_rows([(3, 0.4)], np.array(rec.tip_rows(0, 1)))
+    assert back.forces.at([3])[0] == pytest.approx(0.4)
+    assert back.tips.reference(_pose([0.1, 0, 0])) == pytest.approx(0.4)

@@ -21,6 +21,7 @@ from icenav._typing import Array
 from icenav.control.controller import Controller, ControllerConfig
 from icenav.control.teleop import InputSource
 from icenav.errors import ConfigurationError
+from icenav.persistence.forces import load_forces
 from icenav.persistence.recorder import StoreRecorder
 from icenav.persistence.store import SessionStore
 from icenav.recovery.roadmap import Roadmap, RoadmapConfig
@@ -30,6 +31,7 @@ __all__ = [
     "StoreRecorder",
     "anatomy_labels",
     "anatomy_meshes",
+    "force_channel",
     "install_calibration",
     "make_imager",
     "make_sim_controller",
@@ -142,12 +144,13 @@ def make_sim_controller(
         raise ConfigurationError(f"robot must be 'sim' or 'emulated-canopen', got {robot!r}")
     tracker.start()
     store = recorder = None
-    roadmap = views = None
+    roadmap = views = forces = None
     if session is not None:
         store = SessionStore(session, config=roadmap_config, clock=clock)
         roadmap = store.load_roadmap()
         roadmap.break_trace()  # the restart was not a travelled motion
         views = store.load_views()
+        forces = load_forces(store)  # the operator's forces: returns checked as before
     elif roadmap_config is not None:
         roadmap = Roadmap(config=roadmap_config)
     renderer = imager = ijk2tip = None
@@ -172,11 +175,24 @@ def make_sim_controller(
         imager=imager,
         image_ijk2tip=ijk2tip,
         clock=clock,
+        force_sensor=force_channel(model),
+        forces=forces,
     )
     if store is not None:
-        recorder = StoreRecorder(store, controller.roadmap, threaded=True)
+        recorder = StoreRecorder(store, controller.roadmap, threaded=True, forces=controller.forces)
         controller.set_recorder(recorder)
     return SimSession(controller, model, tracker, renderer, store, recorder, drives)
+
+
+def force_channel(model: Any) -> Any:
+    """The twin's contact-force channel when the plant has contact
+    (:class:`icenav.sim.disturbed.TwinForceSensor`), else None: no force check, and the
+    console says so."""
+    if getattr(model, "contact", None) is None or not hasattr(model, "last_contact_force_n"):
+        return None
+    from icenav.sim.disturbed import TwinForceSensor
+
+    return TwinForceSensor(model)
 
 
 def install_calibration(controller: Controller, path: str | Path) -> str:

@@ -173,6 +173,7 @@ def status_markdown(state: ControllerState) -> str:
         f"**Control:** {md(client_label(state.control_owner))} &nbsp; **Compensation:** "
         f"{'on' if state.compensation_enabled else 'off'} &nbsp; **Running for** "
         f"{duration_text(state.time)}",
+        f"**Force check of returns:** {md(state.force_check)}",
     ]
     if state.mode in (Mode.FAULT, Mode.ESTOP):
         lines.append(f"**{mode}:** {md(state.message) or '(no message)'}")

@@ -10,6 +10,7 @@ import numpy as np
 from icenav._validation import check_finite, check_positive
 from icenav.errors import ConfigurationError
 from icenav.geometry.kinematics import DEFAULT_GEOMETRY, CatheterGeometry
+from icenav.recovery.force import DEFAULT_MARGIN_FRACTION, DEFAULT_MARGIN_N
 
 __all__ = ["ControllerConfig"]
 
@@ -62,6 +63,11 @@ class ControllerConfig:
     for this long (s)."""
     geometry: CatheterGeometry = DEFAULT_GEOMETRY
     """Catheter geometry and joint limits (the motor limits equal the model limits)."""
+    force_margin_n: float = DEFAULT_MARGIN_N
+    """Absolute margin of a return's force check (N), Eqs. (F1, F2) of
+    :mod:`icenav.recovery.force` (with a force channel only)."""
+    force_margin_fraction: float = DEFAULT_MARGIN_FRACTION
+    """Relative margin of a return's force check (fraction of the recorded force)."""
 
     def __post_init__(self) -> None:
         check_positive(self.rate_hz, "rate_hz", "Hz")
@@ -82,6 +88,10 @@ class ControllerConfig:
                 f"plan_settle_s must be in [0, 10] s, got {self.plan_settle_s} s"
             )
         check_positive(self.calibration_ramp_s, "calibration_ramp_s", "s")
+        for name in ("force_margin_n", "force_margin_fraction"):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and 0.0 <= value <= 100.0):
+                raise ConfigurationError(f"{name} must be in [0, 100] (N or fraction), got {value}")
         if not (math.isfinite(self.stall_estop_s) and 0.05 <= self.stall_estop_s <= 60.0):
             raise ConfigurationError(
                 f"stall_estop_s must be in [0.05, 60] s, got {self.stall_estop_s} s"

@@ -73,7 +73,9 @@ from icenav.control.state import CalibrationKind, ControllerState, ImageFrame, K
 from icenav.control.tasks import Done, PathTask, Running, Task, TaskStatus
 from icenav.control.teleop import GamepadReader, InputSource, JogHold, JoystickMapping, jog_setpoint
 from icenav.devices.robot import JointState, RobotBackend, RobotStatus
-from icenav.errors import IcenavError
+from icenav.devices.tracker import PoseSampleBuffer
+from icenav.errors import ConfigurationError, IcenavError
+from icenav.recovery.force import ForceRecord, ForceSensor
 from icenav.recovery.roadmap import Roadmap, warm_up_planner
 from icenav.recovery.views import ViewLibrary
 
@@ -89,6 +91,9 @@ logger = logging.getLogger("icenav.control")
 
 SUPERVISOR = Source("script", "supervisor")
 """The source of the supervisor's e-stop."""
+
+_OPERATOR_MODES = (Mode.KNOB, Mode.TIP)
+"""Modes in which the operator drives: their contact forces are the returns' reference."""
 
 
 class Controller:
@@ -124,6 +129,15 @@ class Controller:
         events "state", "view_saved", "view_renamed", "view_deleted", "event", "command".
     clock : callable
         Time source (s) for timestamps of jogs and the gamepad watchdog.
+    force_sensor : ForceSensor, optional
+        The robot's contact-force channel (:mod:`icenav.recovery.force`). None: no force
+        is recorded and returns are not force-checked (the state says so).
+    forces : ForceRecord, optional
+        The operator's recorded forces (a resumed session's); a new one by default.
+    respiration : RespiratoryMonitor, optional
+        The respiratory belt / ventilator signal; None without one.
+    cardiac_phase : callable t (s) -> [0, 1), optional
+        The ECG's cardiac phase (0 at the R wave, the ``clock``'s time); None without one.
     """
 
     def __init__(
@@ -142,6 +156,10 @@ class Controller:
         image_ijk2tip: Array | None = None,
         recorder: Callable[[str, dict[str, Any]], object] | None = None,
         clock: Callable[[], float] = time.monotonic,
+        force_sensor: ForceSensor | None = None,
+        forces: ForceRecord | None = None,
+        respiration: Any = None,
+        cardiac_phase: Callable[[float], float] | None = None,
     ) -> None:
         from icenav.control.authorization import Authorizer
 
@@ -156,6 +174,17 @@ class Controller:
         self.calibration: Any = None
         """The calibration set behind the installed compensation (None: none made here)."""
         self.tracker = tracker
+        self.force_sensor = force_sensor
+        """The contact-force channel (None: no force check)."""
+        self.forces = forces if forces is not None else ForceRecord()
+        """The operator's contact forces per vertex and per tip pose (Eqs. F1, F2)."""
+        self.pose_buffer: PoseSampleBuffer | None = (
+            PoseSampleBuffer() if tracker is not None else None
+        )
+        """The tracked tip poses of the last seconds with their times (the control loop
+        fills it from the tracker's newest samples), for :meth:`cycle_pose`."""
+        self.respiration = respiration
+        self.cardiac_phase = cardiac_phase
         self._recorder = recorder
         self._clock = clock
         self._outbox: deque[tuple[str, dict[str, Any]]] = deque()
@@ -424,6 +453,12 @@ class Controller:
                     self.handlers.send(q_next, dt)
             if self.machine.mode is not Mode.CALIBRATING:  # the roadmap: what was driven
                 self.roadmap.add(self._q, check=False)
+            operator = self.force_sensor is not None and self.machine.mode in _OPERATOR_MODES
+            tip = self.tip_pose_now() if operator or self.pose_buffer is not None else None
+            if self.pose_buffer is not None:
+                self.pose_buffer.push(self._clock(), tip)
+            if operator:
+                self._record_force(tip)
             self.record("state", {"q": self._q, "t": self._time})
         except Exception as exc:  # the loop never dies: FAULT, robot quick-stopped
             self._halt(exc)
@@ -436,6 +471,44 @@ class Controller:
                 self.publisher.publish_minimal()
         self.cycle_times.append(time.perf_counter() - t_start)
         return self._state
+
+    def _record_force(self, tip2base: Array | None) -> None:
+        """The operator's contact force at the vertex just recorded and at the tracked tip
+        pose (the newest sample, never waited for): the reference of a later return."""
+        try:
+            f = self.force_sensor.contact_force_n()  # type: ignore[union-attr]
+        except Exception as exc:  # the channel failed: nothing recorded, the operator told
+            self._message = f"force channel error: {exc}"
+            return
+        self.forces.record(self.roadmap.current_vertex, f, tip2base)
+
+    def cycle_pose(self, window_s: float = 9.0, rate_hz: float = 10.0) -> Any:
+        """The tip pose sensor of the refinement's EM stage: the tracked samples of the last
+        ``window_s`` averaged over complete breaths (respiratory signal), else complete beats
+        (ECG), else plain over the whole window, Eq. (R1) of
+        :mod:`icenav.refinement.cycle_pose`. The catheter must have been still that long."""
+        from icenav.refinement.cycle_pose import CycleAveragedPose  # scipy on use
+
+        if self.pose_buffer is None:
+            raise ConfigurationError("the cycle-averaged pose needs a tracker")
+        return CycleAveragedPose(self.pose_buffer, self.respiration, self.cardiac_phase,
+                                 window_s=window_s, rate_hz=rate_hz)  # fmt: skip
+
+    def tip_pose_now(self) -> Array | None:
+        """(4, 4) the tracked tip pose in the base frame now (mm): the tracker's newest sample
+        through its registration, None without a tracker, a registration or a VALID sample
+        (non-blocking)."""
+        tracker = self.tracker
+        if tracker is None:
+            return None
+        try:
+            frame = tracker.get_frame()
+            registration = tracker.registration
+            if frame.sensor2tracker is None or registration is None:
+                return None
+            return np.asarray(registration.tip2base(frame.sensor2tracker), np.float64)
+        except Exception:  # noqa: BLE001 - no pose: the force check falls back to Eq. (F1)
+            return None
 
     def _decide_queued(self) -> None:
         while self._queue:

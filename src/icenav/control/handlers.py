@@ -275,11 +275,23 @@ class Handlers:
         self._start(ticket, task)
 
     def _goto_path(self, view: View, path: Array) -> PathTask:
+        ctrl = self._ctrl
+        cfg = ctrl.config
+        sensor = ctrl.force_sensor
+        # the force check (Eqs. F1, F2 of icenav.recovery.force): with a force channel and
+        # forces the operator's trace produced along the path; else none (the state says so)
+        profile = None if sensor is None else ctrl.forces.forces.profile(ctrl.roadmap, path)
         return PathTask(
             path,
-            np.asarray(self._ctrl.config.max_velocity),
+            np.asarray(cfg.max_velocity),
             mode=Mode.GOTO_VIEW,
             label=f"go to view {view.name!r}",
+            force_sensor=sensor if profile is not None else None,
+            force_profile=profile,
+            force_margin_n=cfg.force_margin_n,
+            force_margin_fraction=cfg.force_margin_fraction,
+            tip_forces=ctrl.forces.tips if profile is not None else None,
+            tip_pose=ctrl.tip_pose_now,
         )
 
     def _save_view(self, ticket: Ticket, at: float) -> None:

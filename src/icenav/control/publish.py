@@ -14,7 +14,7 @@ from __future__ import annotations
 import dataclasses
 import functools
 from collections.abc import Callable
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -27,7 +27,7 @@ from icenav.geometry.kinematics import CatheterGeometry, backbone, forward
 if TYPE_CHECKING:
     from icenav.control.controller import Controller
 
-__all__ = ["Publisher"]
+__all__ = ["Publisher", "force_check_text"]
 
 
 def _points(q_model: Array, geometry: CatheterGeometry, n: int) -> Array:
@@ -117,6 +117,7 @@ class Publisher:
             backbone_true=bb_true,
             sensor2base=sensor,
             tracker_status=tracker_status,
+            force_check=force_check_text(ctrl.force_sensor is not None, ctrl.forces),
             message=self.operator_message(),
             progress=None if task is None else task.progress,
             progress_label="" if task is None else task.label,
@@ -193,3 +194,11 @@ class Publisher:
     def image_error(self, exc: Exception) -> None:
         """An imager error (any thread): shown until an image renders again."""
         self._image_error = f"imaging error: {type(exc).__name__}: {exc}"
+
+
+def force_check_text(has_channel: bool, forces: Any) -> str:
+    """What the operator is told of the returns' force check."""
+    if not has_channel:
+        return "off: no force channel"
+    n = forces.forces.n_recorded
+    return f"on ({n} states of your trace with a force)" if n else "on (no force recorded yet)"

@@ -115,6 +115,9 @@ class ControllerState:
     """(4, 4) EM-tracked sensor pose mapped into the base frame, None when MISSING."""
     tracker_status: str = "none"
     """Tracker status text (VALID, MISSING, ...; "none" without a tracker)."""
+    force_check: str = "off: no force channel"
+    """Whether returns are force-checked (:mod:`icenav.recovery.force`): "off: no force
+    channel", or "on" with the operator's readings recorded so far."""
     message: str = ""
     """Latest operator-facing message (fault text, what just happened)."""
     progress: float | None = None

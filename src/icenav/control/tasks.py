@@ -35,6 +35,7 @@ from icenav.recovery.force import (
     DEFAULT_MARGIN_FRACTION,
     DEFAULT_MARGIN_N,
     ForceSensor,
+    TipForceMap,
     force_limit,
 )
 from icenav.recovery.roadmap import Roadmap
@@ -140,6 +141,14 @@ class PathTask:
     """Absolute margin of the force check, Eq. (F1) of :mod:`icenav.recovery.force` (N)."""
     force_margin_fraction: float = DEFAULT_MARGIN_FRACTION
     """Relative margin of the force check (fraction of the recorded force)."""
+    tip_forces: TipForceMap | None = None
+    """The operator's forces keyed by the measured tip pose (Eq. F2 of
+    :mod:`icenav.recovery.force`): where the tip is now within its radius of where the
+    operator had it, the larger of that reference and the motor state's is checked; None:
+    the motor state's only (Eq. F1)."""
+    tip_pose: Callable[[], Array | None] | None = None
+    """The measured tip pose now ((4, 4) mm, base frame; None when unknown), for
+    :attr:`tip_forces`."""
     failure: str | None = field(default=None, init=False)
     """Why the task stopped early (the force check), None while it has not."""
     _cum_time: Array = field(init=False, repr=False)
@@ -223,6 +232,13 @@ class PathTask:
         recorded, limit = force_limit(profile, i, self.force_margin_n, self.force_margin_fraction)
         if f <= limit:
             return None
+        if self.tip_forces is not None and self.tip_pose is not None:  # Eq. (F2)
+            at_tip = self.tip_forces.reference(self.tip_pose())
+            if at_tip is not None and at_tip > recorded:
+                recorded = at_tip
+                limit = at_tip + self.force_margin_n + self.force_margin_fraction * at_tip
+                if f <= limit:
+                    return None
         self.failure = (
             f"{self.label}: stopped at path state {i} of {len(self.path) - 1}: contact force "
             f"{f:.2f} N exceeds the {recorded:.2f} N the operator's trace produced there by "

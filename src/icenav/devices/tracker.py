@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import enum
 import math
+import threading
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Protocol, runtime_checkable
@@ -37,6 +38,7 @@ from icenav.errors import ConfigurationError
 from icenav.geometry.se3 import pose_mean
 
 __all__ = [
+    "PoseSampleBuffer",
     "ToolStatus",
     "TrackerBackend",
     "TrackerFrame",
@@ -121,3 +123,68 @@ def mean_sensor_pose(frames: Sequence[TrackerFrame]) -> Array | None:
     if not poses:
         return None
     return pose_mean(np.stack(poses))
+
+
+class PoseSampleBuffer:
+    """The tracker's recent tip poses with their times: what the cycle-averaged estimator
+    (:class:`icenav.refinement.cycle_pose.CycleAveragedPose`, Eq. R1) cuts at complete
+    breaths or beats. The control loop :meth:`push` es the newest VALID sample each cycle
+    (never waiting for one); :meth:`sample_window` gives the last seconds of them.
+
+    Parameters
+    ----------
+    capacity_s : float
+        Seconds kept (older samples are dropped; at least the estimator's window).
+    max_rate_hz : float
+        Samples kept per second at most (a faster push keeps one per ``1 / max_rate_hz``).
+    """
+
+    def __init__(self, capacity_s: float = 20.0, max_rate_hz: float = 50.0) -> None:
+        if not (math.isfinite(capacity_s) and capacity_s > 0):
+            raise ConfigurationError(f"capacity_s must be > 0 s, got {capacity_s}")
+        if not (math.isfinite(max_rate_hz) and max_rate_hz > 0):
+            raise ConfigurationError(f"max_rate_hz must be > 0 Hz, got {max_rate_hz}")
+        self.capacity_s = float(capacity_s)
+        self.min_dt = 1.0 / float(max_rate_hz)
+        n = int(math.ceil(capacity_s * max_rate_hz)) + 2
+        self._t = np.full(n, -math.inf)
+        self._p = np.zeros((n, 4, 4))
+        self._next = 0
+        self._count = 0
+        self._lock = threading.Lock()  # the loop pushes; a worker may read
+
+    def __len__(self) -> int:
+        return self._count
+
+    def push(self, t: float, tip2base: Array | None) -> None:
+        """Keep the pose (4, 4) (mm, base frame) sampled at time ``t`` (s); None (no VALID
+        sample) and samples closer than ``1 / max_rate_hz`` to the last kept are skipped."""
+        if tip2base is None:
+            return
+        with self._lock:
+            last = self._t[(self._next - 1) % len(self._t)]
+            if t - last < self.min_dt - 1e-9:  # the clock's rounding
+                return
+            self._t[self._next] = float(t)
+            self._p[self._next] = tip2base
+            self._next = (self._next + 1) % len(self._t)
+            self._count = min(self._count + 1, len(self._t))
+
+    def sample_window(self, duration_s: float, rate_hz: float) -> tuple[Array, Array]:
+        """The kept samples of the last ``duration_s`` (s) before the newest, thinned to at
+        most ``rate_hz`` (Hz): (n,) times (s), (n, 4, 4) poses (mm); empty when none."""
+        if not (math.isfinite(duration_s) and duration_s > 0):
+            raise ConfigurationError(f"duration_s must be > 0 s, got {duration_s}")
+        if not (math.isfinite(rate_hz) and rate_hz > 0):
+            raise ConfigurationError(f"rate_hz must be > 0 Hz, got {rate_hz}")
+        with self._lock:
+            order = np.argsort(self._t, kind="stable")[len(self._t) - self._count :]
+            t, p = self._t[order].copy(), self._p[order].copy()
+        if not len(t):
+            return np.zeros(0), np.zeros((0, 4, 4))
+        keep = t > t[-1] - duration_s
+        t, p = t[keep], p[keep]
+        # the newest sample of each 1 / rate_hz slot, the slots counted back from the newest
+        slot = np.floor((t[-1] - t) * rate_hz + 1e-9)
+        newest = np.concatenate([slot[:-1] != slot[1:], [True]])
+        return t[newest], p[newest]

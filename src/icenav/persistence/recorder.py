@@ -7,11 +7,14 @@ insert, commit or fsync runs on the control thread.
 
 from __future__ import annotations
 
+import threading
 import time
 from collections.abc import Callable
 from typing import Any
 
+from icenav.persistence.forces import ForceSync
 from icenav.persistence.store import SessionStore, StoreWriter
+from icenav.recovery.force import ForceRecord
 from icenav.recovery.roadmap import Roadmap
 from icenav.recovery.views import View
 
@@ -51,17 +54,35 @@ class StoreRecorder:
         Sync the roadmap every this many "state" events (control cycles).
     threaded : bool
         Write on a thread of its own (see above); False: on the caller's thread.
+    forces : ForceRecord, optional
+        The operator's contact forces (:mod:`icenav.recovery.force`), synced with the
+        roadmap (:mod:`icenav.persistence.forces`); None: none recorded.
     """
 
     def __init__(
-        self, store: SessionStore, roadmap: Roadmap, sync_every: int = 10, threaded: bool = False
+        self,
+        store: SessionStore,
+        roadmap: Roadmap,
+        sync_every: int = 10,
+        threaded: bool = False,
+        forces: ForceRecord | None = None,
     ):
         self.store = store
         self.roadmap = roadmap
+        self.forces = forces
+        self._force_sync = ForceSync(store) if forces is not None else None
         self.sync_every = max(1, int(sync_every))
         self._n = 0
         self.writer: StoreWriter | None = StoreWriter(store) if threaded else None
         """The writer thread (None when not threaded)."""
+        self._lock = threading.Lock()
+        self._sync_queued = False
+        self._latest: tuple[tuple[int, int, int], int] = ((0, 0, 0), 0)
+        self._force_rows: list[tuple[int, float]] = []
+        self._log_rows: list[tuple[float, str, dict[str, str]]] = []
+        self._log_queued = False
+        self.coalesced = 0
+        """Syncs and log rows that joined a job already queued instead of queuing one."""
 
     def _run(self, fn: Callable[[SessionStore], object], wait: bool = False) -> None:
         if self.writer is None:
@@ -82,8 +103,7 @@ class StoreRecorder:
         if event == "state":
             self._n += 1
             if self._n % self.sync_every == 0:
-                upto = roadmap.counts()
-                self._run(lambda st: st.sync_roadmap(roadmap, upto))
+                self._submit_sync()
         elif event == "view_saved":
             view: View = payload["view"]
             upto = roadmap.counts()
@@ -99,10 +119,58 @@ class StoreRecorder:
             old, new = str(payload["old"]), str(payload["new"])
             self._run(lambda st: st.rename_view(old, new))
         else:  # "event", "command", "calibration": rows of the session's event log
-            t = time.time()
-            data = {k: str(v) for k, v in payload.items()}
-            self._run(lambda st: st.log_event(t, event, data))
+            row = (time.time(), event, {k: str(v) for k, v in payload.items()})
+            if self.writer is None:
+                self.store.log_event(*row)
+                return None
+            with self._lock:
+                self._log_rows.append(row)
+                if self._log_queued:
+                    self.coalesced += 1
+                    return None
+                self._log_queued = True
+            self.writer.submit(self._write_log)
         return None
+
+    # Back-pressure without blocking (the writer queue stays bounded): a loop faster than
+    # the disk (a scripted operator) would queue a sync every ``sync_every`` cycles and a log
+    # row per command, and a saved view would wait behind all of them. Instead at most one
+    # sync job and one log job wait in the queue: a sync asked while one waits only moves
+    # the counts that job will write up to (the rows below a count never change, so the
+    # later sync writes everything the earlier one would have); log rows asked while a log
+    # job waits join it. Nothing is dropped and the control thread never waits.
+
+    def _submit_sync(self) -> None:
+        """Sync the roadmap's and the forces' new rows (counted here, on the control
+        thread), joining a sync job already queued."""
+        upto = self.roadmap.counts()
+        forces = self.forces
+        rows = forces.take_vertex_rows() if forces is not None else []
+        n_tips = forces.n_tip_rows if forces is not None else 0
+        with self._lock:
+            self._latest = (upto, n_tips)
+            self._force_rows.extend(rows)
+            if self._sync_queued:
+                self.coalesced += 1
+                return
+            self._sync_queued = self.writer is not None
+        self._run(self._write_sync)
+
+    def _write_sync(self, st: SessionStore) -> None:
+        with self._lock:
+            (upto, n_tips), rows = self._latest, self._force_rows
+            self._force_rows = []
+            self._sync_queued = False
+        if self._force_sync is not None and self.forces is not None:
+            self._force_sync.sync(self.forces, rows, n_tips)
+        st.sync_roadmap(self.roadmap, upto)
+
+    def _write_log(self, st: SessionStore) -> None:
+        with self._lock:
+            rows, self._log_rows = self._log_rows, []
+            self._log_queued = False
+        for row in rows:
+            st.log_event(*row)
 
     def drain(self) -> None:
         """Wait until the writer has run every job queued so far (no-op when not threaded);
@@ -113,13 +181,8 @@ class StoreRecorder:
     def flush(self) -> None:
         """Sync and commit everything pending (waits for the writer); raises a pending
         write error."""
-        roadmap = self.roadmap
-
-        def sync(st: SessionStore) -> None:
-            st.sync_roadmap(roadmap)
-            st.commit()
-
-        self._run(sync, wait=True)
+        self._submit_sync()
+        self._run(lambda st: st.commit(), wait=True)
 
     def close(self) -> None:
         """Flush and stop the writer thread (the store stays open)."""

@@ -31,7 +31,7 @@ from numpy.typing import ArrayLike
 
 from icenav._typing import Array
 from icenav.errors import ConfigurationError, ShapeError
-from icenav.recovery.roadmap import Roadmap
+from icenav.recovery.roadmap import IntArray, Roadmap
 
 __all__ = [
     "DEFAULT_ANGLE_DEG",
@@ -201,7 +201,7 @@ class TipForceMap:
             raise ConfigurationError(f"angle_deg must be in (0, 180] deg, got {angle_deg}")
         self.radius_mm = float(radius_mm)
         self.angle_deg = float(angle_deg)
-        self._rows: list[tuple[float, float, float, float, float, float, float]] = []
+        self._rows: list[tuple[float, ...]] = []
         self._tree: Any = None
         self._data: Array = np.zeros((0, 7))
 
@@ -242,7 +242,7 @@ class TipForceMap:
         if a.ndim != 2 or a.shape[1] != 7 or not np.all(np.isfinite(a)):
             raise ShapeError(f"samples must be finite with shape (n, 7), got {a.shape}")
         out = cls(radius_mm, angle_deg)
-        out._rows = [tuple(float(v) for v in row) for row in a]  # type: ignore[misc]
+        out._rows = [tuple(float(v) for v in row) for row in a]
         return out
 
     def _index(self) -> Any:
@@ -306,10 +306,10 @@ class TipTrace:
         self._count[vertex] += 1
         self._n = max(self._n, vertex + 1)
 
-    def rows(self) -> tuple[Array, Array, Array]:
+    def rows(self) -> tuple[IntArray, Array, IntArray]:
         """(vertex ids (k,), position sums (k, 3) mm, counts (k,)) of the recorded vertices
         (what a session stores)."""
-        ids = np.flatnonzero(self._count[: self._n])
+        ids = np.flatnonzero(self._count[: self._n]).astype(np.int64)
         return ids, self._sum[ids].copy(), self._count[ids].copy()
 
     def add_rows(self, ids: ArrayLike, sums: ArrayLike, counts: ArrayLike) -> None:

@@ -1,0 +1,134 @@
+"""The product's force check end to end on the twin: the controller records the operator's
+contact forces, the session stores them, a restarted session checks its returns against them
+(Eqs. F1, F2 of icenav.recovery.force)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from icenav.control.controller import Controller, ControllerConfig
+from icenav.control.state import Mode
+from icenav.devices.sim_robot import SimulatedRobot
+from icenav.persistence.forces import load_forces
+from icenav.persistence.recorder import StoreRecorder
+from icenav.persistence.store import SessionStore
+from icenav.sim.conditions import build_twin
+from icenav.sim.disturbed import TwinForceSensor
+
+
+class Clock:
+    """Simulated time, advanced by the test with the controller's cycles."""
+
+    def __init__(self) -> None:
+        self.t = 0.0
+
+    def __call__(self) -> float:
+        return self.t
+
+
+def _cycle(ctrl: Controller, clock: Clock) -> None:
+    clock.t += ctrl.config.dt
+    ctrl.step()
+
+
+def _jog_to(ctrl: Controller, clock: Clock, target: np.ndarray, seconds: float) -> None:
+    """The operator drives the knobs to ``target`` in about ``seconds`` (jogs each cycle)."""
+    n = int(round(seconds * ctrl.config.rate_hz))
+    for k in range(n):
+        q = np.asarray(ctrl.robot.read_state().q, np.float64)
+        left = max((n - k) * ctrl.config.dt, ctrl.config.dt)
+        ctrl.jog((target - q) / left, "knob")
+        _cycle(ctrl, clock)
+
+
+def _go(ctrl: Controller, clock: Clock, name: str) -> str:
+    ctrl.goto_view(name)
+    for _ in range(30_000):
+        _cycle(ctrl, clock)
+        if ctrl.mode is Mode.IDLE and ctrl.task is None and ctrl.cycle > 2:
+            break
+    return ctrl.snapshot().message
+
+
+def test_a_restarted_session_keeps_the_forces_and_stops_a_return_into_a_moved_patient(
+    tmp_path: Path,
+) -> None:
+    clock = Clock()
+    twin = build_twin("phantom", 100, 0, clock)
+    robot = SimulatedRobot(twin.plant, clock=clock)
+    sensor = TwinForceSensor(twin.plant)
+    path = tmp_path / "forces.icenav"
+    store = SessionStore(path, new_session=True, clock=clock)
+    ctrl = Controller(robot, ControllerConfig(), clock=clock, force_sensor=sensor)
+    recorder = StoreRecorder(store, ctrl.roadmap, threaded=True, forces=ctrl.forces)
+    ctrl.set_recorder(recorder)
+    assert ctrl.snapshot().force_check.startswith("on")
+    q_view = np.asarray(twin.views["mitral_valve"], np.float64)
+    ctrl.request_mode(Mode.KNOB)
+    _jog_to(ctrl, clock, q_view, 2.4)
+    ctrl.save_view("mitral")
+    _cycle(ctrl, clock)
+    _jog_to(ctrl, clock, np.zeros(4), 2.4)
+    recorded = ctrl.forces.forces.n_recorded
+    assert recorded > 50 and ctrl.forces.tips.n_samples == 0  # no tracker: no tip readings
+    assert f"{recorded} states" in ctrl.snapshot().force_check
+    assert "done" in _go(ctrl, clock, "mitral")  # the patient where it was: it arrives
+    np.testing.assert_allclose(robot.read_state().q, ctrl.views.get("mitral").q, atol=1e-9)
+    assert ctrl.forces.forces.n_recorded == recorded  # a return is not the operator's trace
+    recorder.flush()  # committed; then the process dies: the connection drops mid-batch
+    ids = np.arange(ctrl.roadmap.n_vertices)
+    before = ctrl.forces.forces.at(ids)
+    recorder.writer.close()  # type: ignore[union-attr]
+    store._db.close()  # noqa: SLF001 - a crash: no flush, no clean close
+    store._lock.release()  # type: ignore[union-attr]  # noqa: SLF001 - the OS releases it
+
+    with SessionStore(path, clock=clock) as again:
+        roadmap, views, forces = again.load_roadmap(), again.load_views(), load_forces(again)
+    np.testing.assert_array_equal(forces.forces.at(ids), before)
+    robot.command_position(np.zeros(4))
+    twin.shift_patient([0.0, 20.0, 0.0])  # the patient moved on the table
+    restarted = Controller(robot, ControllerConfig(), roadmap=roadmap, views=views,
+                           clock=clock, force_sensor=sensor, forces=forces)  # fmt: skip
+    message = _go(restarted, clock, "mitral")
+    assert "contact force" in message and "patient" in message, message
+    assert not np.allclose(robot.read_state().q, views.get("mitral").q)  # held on the way
+
+
+def test_without_a_force_channel_there_is_no_check_and_the_operator_is_told() -> None:
+    clock = Clock()
+    twin = build_twin("phantom", 100, 0, clock)
+    robot = SimulatedRobot(twin.plant, clock=clock)
+    ctrl = Controller(robot, ControllerConfig(), clock=clock)
+    assert ctrl.snapshot().force_check == "off: no force channel"
+    ctrl.request_mode(Mode.KNOB)
+    _jog_to(ctrl, clock, np.array([0.0, 0.0, 0.0, 5.0]), 0.5)
+    assert ctrl.forces.forces.n_recorded == 0
+
+
+def test_the_loop_buffers_the_tracker_and_the_estimator_cuts_complete_breaths() -> None:
+    """The product's EM pose for the refinement: the loop keeps the tracker's samples with
+    their times; Eq. (R1) averages the complete breaths of the belt's signal, or the whole
+    window without one."""
+    clock = Clock()
+    twin = build_twin("in-vivo", 100, 0, clock)
+    robot = SimulatedRobot(twin.plant, clock=clock)
+    tracker = twin.tracker.inner  # the EM tracker itself (get_frame, registration)
+    tracker.start()
+    ctrl = Controller(robot, ControllerConfig(), clock=clock, tracker=tracker,
+                      respiration=twin.monitor, cardiac_phase=twin.rhythm.phase)  # fmt: skip
+    for _ in range(1000):  # 10 s held still
+        _cycle(ctrl, clock)
+    assert ctrl.pose_buffer is not None and len(ctrl.pose_buffer) >= 400
+    gated = ctrl.cycle_pose(window_s=9.0)
+    est = gated.measure_tip2base()
+    assert gated.last_window is not None and gated.last_window.kind == "breath"
+    assert gated.last_window.cycles >= 1
+    truth = tracker.measure_tip2base(64)
+    np.testing.assert_allclose(est[:3, 3], truth[:3, 3], atol=0.5)
+    plain = Controller(robot, ControllerConfig(), clock=clock, tracker=tracker)
+    for _ in range(300):
+        _cycle(plain, clock)
+    blind = plain.cycle_pose(window_s=2.0)
+    assert blind.measure_tip2base() is not None and blind.last_window.kind == "none"
