@@ -96,3 +96,26 @@ def test_a_return_into_a_shifted_patient_stops_and_says_so() -> None:
     assert isinstance(stopped, Failed), stopped
     assert "contact force" in stopped.reason and "patient" in stopped.reason
     assert index < n - 1 and not np.allclose(q_held, q_view)  # held on the way
+
+
+def test_where_the_operator_had_the_tip_its_force_there_is_the_reference() -> None:
+    """Eq. (F2): the motor state's recorded force is low (another lost motion), but the
+    tracked tip is where the operator pushed 1.0 N: no stop; away from there it stops."""
+    from icenav.recovery.force import TipForceMap
+
+    path = np.zeros((3, 4))
+    path[:, 3] = [0.0, 1.0, 2.0]
+    tips = TipForceMap(radius_mm=2.0)
+    at = np.eye(4)
+    at[:3, 3] = [5.0, 0.0, 40.0]
+    tips.record(at, 1.0)
+    for tip_x, stops in ((5.5, False), (9.0, True)):
+        pose = at.copy()
+        pose[0, 3] = tip_x
+        task = PathTask(path, V_MAX, force_sensor=_Sensor([1.5]), force_profile=np.full(3, 0.2),
+                        force_margin_n=0.1, force_margin_fraction=0.5, tip_forces=tips,
+                        tip_pose=lambda pose=pose: pose)  # fmt: skip
+        status, _ = _run(task)
+        assert isinstance(status, Failed) is stops, status
+        if stops:
+            assert "0.20 N" in status.reason  # the motor state's, the tip's not near

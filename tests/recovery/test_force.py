@@ -9,6 +9,7 @@ from icenav.errors import ConfigurationError, ShapeError
 from icenav.recovery.force import (
     ForceMap,
     ForceRecord,
+    PathForces,
     TipForceMap,
     TipTrace,
     effective_offset,
@@ -116,3 +117,17 @@ def test_the_record_hands_the_store_each_changed_vertex_once() -> None:
     back = ForceRecord.from_rows([(3, 0.4)], np.array(rec.tip_rows(0, 1)))
     assert back.forces.at([3])[0] == pytest.approx(0.4)
     assert back.tips.reference(_pose([0.1, 0, 0])) == pytest.approx(0.4)
+
+
+def test_the_path_forces_are_found_as_the_return_goes() -> None:
+    rm = Roadmap(epsilon=1.0)
+    forces = ForceMap()
+    qs = np.zeros((6, 4))
+    qs[:, 3] = np.arange(6) * 0.9
+    for i, q in enumerate(qs):
+        forces.record(rm.add(q), None if i == 4 else 0.1 * i)
+    back = PathForces(forces, rm, qs[::-1], radius=0.5, ahead=1)
+    assert [back.recorded(i) for i in range(3)] == pytest.approx([0.5, 0.5, 0.3])
+    gap_first = PathForces(forces, rm, qs[4:], radius=0.5)
+    assert gap_first.recorded(0) == pytest.approx(0.5)  # the first one ahead
+    assert PathForces(ForceMap(), rm, qs).recorded(2) is None  # nothing recorded: no check

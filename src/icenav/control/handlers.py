@@ -45,6 +45,7 @@ from icenav.control.teleop import JogHold
 from icenav.errors import CommandRefusedError, IcenavError
 from icenav.geometry.kinematics import forward
 from icenav.geometry.trajectories import spin_trajectory
+from icenav.recovery.force import PathForces
 from icenav.recovery.views import View
 
 if TYPE_CHECKING:
@@ -278,19 +279,19 @@ class Handlers:
         ctrl = self._ctrl
         cfg = ctrl.config
         sensor = ctrl.force_sensor
-        # the force check (Eqs. F1, F2 of icenav.recovery.force): with a force channel and
-        # forces the operator's trace produced along the path; else none (the state says so)
-        profile = None if sensor is None else ctrl.forces.forces.profile(ctrl.roadmap, path)
+        # the force check (Eqs. F1, F2 of icenav.recovery.force): with a force channel, the
+        # forces the operator's trace produced along the path, looked up as the task goes
+        checked = sensor is not None and ctrl.forces.forces.n_recorded > 0
         return PathTask(
             path,
             np.asarray(cfg.max_velocity),
             mode=Mode.GOTO_VIEW,
             label=f"go to view {view.name!r}",
-            force_sensor=sensor if profile is not None else None,
-            force_profile=profile,
+            force_sensor=sensor if checked else None,
+            force_path=PathForces(ctrl.forces.forces, ctrl.roadmap, path) if checked else None,
             force_margin_n=cfg.force_margin_n,
             force_margin_fraction=cfg.force_margin_fraction,
-            tip_forces=ctrl.forces.tips if profile is not None else None,
+            tip_forces=ctrl.forces.tips if checked else None,
             tip_pose=ctrl.tip_pose_now,
         )
 

@@ -35,6 +35,7 @@ from icenav.recovery.force import (
     DEFAULT_MARGIN_FRACTION,
     DEFAULT_MARGIN_N,
     ForceSensor,
+    PathForces,
     TipForceMap,
     force_limit,
 )
@@ -141,6 +142,9 @@ class PathTask:
     """Absolute margin of the force check, Eq. (F1) of :mod:`icenav.recovery.force` (N)."""
     force_margin_fraction: float = DEFAULT_MARGIN_FRACTION
     """Relative margin of the force check (fraction of the recorded force)."""
+    force_path: PathForces | None = None
+    """The recorded forces along the path found as the task goes (the controller's way:
+    no whole-path lookup on the control thread), instead of :attr:`force_profile`."""
     tip_forces: TipForceMap | None = None
     """The operator's forces keyed by the measured tip pose (Eq. F2 of
     :mod:`icenav.recovery.force`): where the tip is now within its radius of where the
@@ -203,7 +207,9 @@ class PathTask:
             return Failed(self.failure)
         if self._t >= self.duration:
             return Done()
-        if self.force_sensor is not None and self.force_profile is not None:
+        if self.force_sensor is not None and (
+            self.force_profile is not None or self.force_path is not None
+        ):
             stop = self._force_check()
             if stop is not None:
                 return stop
@@ -223,13 +229,22 @@ class PathTask:
         """Eq. (F1) at the state last commanded: Failed (and the path stops) when the force
         read exceeds what the operator's trace produced there plus the margin."""
         sensor, profile = self.force_sensor, self.force_profile
-        if sensor is None or profile is None:
+        if sensor is None or (profile is None and self.force_path is None):
             return None
         f = sensor.contact_force_n()
         if f is None:
             return None
         i = self.path_index
-        recorded, limit = force_limit(profile, i, self.force_margin_n, self.force_margin_fraction)
+        if profile is not None:
+            recorded, limit = force_limit(
+                profile, i, self.force_margin_n, self.force_margin_fraction
+            )
+        else:
+            found = self.force_path.recorded(i)  # type: ignore[union-attr]
+            if found is None:
+                return None  # no force recorded near the path yet: no check
+            recorded = found
+            limit = found + self.force_margin_n + self.force_margin_fraction * found
         if f <= limit:
             return None
         if self.tip_forces is not None and self.tip_pose is not None:  # Eq. (F2)
