@@ -131,3 +131,13 @@ def test_the_path_forces_are_found_as_the_return_goes() -> None:
     gap_first = PathForces(forces, rm, qs[4:], radius=0.5)
     assert gap_first.recorded(0) == pytest.approx(0.5)  # the first one ahead
     assert PathForces(ForceMap(), rm, qs).recorded(2) is None  # nothing recorded: no check
+
+
+def test_a_still_catheter_adds_no_tip_rows_unless_the_force_rises() -> None:
+    tips = TipForceMap(radius_mm=8.0, angle_deg=180.0, min_spacing_mm=0.5)
+    for k in range(50):
+        tips.record(_pose([0.001 * k, 0, 0]), 0.3)
+    tips.record(_pose([0.06, 0, 0]), 0.9)  # larger: kept
+    tips.record(_pose([1.0, 0, 0]), 0.1)  # moved: kept
+    assert tips.n_samples == 3
+    assert tips.reference(_pose([0, 0, 0])) == pytest.approx(0.9)

@@ -191,17 +191,28 @@ class TipForceMap:
         ``r`` (mm).
     angle_deg : float
         ``a`` (deg).
+    min_spacing_mm : float
+        A reading within this of the last one kept, with no larger force, is not kept (a
+        still or slow catheter adds no rows; the controller uses 0.5 mm; 0: every reading).
     """
 
     def __init__(
-        self, radius_mm: float = DEFAULT_RADIUS_MM, angle_deg: float = DEFAULT_ANGLE_DEG
+        self,
+        radius_mm: float = DEFAULT_RADIUS_MM,
+        angle_deg: float = DEFAULT_ANGLE_DEG,
+        min_spacing_mm: float = 0.0,
     ) -> None:
         if not (math.isfinite(radius_mm) and radius_mm > 0):
             raise ConfigurationError(f"radius_mm must be > 0 mm, got {radius_mm}")
         if not (math.isfinite(angle_deg) and 0 < angle_deg <= 180):
             raise ConfigurationError(f"angle_deg must be in (0, 180] deg, got {angle_deg}")
+        if not (math.isfinite(min_spacing_mm) and 0 <= min_spacing_mm < radius_mm):
+            raise ConfigurationError(
+                f"min_spacing_mm must be in [0, radius_mm) mm, got {min_spacing_mm}"
+            )
         self.radius_mm = float(radius_mm)
         self.angle_deg = float(angle_deg)
+        self.min_spacing_mm = float(min_spacing_mm)
         self._rows: list[tuple[float, ...]] = []
         self._tree: Any = None
         self._data: Array = np.zeros((0, 7))
@@ -223,8 +234,17 @@ class TipForceMap:
         if t.shape != (4, 4) or not np.all(np.isfinite(t)):
             raise ShapeError(f"tip2base must be a finite (4, 4) pose, got shape {t.shape}")
         z = t[:3, 2] / max(float(np.linalg.norm(t[:3, 2])), 1e-12)
+        if self.min_spacing_mm > 0 and self._rows:
+            last = self._rows[-1]
+            near = math.dist(last[:3], t[:3, 3]) < self.min_spacing_mm
+            if near and f <= last[6] and float(np.dot(last[3:6], z)) >= self._cos:
+                return
         self._rows.append((*(float(v) for v in t[:3, 3]), *(float(v) for v in z), f))
         self._tree = None
+
+    @property
+    def _cos(self) -> float:
+        return math.cos(math.radians(self.angle_deg))
 
     def samples(self) -> Array:
         """(n, 7) the readings: tip position (mm), tip axis (unit), force (N)."""
