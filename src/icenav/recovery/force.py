@@ -37,6 +37,7 @@ __all__ = [
     "DEFAULT_ANGLE_DEG",
     "DEFAULT_MARGIN_FRACTION",
     "DEFAULT_MARGIN_N",
+    "DEFAULT_MIN_SPACING_MM",
     "DEFAULT_RADIUS_MM",
     "ForceMap",
     "ForceSensor",
@@ -161,10 +162,16 @@ def force_excess(
     return float(force_n) - force_limit(profile, index, margin_n, margin_fraction)[1]
 
 
-DEFAULT_RADIUS_MM = 2.0
-"""Radius of the tip positions whose recorded forces form the reference of Eq. (F2) (mm)."""
-DEFAULT_ANGLE_DEG = 10.0
-"""Largest angle between the tip's axis now and a recorded one for Eq. (F2) (deg)."""
+DEFAULT_RADIUS_MM = 8.0
+"""Radius of the tip positions whose recorded forces form the reference of Eq. (F2) (mm):
+chosen on the development pairs among 2, 4 and 8 mm (``icenav.eval.force_study``,
+``docs/view-recovery.md``)."""
+DEFAULT_ANGLE_DEG = 180.0
+"""Largest angle between the tip's axis now and a recorded one for Eq. (F2) (deg); 180: the
+position alone (30 deg did no better at 4 mm on the development pairs)."""
+DEFAULT_MIN_SPACING_MM = 0.5
+"""Tip readings of the controller's record closer than this to the last kept one, with no
+larger force, are not kept (mm)."""
 
 
 class TipForceMap:
@@ -179,9 +186,9 @@ class TipForceMap:
         F_ref(p, z) = max { F_k : |p_k - p| <= r, angle(z_k, z) <= a }         (F2)
 
     over the operator's readings ``k`` (the operator passed there at other moments of the
-    beat and the breath), and the check of Eq. (F1) uses ``F_ref`` in place of the motor
-    state's recorded force. Where the operator never had the tip (no reading within ``r``
-    and ``a``) the motor state's reference of Eq. (F1) stands. The anatomy is fixed in the
+    beat and the breath), and the check of Eq. (F1) uses the larger of ``F_ref`` and the
+    motor state's recorded force. Where the operator never had the tip (no reading within
+    ``r`` and ``a``) the motor state's reference of Eq. (F1) stands. The anatomy is fixed in the
     base frame unless the patient moves: then the same tip pose touches a moved wall, and
     the force rises above the reference.
 
@@ -430,7 +437,7 @@ class ForceRecord:
 
     def __init__(self, forces: ForceMap | None = None, tips: TipForceMap | None = None) -> None:
         self.forces = forces if forces is not None else ForceMap()
-        self.tips = tips if tips is not None else TipForceMap()
+        self.tips = tips if tips is not None else TipForceMap(min_spacing_mm=DEFAULT_MIN_SPACING_MM)
         self._dirty: set[int] = set()
         self._lock = threading.Lock()
 
@@ -468,8 +475,11 @@ class ForceRecord:
     ) -> ForceRecord:  # fmt: skip
         """A record restored from a session: (k, 2) vertex / force rows, (n, 7) tip rows."""
         vr = np.asarray(vertex_rows, np.float64).reshape(-1, 2)
-        out = cls(tips=TipForceMap.from_samples(np.asarray(tip_rows, np.float64).reshape(-1, 7),
-                                                radius_mm, angle_deg))  # fmt: skip
+        tips = TipForceMap.from_samples(
+            np.asarray(tip_rows, np.float64).reshape(-1, 7), radius_mm, angle_deg
+        )
+        tips.min_spacing_mm = DEFAULT_MIN_SPACING_MM
+        out = cls(tips=tips)
         for v, f in vr.tolist():
             out.forces.record(int(v), f)
         return out
