@@ -49,11 +49,17 @@ from icenav.recovery.force import ForceMap, TipForceMap, TipTrace, shape_referen
 __all__ = [
     "FRACTIONS",
     "ForceStudyConfig",
+    "MARGINS_N",
     "ReturnForces",
     "main",
+    "operating_point",
     "run_force_study",
+    "score",
     "summarize",
 ]
+
+MARGINS_N = (0.05, 0.1, 0.15, 0.2, 0.25, 0.3, 0.4, 0.5, 0.75, 1.0, 1.5, 2.0, 3.0, 4.0)
+"""Absolute margins (N) the operating point is chosen among."""
 
 FRACTIONS = (0.0, 0.5, 1.0)
 """Relative margins ``c`` at which each return's needed absolute margin is noted."""
@@ -274,6 +280,44 @@ def summarize(
     return "\n".join(lines)
 
 
+def _shift(r: dict[str, Any]) -> float:
+    return round(max(abs(x) for x in r["shift_mm"]), 3)
+
+
+def score(
+    records: Sequence[dict[str, Any]], reference: str, fraction: str, margin_n: float
+) -> tuple[tuple[int, int], dict[float, tuple[int, int]]]:
+    """At one operating point: (false alarms, undisturbed returns) and, per shift (mm),
+    (returns stopped, shifted returns); ``records`` as the JSON of :func:`main` holds them."""
+    still = [r for r in records if not any(r["shift_mm"])]
+    fa = sum(r["needed_n"][reference][fraction] > margin_n for r in still)
+    caught: dict[float, tuple[int, int]] = {}
+    for s in sorted({_shift(r) for r in records if any(r["shift_mm"])}):
+        moved = [r for r in records if any(r["shift_mm"]) and _shift(r) == s]
+        caught[s] = (sum(r["needed_n"][reference][fraction] > margin_n for r in moved), len(moved))
+    return (fa, len(still)), caught
+
+
+def operating_point(
+    records: Sequence[dict[str, Any]], max_false_alarms: float = 0.05
+) -> tuple[str, str, float]:
+    """The rule fixed before the held-out runs were looked at: per reference and relative
+    margin, the smallest of :data:`MARGINS_N` with at most ``max_false_alarms`` of the
+    undisturbed returns stopped; of those, the one stopping the most 20 mm (then 10, then
+    5 mm) shifted returns. Returns (reference, relative margin, absolute margin N)."""
+    best: list[tuple[tuple[int, ...], str, str, float]] = []
+    for ref in records[0]["needed_n"]:
+        for c in records[0]["needed_n"][ref]:
+            for m in MARGINS_N:
+                (fa, n), caught = score(records, ref, c, m)
+                if fa <= max_false_alarms * n:
+                    key = tuple(caught[s][0] for s in sorted(caught, reverse=True))
+                    best.append((key, ref, c, m))
+                    break
+    best.sort(key=lambda b: b[0], reverse=True)
+    return best[0][1], best[0][2], best[0][3]
+
+
 def _seeds(text: str) -> list[int]:
     out: list[int] = []
     for part in text.split(","):
@@ -291,7 +335,23 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--rounds", type=int, default=4)
     ap.add_argument("--fraction", type=float, default=1.0, help="relative margin of the summary")
     ap.add_argument("--json", default=None, help="write the per-return records here")
+    ap.add_argument("--choose", default=None, help="records (JSON) to choose the point on")
+    ap.add_argument("--apply", default=None, help="records (JSON) to apply the point to")
     args = ap.parse_args(argv)
+    if args.choose:
+        with open(args.choose, encoding="utf-8") as fh:
+            dev = json.load(fh)
+        ref, c, m = operating_point(dev)
+        print(f"operating point: reference {ref}, relative margin {c}, absolute {m:.2f} N")
+        for name, path in (("chosen on", args.choose), ("applied to", args.apply)):
+            if path is None:
+                continue
+            with open(path, encoding="utf-8") as fh:
+                recs = json.load(fh)
+            (fa, n), caught = score(recs, ref, c, m)
+            shifts = ", ".join(f"{s:g} mm {a}/{b}" for s, (a, b) in caught.items())
+            print(f"  {name} {path}: false alarms {fa}/{n}; shifts stopped {shifts}")
+        return 0
     seeds, patients = _seeds(args.seed), _seeds(args.patient)
     if len(patients) == 1:
         patients = patients * len(seeds)
