@@ -363,8 +363,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         cfg = ForceStudyConfig(condition=args.condition, seed=s, patient=p, rounds=args.rounds)
         records.extend(run_force_study(cfg))
         print(f"catheter {s} / patient {p}: {time.perf_counter() - t0:.0f} s", flush=True)
-    for c in FRACTIONS:
-        print(summarize(records, c))
+    for frac in FRACTIONS:
+        print(summarize(records, frac))
     if args.json:
         with open(args.json, "w", encoding="utf-8") as fh:
             json.dump([asdict(r) for r in records], fh, indent=1)
