@@ -119,3 +119,27 @@ def test_where_the_operator_had_the_tip_its_force_there_is_the_reference() -> No
         assert isinstance(status, Failed) is stops, status
         if stops:
             assert "0.20 N" in status.reason  # the motor state's, the tip's not near
+
+
+def test_the_return_holds_at_its_start_until_the_tip_index_is_built() -> None:
+    """The index of the operator's tip readings is built off the loop: the path holds at
+    its first state until the future is done, then checks against it."""
+    from concurrent.futures import Future
+
+    from icenav.recovery.force import TipForceMap
+
+    path = np.zeros((3, 4))
+    path[:, 3] = [0.0, 1.0, 2.0]
+    tips = TipForceMap(radius_mm=2.0)
+    at = np.eye(4)
+    tips.record(at, 1.0)
+    index: Future[object] = Future()
+    task = PathTask(path, V_MAX, force_sensor=_Sensor([1.5]), force_profile=np.full(3, 0.2),
+                    force_margin_n=0.1, force_margin_fraction=0.5, tip_index=index,
+                    tip_pose=lambda: at)  # fmt: skip
+    for _ in range(5):
+        status = task.step(np.zeros(4), 0.01)
+        assert isinstance(status, Running) and np.array_equal(status.q, path[0])
+    assert task.progress == 0.0
+    index.set_result(tips.index())
+    assert isinstance(_run(task)[0], Done)  # 1.5 N <= 1.0 + 0.1 + 50 %: the tip's reference

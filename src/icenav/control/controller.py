@@ -94,6 +94,8 @@ SUPERVISOR = Source("script", "supervisor")
 
 _OPERATOR_MODES = (Mode.KNOB, Mode.TIP)
 """Modes in which the operator drives: their contact forces are the returns' reference."""
+_UNBUFFERED_MODES = (Mode.CALIBRATING, Mode.SPINNING)
+"""Modes whose tracker samples no refinement averages (the loop skips the sample buffer)."""
 
 
 class Controller:
@@ -453,10 +455,12 @@ class Controller:
                     self.handlers.send(q_next, dt)
             if self.machine.mode is not Mode.CALIBRATING:  # the roadmap: what was driven
                 self.roadmap.add(self._q, check=False)
-            operator = self.force_sensor is not None and self.machine.mode in _OPERATOR_MODES
-            tip = self.tip_pose_now() if operator or self.pose_buffer is not None else None
-            if self.pose_buffer is not None:
-                self.pose_buffer.push(self._clock(), tip)
+            mode = self.machine.mode
+            operator = self.force_sensor is not None and mode in _OPERATOR_MODES
+            buffered = self.pose_buffer is not None and mode not in _UNBUFFERED_MODES
+            tip = self.tip_pose_now() if operator or buffered else None
+            if buffered:
+                self.pose_buffer.push(self._clock(), tip)  # type: ignore[union-attr]
             if operator:
                 self._record_force(tip)
             self.record("state", {"q": self._q, "t": self._time})

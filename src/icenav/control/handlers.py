@@ -291,9 +291,19 @@ class Handlers:
             force_path=PathForces(ctrl.forces.forces, ctrl.roadmap, path) if checked else None,
             force_margin_n=cfg.force_margin_n,
             force_margin_fraction=cfg.force_margin_fraction,
-            tip_forces=ctrl.forces.tips if checked else None,
+            tip_index=self._tip_index() if checked else None,
             tip_pose=ctrl.tip_pose_now,
         )
+
+    def _tip_index(self) -> Future[Any] | None:
+        """The operator's tip readings indexed on a worker (not on the control thread), or
+        None when there are none."""
+        tips = self._ctrl.forces.tips
+        n = tips.n_samples
+        if n == 0:
+            return None
+        return self._ctrl.jobs.submit(lambda: tips.index(n), name="icenav-force-index",
+                                      threaded=True)  # fmt: skip
 
     def _save_view(self, ticket: Ticket, at: float) -> None:
         ctrl = self._ctrl

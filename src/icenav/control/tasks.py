@@ -37,6 +37,7 @@ from icenav.recovery.force import (
     ForceSensor,
     PathForces,
     TipForceMap,
+    TipIndex,
     force_limit,
 )
 from icenav.recovery.roadmap import Roadmap
@@ -145,7 +146,11 @@ class PathTask:
     force_path: PathForces | None = None
     """The recorded forces along the path found as the task goes (the controller's way:
     no whole-path lookup on the control thread), instead of :attr:`force_profile`."""
-    tip_forces: TipForceMap | None = None
+    tip_index: Future[Any] | None = None
+    """The index of the operator's tip readings being built off the loop
+    (:meth:`icenav.recovery.force.TipForceMap.index`): the task holds at the path's start
+    until it is ready, then uses it as :attr:`tip_forces` (F1 alone if it failed)."""
+    tip_forces: TipForceMap | TipIndex | None = None
     """The operator's forces keyed by the measured tip pose (Eq. F2 of
     :mod:`icenav.recovery.force`): where the tip is now within its radius of where the
     operator had it, the larger of that reference and the motor state's is checked; None:
@@ -207,6 +212,12 @@ class PathTask:
             return Failed(self.failure)
         if self._t >= self.duration:
             return Done()
+        if self.tip_index is not None:
+            if not self.tip_index.done():
+                return Running(self.path[0].copy())  # the index is built: hold at the start
+            if self.tip_index.exception() is None:
+                self.tip_forces = self.tip_index.result()
+            self.tip_index = None
         if self.force_sensor is not None and (
             self.force_profile is not None or self.force_path is not None
         ):

@@ -24,7 +24,7 @@ from __future__ import annotations
 
 import math
 import threading
-from typing import Any, Protocol
+from typing import Protocol
 
 import numpy as np
 from numpy.typing import ArrayLike
@@ -43,6 +43,7 @@ __all__ = [
     "ForceSensor",
     "PathForces",
     "TipForceMap",
+    "TipIndex",
     "TipTrace",
     "effective_offset",
     "force_excess",
@@ -220,14 +221,14 @@ class TipForceMap:
         self.radius_mm = float(radius_mm)
         self.angle_deg = float(angle_deg)
         self.min_spacing_mm = float(min_spacing_mm)
-        self._rows: list[tuple[float, ...]] = []
-        self._tree: Any = None
-        self._data: Array = np.zeros((0, 7))
+        self._buf = np.zeros((64, 7))
+        self._n = 0
+        self._cached: TipIndex | None = None
 
     @property
     def n_samples(self) -> int:
         """Readings recorded."""
-        return len(self._rows)
+        return self._n
 
     def record(self, tip2base: ArrayLike | None, force_n: float | None) -> None:
         """Note ``force_n`` (N) read with the tip at ``tip2base`` (4, 4) (mm) while the
@@ -241,22 +242,33 @@ class TipForceMap:
         if t.shape != (4, 4) or not np.all(np.isfinite(t)):
             raise ShapeError(f"tip2base must be a finite (4, 4) pose, got shape {t.shape}")
         z = t[:3, 2] / max(float(np.linalg.norm(t[:3, 2])), 1e-12)
-        if self.min_spacing_mm > 0 and self._rows:
-            last = self._rows[-1]
+        if self.min_spacing_mm > 0 and self._n:
+            last = self._buf[self._n - 1]
             near = math.dist(last[:3], t[:3, 3]) < self.min_spacing_mm
             if near and f <= last[6] and float(np.dot(last[3:6], z)) >= self._cos:
                 return
-        self._rows.append((*(float(v) for v in t[:3, 3]), *(float(v) for v in z), f))
-        self._tree = None
+        self._append(np.concatenate([t[:3, 3], z, [f]])[None, :])
+
+    def _append(self, rows: Array) -> None:
+        """Append (k, 7) rows; rows below the count never change (a reader may copy them
+        from another thread)."""
+        need = self._n + len(rows)
+        if need > len(self._buf):
+            grown = np.zeros((max(2 * len(self._buf), need), 7))
+            grown[: self._n] = self._buf[: self._n]
+            self._buf = grown
+        self._buf[self._n : need] = rows
+        self._n = need
 
     @property
     def _cos(self) -> float:
         return math.cos(math.radians(self.angle_deg))
 
-    def samples(self) -> Array:
-        """(n, 7) the readings: tip position (mm), tip axis (unit), force (N)."""
-        self._index()
-        return self._data.copy()
+    def samples(self, stop: int | None = None) -> Array:
+        """(n, 7) the readings below ``stop`` (default all): tip position (mm), tip axis
+        (unit), force (N)."""
+        n = self._n if stop is None else min(int(stop), self._n)
+        return self._buf[:n].copy()
 
     @classmethod
     def from_samples(
@@ -270,32 +282,60 @@ class TipForceMap:
         if a.ndim != 2 or a.shape[1] != 7 or not np.all(np.isfinite(a)):
             raise ShapeError(f"samples must be finite with shape (n, 7), got {a.shape}")
         out = cls(radius_mm, angle_deg)
-        out._rows = [tuple(float(v) for v in row) for row in a]
+        out._append(a)
         return out
 
-    def _index(self) -> Any:
-        if self._tree is None:
-            from scipy.spatial import cKDTree  # a kept library for the radius queries
-
-            self._data = np.asarray(self._rows, np.float64).reshape(-1, 7)
-            self._tree = cKDTree(self._data[:, :3]) if len(self._data) else False
-        return self._tree
+    def index(self, stop: int | None = None) -> TipIndex:
+        """The readings below ``stop`` (default all) as a searchable, immutable index: may be
+        built on another thread than the one recording (69,000 readings took 30-700 ms)."""
+        return TipIndex(self.samples(stop), self.radius_mm, self.angle_deg)
 
     def reference(self, tip2base: ArrayLike | None) -> float | None:
         """``F_ref`` of Eq. (F2) at the tip pose ``tip2base`` (4, 4) (N); None when the
-        operator never had the tip within the radius and angle (or no pose was read)."""
-        tree = self._index()
-        if tree is False or tip2base is None:
+        operator never had the tip within the radius and angle (or no pose was read). The
+        index is rebuilt here after new readings (see :meth:`index` to build it elsewhere)."""
+        if self._cached is None or self._cached.n_samples != self._n:
+            self._cached = self.index()
+        return self._cached.reference(tip2base)
+
+
+class TipIndex:
+    """Eq. (F2) over a fixed set of tip readings (:meth:`TipForceMap.index`).
+
+    Parameters
+    ----------
+    samples : (n, 7) array
+        Tip position (mm), axis (unit), force (N).
+    radius_mm, angle_deg : float
+        ``r`` and ``a`` of Eq. (F2).
+    """
+
+    def __init__(self, samples: Array, radius_mm: float, angle_deg: float) -> None:
+        from scipy.spatial import cKDTree  # a kept library for the radius queries
+
+        self._data = np.asarray(samples, np.float64).reshape(-1, 7)
+        self._tree = cKDTree(self._data[:, :3]) if len(self._data) else None
+        self.radius_mm = float(radius_mm)
+        self._cos = math.cos(math.radians(float(angle_deg)))
+
+    @property
+    def n_samples(self) -> int:
+        """Readings indexed."""
+        return len(self._data)
+
+    def reference(self, tip2base: ArrayLike | None) -> float | None:
+        """``F_ref`` of Eq. (F2) at ``tip2base`` (4, 4) (N); None without a reading near."""
+        if self._tree is None or tip2base is None:
             return None
         t = np.asarray(tip2base, np.float64)
         if t.shape != (4, 4):
             raise ShapeError(f"tip2base must be a (4, 4) pose, got shape {t.shape}")
-        ids = tree.query_ball_point(t[:3, 3], self.radius_mm)
+        ids = self._tree.query_ball_point(t[:3, 3], self.radius_mm)
         if not ids:
             return None
         rows = self._data[ids]
         z = t[:3, 2] / max(float(np.linalg.norm(t[:3, 2])), 1e-12)
-        ok = rows[:, 3:6] @ z >= math.cos(math.radians(self.angle_deg))
+        ok = rows[:, 3:6] @ z >= self._cos
         if not ok.any():
             return None
         return float(rows[ok, 6].max())
@@ -466,7 +506,7 @@ class ForceRecord:
 
     def tip_rows(self, start: int, stop: int) -> list[tuple[float, ...]]:
         """Tip readings ``start .. stop - 1``: position (mm), axis, force (N)."""
-        return list(self.tips._rows[start:stop])  # noqa: SLF001 - the append-only rows
+        return [tuple(r) for r in self.tips.samples(stop)[start:].tolist()]
 
     @classmethod
     def from_rows(
