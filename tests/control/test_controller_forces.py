@@ -61,7 +61,10 @@ def test_a_restarted_session_keeps_the_forces_and_stops_a_return_into_a_moved_pa
     sensor = TwinForceSensor(twin.plant)
     path = tmp_path / "forces.icenav"
     store = SessionStore(path, new_session=True, clock=clock)
-    ctrl = Controller(robot, ControllerConfig(), clock=clock, force_sensor=sensor)
+    tracker = twin.tracker.inner  # the EM tracker (get_frame, registration)
+    tracker.start()
+    ctrl = Controller(robot, ControllerConfig(), clock=clock, force_sensor=sensor,
+                      tracker=tracker)  # fmt: skip
     recorder = StoreRecorder(store, ctrl.roadmap, threaded=True, forces=ctrl.forces)
     ctrl.set_recorder(recorder)
     assert ctrl.snapshot().force_check.startswith("on")
@@ -72,14 +75,14 @@ def test_a_restarted_session_keeps_the_forces_and_stops_a_return_into_a_moved_pa
     _cycle(ctrl, clock)
     _jog_to(ctrl, clock, np.zeros(4), 2.4)
     recorded = ctrl.forces.forces.n_recorded
-    assert recorded > 50 and ctrl.forces.tips.n_samples == 0  # no tracker: no tip readings
+    assert recorded > 50 and ctrl.forces.tips.n_samples > 20  # with the tracked tip
     assert f"{recorded} states" in ctrl.snapshot().force_check
     assert "done" in _go(ctrl, clock, "mitral")  # the patient where it was: it arrives
     np.testing.assert_allclose(robot.read_state().q, ctrl.views.get("mitral").q, atol=1e-9)
     assert ctrl.forces.forces.n_recorded == recorded  # a return is not the operator's trace
     recorder.flush()  # committed; then the process dies: the connection drops mid-batch
     ids = np.arange(ctrl.roadmap.n_vertices)
-    before = ctrl.forces.forces.at(ids)
+    before, tips_before = ctrl.forces.forces.at(ids), ctrl.forces.tips.samples()
     recorder.writer.close()  # type: ignore[union-attr]
     store._db.close()  # noqa: SLF001 - a crash: no flush, no clean close
     store._lock.release()  # type: ignore[union-attr]  # noqa: SLF001 - the OS releases it
@@ -87,10 +90,12 @@ def test_a_restarted_session_keeps_the_forces_and_stops_a_return_into_a_moved_pa
     with SessionStore(path, clock=clock) as again:
         roadmap, views, forces = again.load_roadmap(), again.load_views(), load_forces(again)
     np.testing.assert_array_equal(forces.forces.at(ids), before)
+    np.testing.assert_array_equal(forces.tips.samples(), tips_before)
     robot.command_position(np.zeros(4))
     twin.shift_patient([0.0, 20.0, 0.0])  # the patient moved on the table
     restarted = Controller(robot, ControllerConfig(), roadmap=roadmap, views=views,
-                           clock=clock, force_sensor=sensor, forces=forces)  # fmt: skip
+                           clock=clock, force_sensor=sensor, forces=forces,
+                           tracker=tracker)  # fmt: skip
     message = _go(restarted, clock, "mitral")
     assert "contact force" in message and "patient" in message, message
     assert not np.allclose(robot.read_state().q, views.get("mitral").q)  # held on the way
