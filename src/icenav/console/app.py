@@ -100,16 +100,22 @@ from icenav.persistence.dicom import ExportDirectory
 __all__ = ["Console", "ConsoleStats"]
 
 IMAGE_PANEL_PX = 880
-"""Width of the ICE image panel (CSS pixels): >= 45 % of a 1920-pixel-wide window, and
-63 % of a 1400-pixel one (viser docks panels by pixel width only)."""
+"""Width of the ICE image panel (CSS pixels) in a window of at least 1900 pixels (46 % of
+a full-HD one). viser docks panels by pixel width only; in narrower windows ``PAGE_CSS``
+narrows the panel to ``IMAGE_PANEL_VW`` of the window, so the 3-D scene keeps room."""
+IMAGE_PANEL_VW = 46
+"""The image panel's width in windows narrower than 1900 pixels (% of the window)."""
 CONTROL_PANEL_PX = 360
 """Width of the control panel (CSS pixels)."""
+_DOCK_PX = 4
+"""What viser adds to a docked panel's width (its resize handle; CSS pixels)."""
 IMAGE_DISPLAY_PX = 800
 """Width of the displayed ICE picture's image part (pixels; the browser scales it down to
 the panel, and to the window's height: ``PAGE_CSS``)."""
 MESSAGE_S = 15.0
 """A controller message (not a fault's cause) is shown this long after it last changed (s)."""
-PAGE_CSS = """<style>
+PAGE_CSS = (
+    """<style>
 /* the safety bar (the block holding .icenav-safety) stays at the top of its panel */
 div:has(> div:nth-child(3)) > div:has(.icenav-safety) {
   position: sticky; top: 0; z-index: 20; background: var(--mantine-color-body);
@@ -123,7 +129,22 @@ div:has(> div:nth-child(3)) > div:has(.icenav-safety) {
   max-height: calc(100vh - 170px); width: auto; max-width: 100%; margin: 0 auto;
 }
 .icenav-banner { background: #c92a2a; color: white; padding: 0.4em 0.6em; border-radius: 4px; }
+"""
+    # In a window narrower than 1900 px the image panel takes IMAGE_PANEL_VW % of it, and the
+    # 3-D scene's canvas starts where the panel ends. The selectors match only while the
+    # panels have the widths the console gave them: once the operator drags a panel's edge or
+    # minimizes it, viser's own layout applies unchanged.
+    + f"""@media (max-width: 1899px) {{
+  [style*="width: {IMAGE_PANEL_PX + _DOCK_PX}px"] {{ width: {IMAGE_PANEL_VW}vw !important; }}
+  [style*="left: calc(1em + {IMAGE_PANEL_PX + _DOCK_PX}px)"] {{
+    left: calc(1em + {IMAGE_PANEL_VW}vw) !important;
+  }}
+  div[style*="inset: 0px {CONTROL_PANEL_PX + _DOCK_PX}px 0px {IMAGE_PANEL_PX + _DOCK_PX}px"] {{
+    left: {IMAGE_PANEL_VW}vw !important;
+  }}
+}}
 </style><span class="icenav-safety"></span>"""
+)
 
 
 @dataclass(frozen=True)
@@ -534,7 +555,6 @@ class Console(ConsoleCommands):
                 self.send(panel, SetCompensation(enabled, source=panel.source))
 
         panel.spin.on_click(lambda ev: self.send(panel, Spin(source=panel.source)))
-        panel.reset.on_click(lambda ev: self._reset_for(panel))
 
         @panel.calibrate.on_click
         def _(ev: Any) -> None:

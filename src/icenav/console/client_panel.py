@@ -116,11 +116,6 @@ class ClientPanel:
                 "Mode", tuple(MODE_CHOICES), initial_value=next(iter(MODE_CHOICES))
             )
             self.compensation = gui.add_checkbox("Compensation", initial_value=False)
-            self.reset = gui.add_button(
-                "Reset (clear E-STOP / fault)",
-                color="yellow",
-                hint="The same as Reset fault in the safety bar",
-            )
             self.spin = gui.add_button("Spin 360")
             self.calib_kind = gui.add_dropdown(
                 "Calibration", tuple(CALIBRATIONS), initial_value="5-point"

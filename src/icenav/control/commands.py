@@ -205,62 +205,53 @@ class SetMode(Command):
 
 
 @dataclass(frozen=True, eq=False)
-class GoToView(Command):
-    """Return to a saved view along the roadmap."""
+class _ViewCommand(Command):
+    """A command about one saved view (its name checked where the command is made)."""
 
     view: str
+
+    def __post_init__(self) -> None:
+        _name(self.view, "a view name")
+
+    def describe(self) -> str:
+        return f"{self.name} {self.view!r:.80}"
+
+
+@dataclass(frozen=True, eq=False)
+class GoToView(_ViewCommand):
+    """Return to a saved view along the roadmap."""
+
     name: ClassVar[str] = "go_to_view"
     moves: ClassVar[bool] = True
 
-    def __post_init__(self) -> None:
-        _name(self.view, "a view name")
-
-    def describe(self) -> str:
-        return f"go_to_view {self.view!r:.80}"
-
 
 @dataclass(frozen=True, eq=False)
-class SaveView(Command):
+class SaveView(_ViewCommand):
     """Save the current state (and image) as a view; done once it is on disk."""
 
-    view: str
     name: ClassVar[str] = "save_view"
-
-    def __post_init__(self) -> None:
-        _name(self.view, "a view name")
-
-    def describe(self) -> str:
-        return f"save_view {self.view!r:.80}"
 
 
 @dataclass(frozen=True, eq=False)
-class RenameView(Command):
+class RenameView(_ViewCommand):
     """Rename a saved view."""
 
-    view: str
     new_name: str
     name: ClassVar[str] = "rename_view"
 
     def __post_init__(self) -> None:
-        _name(self.view, "a view name")
+        super().__post_init__()
         _name(self.new_name, "a view's new name")
 
     def describe(self) -> str:
-        return f"rename_view {self.view!r:.80} -> {self.new_name!r:.80}"
+        return f"{super().describe()} -> {self.new_name!r:.80}"
 
 
 @dataclass(frozen=True, eq=False)
-class DeleteView(Command):
+class DeleteView(_ViewCommand):
     """Delete a saved view."""
 
-    view: str
     name: ClassVar[str] = "delete_view"
-
-    def __post_init__(self) -> None:
-        _name(self.view, "a view name")
-
-    def describe(self) -> str:
-        return f"delete_view {self.view!r:.80}"
 
 
 @dataclass(frozen=True, eq=False)

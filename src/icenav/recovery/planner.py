@@ -20,10 +20,11 @@ from __future__ import annotations
 import atexit
 import heapq
 import math
+import pickle
 import threading
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any, Literal, Protocol
+from typing import TYPE_CHECKING, Literal, Protocol
 
 import numpy as np
 import scipy.sparse as sp
@@ -33,6 +34,7 @@ from scipy.sparse.csgraph import dijkstra
 from icenav._typing import Array
 from icenav._validation import check_joint_state
 from icenav.errors import GoalUnreachableError, PlanningError
+from icenav.recovery.plan_worker import PlanWorker, shortest_path_tree
 from icenav.recovery.views import View
 
 if TYPE_CHECKING:
@@ -275,7 +277,7 @@ class ShortestPathTrees:
             if isolate:
                 dist_pred = _dijkstra_isolated(half, goal)
             if dist_pred is None:
-                dist_pred = _dijkstra_tree(half.indptr, half.indices, half.data, n, goal)
+                dist_pred = shortest_path_tree(half.indptr, half.indices, half.data, n, goal)
             tree = _Tree(m=m, dist=dist_pred[0], pred=dist_pred[1])
             return PreparedTree(goal=goal, tree=tree, half=half, half_t=half.T.tocsr())
 
@@ -436,44 +438,27 @@ def plan_path(
     return path
 
 
-def _dijkstra_tree(
-    indptr: NDArray[Any], indices: NDArray[Any], data: Array, n: int, goal: int
-) -> tuple[Array, NDArray[np.int32]]:
-    """Shortest-path tree to ``goal`` over the undirected graph of a half CSR (the worker
-    process runs this too, so it takes plain arrays)."""
-    half = sp.csr_matrix((data, indices, indptr), shape=(n, n))
-    dist, pred = dijkstra(half, directed=False, indices=goal, return_predecessors=True)
-    return np.asarray(dist, np.float64), pred.astype(np.int32)
-
-
-_WORKER: Any = None  # the planning worker process (concurrent.futures), started lazily
+_WORKER: PlanWorker | None = None  # the planning worker process, started lazily
 _WORKER_LOCK = threading.Lock()
 
 
 def _dijkstra_isolated(half: sp.csr_matrix, goal: int) -> tuple[Array, NDArray[np.int32]] | None:
-    """:func:`_dijkstra_tree` in the worker process; None when the worker fails (broken,
-    killed, cannot start): the caller then runs it in its own thread."""
+    """:func:`icenav.recovery.plan_worker.shortest_path_tree` in the worker process
+    (:class:`~icenav.recovery.plan_worker.PlanWorker`); None when the worker fails (killed,
+    cannot start): the caller then runs the search in its own thread, and the next call
+    starts a new worker."""
     global _WORKER
-    import concurrent.futures
-    import multiprocessing
-
     try:
         with _WORKER_LOCK:
             if _WORKER is None:
-                _WORKER = concurrent.futures.ProcessPoolExecutor(
-                    max_workers=1, mp_context=multiprocessing.get_context("spawn")
-                )
+                _WORKER = PlanWorker()
                 atexit.register(_stop_worker)  # before the interpreter tears modules down
             worker = _WORKER
-        future = worker.submit(
-            _dijkstra_tree, half.indptr, half.indices, half.data, half.shape[0], goal
-        )
-        result: tuple[Array, NDArray[np.int32]] = future.result()
-        return result
-    except Exception:  # noqa: BLE001 - BrokenProcessPool, OSError, pickling: fall back
+        return worker.tree(half.indptr, half.indices, half.data, half.shape[0], goal)
+    except (OSError, PlanningError, pickle.UnpicklingError):
         with _WORKER_LOCK:
             if _WORKER is not None:
-                _WORKER.shutdown(wait=False, cancel_futures=True)
+                _WORKER.close(wait=False)
             _WORKER = None
         return None
 
@@ -493,4 +478,4 @@ def _stop_worker() -> None:
     with _WORKER_LOCK:
         worker, _WORKER = _WORKER, None
     if worker is not None:
-        worker.shutdown(wait=True, cancel_futures=True)
+        worker.close()
