@@ -137,3 +137,56 @@ def test_the_loop_buffers_the_tracker_and_the_estimator_cuts_complete_breaths() 
         _cycle(plain, clock)
     blind = plain.cycle_pose(window_s=2.0)
     assert blind.measure_tip2base() is not None and blind.last_window.kind == "none"
+
+
+def test_refine_view_runs_the_pose_stage_on_the_breath_averaged_pose() -> None:
+    """Saved after the catheter was held still for the window, a view keeps its
+    breath-averaged EM pose; "refine view" after a return servoes towards it on the same
+    estimator and ends with a verdict. A view saved while moving cannot be refined."""
+    from icenav.control.commands import Outcome
+
+    clock = Clock()
+    twin = build_twin("in-vivo", 100, 0, clock)
+    robot = SimulatedRobot(twin.plant, clock=clock)
+    tracker = twin.tracker.inner
+    tracker.start()
+    ctrl = Controller(robot, ControllerConfig(refine_window_s=4.0), clock=clock,
+                      tracker=tracker, respiration=twin.monitor,
+                      cardiac_phase=twin.rhythm.phase)  # fmt: skip
+    ctrl.request_mode(Mode.KNOB)
+    q_view = np.asarray(twin.views["mitral_valve"], np.float64)
+    _jog_to(ctrl, clock, q_view, 2.0)
+    ctrl.save_view("moving")  # not held still: no EM pose
+    for _ in range(450):  # held still for the window
+        _cycle(ctrl, clock)
+    ctrl.save_view("still")
+    _cycle(ctrl, clock)
+    assert set(ctrl.view_em) == {"still"}
+    _jog_to(ctrl, clock, q_view + np.array([0.05, -0.05, 0.1, -3.0]), 1.0)
+    assert "done" in _go(ctrl, clock, "still")
+    saved = ctrl.view_em["still"]
+
+    def em_error_mm() -> float:
+        for _ in range(450):  # held still for the window
+            _cycle(ctrl, clock)
+        now = ctrl.still_em_pose()
+        assert now is not None
+        return float(np.linalg.norm(now[:3, 3] - saved[:3, 3]))
+
+    before = em_error_mm()
+    refused = ctrl.refine_view("moving")
+    _cycle(ctrl, clock)
+    assert refused.final(0).outcome is Outcome.REFUSED
+    assert "no EM pose was saved" in refused.final(0).reason
+    ticket = ctrl.refine_view("still")
+    for _ in range(20_000):
+        _cycle(ctrl, clock)
+        if ticket.finished:
+            break
+    final = ticket.final(0)
+    assert final.outcome in (Outcome.DONE, Outcome.FAILED), final
+    assert ctrl.mode is Mode.IDLE
+    box = np.radians([5.0, 5.0, 30.0, 0.0]) + [0.0, 0.0, 0.0, 3.0]  # the stage's radius
+    q_saved = ctrl.views.get("still").q
+    assert np.all(np.abs(robot.read_state().q - q_saved) <= box + 1e-9)
+    assert em_error_mm() <= before + 0.3  # never farther than it started (the scatter)

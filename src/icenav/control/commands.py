@@ -52,6 +52,7 @@ __all__ = [
     "Reset",
     "SCRIPT",
     "SOURCE_KINDS",
+    "RefineView",
     "SaveView",
     "SetCompensation",
     "SetMode",
@@ -252,6 +253,15 @@ class DeleteView(_ViewCommand):
     """Delete a saved view."""
 
     name: ClassVar[str] = "delete_view"
+
+
+@dataclass(frozen=True, eq=False)
+class RefineView(_ViewCommand):
+    """Refine the view the robot returned to: the EM pose stage on the tip pose averaged
+    over complete breaths / beats (needs a tracker and the view's EM pose saved with it)."""
+
+    name: ClassVar[str] = "refine_view"
+    moves: ClassVar[bool] = True
 
 
 @dataclass(frozen=True, eq=False)

@@ -68,6 +68,9 @@ class ControllerConfig:
     :mod:`icenav.recovery.force` (with a force channel only)."""
     force_margin_fraction: float = DEFAULT_MARGIN_FRACTION
     """Relative margin of a return's force check (fraction of the recorded force)."""
+    refine_window_s: float = 9.0
+    """Window of the cycle-averaged EM pose of "refine view" and of the pose saved with a
+    view (s): about 2.5 breaths gives 2 complete ones (``icenav.refinement.cycle_pose``)."""
 
     def __post_init__(self) -> None:
         check_positive(self.rate_hz, "rate_hz", "Hz")
@@ -88,6 +91,7 @@ class ControllerConfig:
                 f"plan_settle_s must be in [0, 10] s, got {self.plan_settle_s} s"
             )
         check_positive(self.calibration_ramp_s, "calibration_ramp_s", "s")
+        check_positive(self.refine_window_s, "refine_window_s", "s")
         for name in ("force_margin_n", "force_margin_fraction"):
             value = getattr(self, name)
             if not (math.isfinite(value) and 0.0 <= value <= 100.0):

@@ -51,6 +51,7 @@ from icenav.control.commands import (
     GoToView,
     Jog,
     Outcome,
+    RefineView,
     ReleaseControl,
     RenameView,
     Reset,
@@ -69,12 +70,13 @@ from icenav.control.handlers import Handlers
 from icenav.control.modes import HALTED, TRANSITIONS, Mode, ModeChange, ModeMachine, Via
 from icenav.control.publish import Publisher
 from icenav.control.runtime import GcPolicy, ImagingThread, Jobs, LoopThread, Supervisor
+from icenav.control.sensing import cycle_pose, tip_pose_now
 from icenav.control.state import CalibrationKind, ControllerState, ImageFrame, KnobMap
 from icenav.control.tasks import Done, PathTask, Running, Task, TaskStatus
 from icenav.control.teleop import GamepadReader, InputSource, JogHold, JoystickMapping, jog_setpoint
 from icenav.devices.robot import JointState, RobotBackend, RobotStatus
 from icenav.devices.tracker import PoseSampleBuffer
-from icenav.errors import ConfigurationError, IcenavError
+from icenav.errors import IcenavError
 from icenav.recovery.force import ForceRecord, ForceSensor
 from icenav.recovery.roadmap import Roadmap, warm_up_planner
 from icenav.recovery.views import ViewLibrary
@@ -187,6 +189,10 @@ class Controller:
         fills it from the tracker's newest samples), for :meth:`cycle_pose`."""
         self.respiration = respiration
         self.cardiac_phase = cardiac_phase
+        self.view_em: dict[str, Array] = {}
+        """Per view, the cycle-averaged EM pose measured when it was saved (the target of
+        "refine view"; kept for this run only)."""
+        self._still_since = 0.0
         self._recorder = recorder
         self._clock = clock
         self._outbox: deque[tuple[str, dict[str, Any]]] = deque()
@@ -235,6 +241,7 @@ class Controller:
         q0 = self.robot.read_state().q
         self._q_cmd = np.array(q0, dtype=np.float64)
         self._q = np.array(q0, dtype=np.float64)
+        self._q_last = self._q.copy()
         self.roadmap.add(self._q)
         self._state = self.publisher.make_state()
 
@@ -327,6 +334,9 @@ class Controller:
 
     def goto_view(self, name: str, client: str | Source = "script") -> Ticket:
         return self.submit(GoToView(name, source=Source.of(client)))
+
+    def refine_view(self, name: str, client: str | Source = "script") -> Ticket:
+        return self.submit(RefineView(name, source=Source.of(client)))
 
     def rename_view(self, name: str, new_name: str, client: str | Source = "script") -> Ticket:
         return self.submit(RenameView(name, new_name, source=Source.of(client)))
@@ -455,6 +465,8 @@ class Controller:
                     self.handlers.send(q_next, dt)
             if self.machine.mode is not Mode.CALIBRATING:  # the roadmap: what was driven
                 self.roadmap.add(self._q, check=False)
+            if not np.array_equal(self._q, self._q_last):
+                self._still_since, self._q_last = self._clock(), self._q.copy()
             mode = self.machine.mode
             operator = self.force_sensor is not None and mode in _OPERATOR_MODES
             buffered = self.pose_buffer is not None and mode not in _UNBUFFERED_MODES
@@ -486,33 +498,22 @@ class Controller:
             return
         self.forces.record(self.roadmap.current_vertex, f, tip2base)
 
-    def cycle_pose(self, window_s: float = 9.0, rate_hz: float = 10.0) -> Any:
-        """The tip pose sensor of the refinement's EM stage: the tracked samples of the last
-        ``window_s`` averaged over complete breaths (respiratory signal), else complete beats
-        (ECG), else plain over the whole window, Eq. (R1) of
-        :mod:`icenav.refinement.cycle_pose`. The catheter must have been still that long."""
-        from icenav.refinement.cycle_pose import CycleAveragedPose  # scipy on use
+    def still_em_pose(self) -> Array | None:
+        """The cycle-averaged EM pose (4, 4) (mm) of the last ``refine_window_s`` when the
+        catheter has been still that long and the tracker gave samples; else None."""
+        window = self.config.refine_window_s
+        if self.pose_buffer is None or self._clock() - self._still_since < window:
+            return None
+        pose: Array | None = self.cycle_pose(window).measure_tip2base()
+        return pose
 
-        if self.pose_buffer is None:
-            raise ConfigurationError("the cycle-averaged pose needs a tracker")
-        return CycleAveragedPose(self.pose_buffer, self.respiration, self.cardiac_phase,
-                                 window_s=window_s, rate_hz=rate_hz)  # fmt: skip
+    def cycle_pose(self, window_s: float = 9.0, rate_hz: float = 10.0) -> Any:
+        """The refinement's EM pose sensor over the loop's buffer (:func:`sensing.cycle_pose`)."""
+        return cycle_pose(self.pose_buffer, self.respiration, self.cardiac_phase, window_s, rate_hz)
 
     def tip_pose_now(self) -> Array | None:
-        """(4, 4) the tracked tip pose in the base frame now (mm): the tracker's newest sample
-        through its registration, None without a tracker, a registration or a VALID sample
-        (non-blocking)."""
-        tracker = self.tracker
-        if tracker is None:
-            return None
-        try:
-            frame = tracker.get_frame()
-            registration = tracker.registration
-            if frame.sensor2tracker is None or registration is None:
-                return None
-            return np.asarray(registration.tip2base(frame.sensor2tracker), np.float64)
-        except Exception:  # noqa: BLE001 - no pose: the force check falls back to Eq. (F1)
-            return None
+        """(4, 4) the tracked tip pose now (mm), never waited for (:func:`sensing.tip_pose_now`)."""
+        return tip_pose_now(self.tracker)
 
     def _decide_queued(self) -> None:
         while self._queue:

@@ -29,6 +29,7 @@ from icenav.control.commands import (
     GoToView,
     Jog,
     Outcome,
+    RefineView,
     RenameView,
     Reset,
     SaveView,
@@ -40,13 +41,37 @@ from icenav.control.commands import (
 )
 from icenav.control.modes import TELEOP, Mode, Via
 from icenav.control.spin import SpinTask, tracked_tip2base
-from icenav.control.tasks import MotionAdapter, PathTask, PlanningTask, Task
+from icenav.control.tasks import MotionAdapter, PathTask, PlanningTask, Task, refinement_task
 from icenav.control.teleop import JogHold
 from icenav.errors import CommandRefusedError, IcenavError
 from icenav.geometry.kinematics import forward
 from icenav.geometry.trajectories import spin_trajectory
 from icenav.recovery.force import PathForces
 from icenav.recovery.views import View
+
+
+def refine_stage_config(window_s: float) -> Any:
+    """The pose stage of "refine view" on the cycle-averaged pose: the settings measured in
+    ``icenav eval recovery`` (``CYCLE_POSE_STAGE`` there: at most 2 corrections, each
+    measured over complete breaths, back to the start when it ended worse), holding the
+    window before each measurement."""
+    import math
+
+    from icenav.refinement.pose_stage import PoseStageConfig
+
+    deg = math.pi / 180.0
+    return PoseStageConfig(
+        max_iterations=3,
+        max_step=(2.0 * deg, 2.0 * deg, 4.0 * deg, 2.0),
+        step_from_last=True,
+        tolerance_mm=0.6,
+        tolerance_rad=0.8 * deg,
+        min_decrease_mm=0.3,
+        reapproach_first=False,
+        max_duration_s=60.0 + 4.0 * window_s,
+        hold_s=window_s + 0.5,
+    )
+
 
 if TYPE_CHECKING:
     from icenav.control.controller import Controller
@@ -75,6 +100,7 @@ class Handlers:
             Jog: self._jog,
             GoToView: self._goto,
             SaveView: self._save_view,
+            RefineView: self._refine,
             RenameView: self._rename_view,
             DeleteView: self._delete_view,
             Spin: self._spin,
@@ -295,6 +321,32 @@ class Handlers:
             tip_pose=ctrl.tip_pose_now,
         )
 
+    def _refine(self, ticket: Ticket, at: float) -> None:
+        """The EM pose stage (:mod:`icenav.refinement.pose_stage`) on the cycle-averaged
+        pose (Eq. R1) towards the pose measured the same way when the view was saved."""
+        from icenav.refinement.pose_stage import PoseStageTask
+
+        ctrl = self._ctrl
+        name = ticket.command.view  # type: ignore[attr-defined]
+        view = ctrl.views.get(name)
+        saved = ctrl.view_em.get(name)
+        if saved is None or ctrl.pose_buffer is None:
+            raise CommandRefusedError(
+                f"cannot refine {name!r}: no EM pose was saved with it (a registered tracker "
+                f"and the catheter held still {ctrl.config.refine_window_s:.0f} s before "
+                "saving are needed)"
+            )
+        cfg = ctrl.config
+        stage = PoseStageTask(
+            view.q,
+            saved,
+            ctrl.cycle_pose(cfg.refine_window_s),
+            q_start=ctrl._q_cmd,  # noqa: SLF001
+            arrival_direction=view.arrival_direction,
+            config=refine_stage_config(cfg.refine_window_s),
+        )
+        self._start(ticket, refinement_task(stage))
+
     def _tip_index(self) -> Future[Any] | None:
         """The operator's tip readings indexed on a worker (not on the control thread), or
         None when there are none."""
@@ -326,6 +378,10 @@ class Handlers:
         if image is not None:
             ctrl.publisher.view_images[name] = image
         ctrl.selected_view = name
+        ctrl.view_em.pop(name, None)
+        em = ctrl.still_em_pose()  # the refinement's target, measured as it will measure
+        if em is not None:
+            ctrl.view_em[name] = em
         self._prepare_plans_to(view)
         ctrl.settle(ticket, Outcome.ACCEPTED)
 
