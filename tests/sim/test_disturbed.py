@@ -105,6 +105,33 @@ def test_the_tracker_keeps_its_samples_with_their_times() -> None:
         tracker.sample_window(0.0, 10.0)
 
 
+def test_the_frames_the_control_loop_reads_move_with_the_heart_and_breathing() -> None:
+    """get_frame (what the product's loop buffers) reports each frame at the disturbed pose
+    of its acquisition time, as measure_tip2base does; it returned the undisturbed pose."""
+    clock = SimClock()
+    twin = build_twin("in-vivo", 100, 1, clock.now)
+    exact = EMTracker(
+        twin.plant.inner, seed=1, clock=clock.now,
+        config=TrackerConfig(
+            position_jitter_rms_mm=0.0, rotation_jitter_rms_rad=0.0, position_bias_rms_mm=0.0,
+            rotation_bias_rms_rad=0.0, dropout_probability=0.0, latency_s=0.0,
+        ),
+    )  # fmt: skip
+    tracker = DisturbedTracker(exact, twin.plant)
+    tracker.start()
+    twin.plant.move(np.asarray(twin.views["aortic_valve"]))
+    tips = []
+    for _ in range(80):  # 8 s: two breaths or more
+        clock.advance(0.1)
+        frame = tracker.get_frame()
+        assert frame.sensor2tracker is not None
+        assert tracker.get_frame() is frame  # the same sample until the next is due
+        tip = tracker.registration.tip2base(frame.sensor2tracker)
+        np.testing.assert_allclose(tip, twin.plant.pose_at(frame.timestamp), atol=1e-9)
+        tips.append(tip[:3, 3])
+    assert np.ptp(np.array(tips), axis=0).max() > 0.5  # mm: the breathing is in the frames
+
+
 def test_a_patient_shift_moves_the_walls_not_the_motors() -> None:
     """The anatomy moves by the shift in the base frame: a catheter held near a wall meets
     it (more contact force), and the shift back restores the state."""

@@ -29,8 +29,10 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from icenav._typing import Array
+from icenav.devices.tracker import TrackerFrame
 from icenav.errors import ConfigurationError
 from icenav.geometry.kinematics import DEFAULT_GEOMETRY
+from icenav.geometry.se3 import rigid_inverse
 from icenav.sim.contact import ContactForce, ContactModel
 from icenav.sim.introducer import ShaftFriction
 
@@ -326,6 +328,7 @@ class DisturbedTracker:
         self.inner = tracker
         self.plant = plant
         self.rate_hz = float(rate_hz)
+        self._last_frame: tuple[float, TrackerFrame] | None = None
 
     def measure_tip2base(self, n_average: int = 1) -> Array | None:
         """Tracked tip pose (4, 4) in the base frame averaged over the last ``n_average``
@@ -380,6 +383,29 @@ class DisturbedTracker:
         if not poses:
             return np.zeros(0), np.zeros((0, 4, 4))
         return np.asarray(times), np.stack(poses)
+
+    def get_frame(self) -> TrackerFrame:
+        """The wrapped tracker's newest frame, moved by the disturbance at its acquisition
+        time ``t``: ``sensor2tracker' = base2tracker D(t) tracker2base sensor2tracker`` with
+        the tracker's true placement (its ``config.tracker2base``), as the product's control
+        loop reads the tracker (:class:`icenav.devices.tracker.PoseSampleBuffer`). A frame
+        without a pose, or a wrapped tracker without a known placement, is returned as is."""
+        frame: TrackerFrame = self.inner.get_frame()
+        if frame.sensor2tracker is None:
+            return frame
+        if self._last_frame is not None and frame.timestamp == self._last_frame[0]:
+            return self._last_frame[1]
+        tracker2base = getattr(getattr(self.inner, "config", None), "tracker2base", None)
+        if tracker2base is None:
+            return frame
+        t2b = np.asarray(tracker2base, np.float64)
+        pp = self.plant.state_at(float(self.plant.clock())).plant_tip2base
+        d = self.plant.pose_at(float(frame.timestamp)) @ rigid_inverse(pp)
+        s2t = rigid_inverse(t2b) @ d @ t2b @ np.asarray(frame.sensor2tracker, np.float64)
+        s2t.setflags(write=False)
+        out = TrackerFrame(frame.timestamp, s2t, frame.status, frame.quality)
+        self._last_frame = (frame.timestamp, out)
+        return out
 
     def __getattr__(self, name: str) -> Any:
         # registration, start, stop, ... of the wrapped tracker
