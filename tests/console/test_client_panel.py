@@ -63,3 +63,17 @@ def test_a_click_on_a_view_marker_selects_it_in_that_browser_only() -> None:
     assert panel.views.value == "home" and other.views.value == "septum"
     console._view_marker_clicked("gone", 1)  # not (or no longer) a saved view: ignored
     assert panel.views.value == "home"
+
+
+def test_refine_view_sends_the_selected_view_to_the_controller() -> None:
+    """The product's refinement (Controller.refine_view) from the console: the selected
+    view; nothing without one."""
+    console, ctl, panel = _console()
+    panel.refine.click()  # no saved view selected: nothing sent
+    views = (ViewSummary("home", np.zeros(4), 0.0), ViewSummary("septum", np.zeros(4), 0.0))
+    panel.update(make_state(views=views, control_owner=panel.name), console._jog_rates)
+    panel.views.value = "septum"
+    panel.refine.click()
+    assert ctl.wait_for_call("refine_view")[0] == ("septum",)
+    assert [c[1] for c in ctl.calls if c[0] == "refine_view"] == [("septum",)]
+    assert panel.refine in panel.all_motion_controls()  # disabled in ESTOP / FAULT

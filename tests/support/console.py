@@ -24,6 +24,7 @@ from icenav.control.commands import (
     GoToView,
     Jog,
     Outcome,
+    RefineView,
     RenameView,
     Reset,
     SaveView,
@@ -67,7 +68,7 @@ def _args(command: Command) -> tuple[Any, ...]:
         return (np.asarray(command.velocity), command.frame)
     if isinstance(command, SetMode):
         return (command.mode,)
-    if isinstance(command, SaveView | GoToView | DeleteView | Export):
+    if isinstance(command, SaveView | GoToView | RefineView | DeleteView | Export):
         return (command.view,)
     if isinstance(command, RenameView):
         return (command.view, command.new_name)

@@ -79,6 +79,7 @@ from icenav.control.commands import (
     GoToView,
     Jog,
     Outcome,
+    RefineView,
     Reset,
     SaveView,
     SetCompensation,
@@ -563,6 +564,7 @@ class Console(ConsoleCommands):
 
         panel.save.on_click(lambda ev: self._save(panel))
         panel.goto.on_click(lambda ev: self._goto(panel))
+        panel.refine.on_click(lambda ev: self._refine(panel))
 
         @panel.delete.on_click
         def _(ev: Any) -> None:
@@ -633,6 +635,11 @@ class Console(ConsoleCommands):
         name = panel.views.value if view is None else view
         if name != NO_VIEWS:
             self.send(panel, GoToView(str(name), source=panel.source))
+
+    def _refine(self, panel: ClientPanel) -> None:
+        name = panel.views.value
+        if name != NO_VIEWS:
+            self.send(panel, RefineView(str(name), source=panel.source))
 
     def _reset_for(self, panel: ClientPanel) -> None:
         self.send(panel, Reset(source=panel.source))

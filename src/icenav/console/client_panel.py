@@ -95,6 +95,13 @@ class ClientPanel:
             self.save = gui.add_button("Save view", hint="Shortcut: V")
             self.views = gui.add_dropdown("Saved views", (NO_VIEWS,), initial_value=NO_VIEWS)
             self.goto = gui.add_button("Go to view", color="green", hint="Shortcut: G")
+            self.refine = gui.add_button(
+                "Refine view (EM)",
+                color="teal",
+                hint="After a return: corrects towards the selected view's tracked pose, "
+                "averaged over complete breaths / beats (needs the tracker, and the view "
+                "saved after the catheter was held still)",
+            )
             self.delete = gui.add_button("Delete view", color="gray", hint="Asks first")
             self.export = None
             self.export_note = None
@@ -129,6 +136,7 @@ class ClientPanel:
             self.calibrate,
             self.save,
             self.goto,
+            self.refine,
             self.delete,
             *([self.export] if self.export is not None else []),
             *(b for b, _, _ in self.jog_buttons),
