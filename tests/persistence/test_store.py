@@ -46,12 +46,15 @@ def test_round_trip(tmp_path: Path) -> None:
             rm.add(q)
             store.sync_roadmap(rm)
             if i in (500, 1500, 2500):
+                em = forward(q).copy()
+                em[:3, 3] += 0.3  # the tracked pose: not the model's
                 view = rm.make_view(
                     f"view {i}",
                     created_s=i / 100,
                     tip2base=forward(q),
                     thumbnail=np.arange(48, dtype=np.uint8).reshape(6, 8),
                     notes="n",
+                    em_tip2base=em if i != 500 else None,
                 )
                 store.add_view(view, rm)
                 views.append(view)
@@ -74,10 +77,12 @@ def test_round_trip(tmp_path: Path) -> None:
     assert {tuple(e) for e in uv0.tolist()} == {tuple(e) for e in uv1.tolist()}
     np.testing.assert_array_equal(back.trace(), rm.trace())
     assert lib.names() == ["view 500", "mitral"]
+    assert lib.get("view 500").em_tip2base is None and lib.get("mitral").em_tip2base is not None
     for saved, loaded in zip((views[0], views[1]), lib.list(), strict=True):
         np.testing.assert_array_equal(saved.q, loaded.q)
         np.testing.assert_array_equal(saved.tip2base, loaded.tip2base)
         np.testing.assert_array_equal(saved.thumbnail, loaded.thumbnail)
+        np.testing.assert_array_equal(saved.em_tip2base, loaded.em_tip2base)  # renamed too
         assert (saved.vertex, saved.arrival_direction, saved.approach, saved.created_s) == (
             loaded.vertex,
             loaded.arrival_direction,
@@ -410,3 +415,26 @@ def test_a_missing_folder_is_named(tmp_path: Path) -> None:
     with pytest.raises(StoreError, match=f"the folder {folder} does not exist"):
         SessionStore(folder / "s.icenav", read_only=True)
     assert not folder.exists()
+
+
+def test_a_file_without_the_view_em_table_loads_and_gains_it(tmp_path: Path) -> None:
+    """Files written before the views' EM poses were stored: their views load without one;
+    opened for writing, the file gains the table and keeps the next view's pose."""
+    path = tmp_path / "old.icenav"
+    rm = Roadmap()
+    with SessionStore(path) as store:
+        for q in walk(1, 50):
+            rm.add(q)
+        store.add_view(rm.make_view("old", created_s=0.0), rm)
+    with closing(sqlite3.connect(path)) as db:
+        db.execute("DROP TABLE view_em")  # as an older icenav wrote it
+        db.commit()
+    with SessionStore(path, read_only=True) as store:
+        assert store.load_views().get("old").em_tip2base is None
+    with SessionStore(path) as store:
+        rm.add(rm.vertices()[-1])
+        store.add_view(rm.make_view("new", created_s=1.0, em_tip2base=np.eye(4)), rm)
+    with SessionStore(path, read_only=True) as store:
+        lib = store.load_views()
+    assert lib.get("old").em_tip2base is None
+    np.testing.assert_array_equal(lib.get("new").em_tip2base, np.eye(4))

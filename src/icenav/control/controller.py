@@ -189,9 +189,6 @@ class Controller:
         fills it from the tracker's newest samples), for :meth:`cycle_pose`."""
         self.respiration = respiration
         self.cardiac_phase = cardiac_phase
-        self.view_em: dict[str, Array] = {}
-        """Per view, the cycle-averaged EM pose measured when it was saved (the target of
-        "refine view"; kept for this run only)."""
         self._still_since = 0.0
         self._recorder = recorder
         self._clock = clock

@@ -329,7 +329,7 @@ class Handlers:
         ctrl = self._ctrl
         name = ticket.command.view  # type: ignore[attr-defined]
         view = ctrl.views.get(name)
-        saved = ctrl.view_em.get(name)
+        saved = view.em_tip2base
         if saved is None or ctrl.pose_buffer is None:
             raise CommandRefusedError(
                 f"cannot refine {name!r}: no EM pose was saved with it (a registered tracker "
@@ -371,6 +371,8 @@ class Handlers:
                 q=ctrl._q,  # noqa: SLF001
                 tip2base=tip,
                 thumbnail=None if image is None else image.pixels,
+                # the refinement's target, measured as it will measure (None: not still)
+                em_tip2base=ctrl.still_em_pose(),
             )
             ctrl.views.add(view)
         except IcenavError as exc:
@@ -378,10 +380,6 @@ class Handlers:
         if image is not None:
             ctrl.publisher.view_images[name] = image
         ctrl.selected_view = name
-        ctrl.view_em.pop(name, None)
-        em = ctrl.still_em_pose()  # the refinement's target, measured as it will measure
-        if em is not None:
-            ctrl.view_em[name] = em
         self._prepare_plans_to(view)
         ctrl.settle(ticket, Outcome.ACCEPTED)
 

@@ -19,6 +19,8 @@ Schema (``PRAGMA user_version`` = :data:`SCHEMA_VERSION`, ``PRAGMA application_i
           approach TEXT, tip2base BLOB, thumbnail BLOB, notes TEXT, ordinal INTEGER)
     calibrations(name TEXT PRIMARY KEY, kind TEXT, data TEXT, created_s REAL)
     events(seq INTEGER PRIMARY KEY AUTOINCREMENT, t REAL, kind TEXT, data TEXT)
+    view_em(name TEXT PRIMARY KEY, tip2base BLOB)          a view's EM pose (added on open
+                                                           for writing; older files lack it)
 """
 
 from __future__ import annotations
@@ -82,6 +84,8 @@ CREATE TABLE calibrations(name TEXT PRIMARY KEY, kind TEXT NOT NULL, data TEXT N
 CREATE TABLE events(seq INTEGER PRIMARY KEY AUTOINCREMENT, t REAL NOT NULL,
                     kind TEXT NOT NULL, data TEXT NOT NULL);
 """
+_VIEW_EM_TABLE = "CREATE TABLE IF NOT EXISTS view_em(name TEXT PRIMARY KEY, tip2base BLOB NOT NULL)"
+"""A view's EM pose (:attr:`icenav.recovery.views.View.em_tip2base`, .npy bytes)."""
 
 _TABLES = {"meta", "vertices", "edges", "trace", "views", "calibrations", "events"}
 
@@ -263,6 +267,9 @@ class SessionStore:
                 self._create(config if config is not None else RoadmapConfig())
             if not read_only:
                 self._db.execute("PRAGMA journal_mode=WAL")
+                # the views' EM poses: added to files written before it (the layout stays
+                # version 1; an older icenav ignores the table)
+                self._db.execute(_VIEW_EM_TABLE)
             # FULL: a commit is durable even against power loss, not only a killed process.
             self._db.execute("PRAGMA synchronous=FULL")
             self._db.execute("BEGIN")
@@ -510,16 +517,23 @@ class SessionStore:
         self._exec_many(
             "INSERT OR REPLACE INTO views VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)", [row]
         )
+        self._exec_many("DELETE FROM view_em WHERE name=?", [(view.name,)])
+        if view.em_tip2base is not None:
+            self._exec_many(
+                "INSERT INTO view_em VALUES (?, ?)", [(view.name, _npy_bytes(view.em_tip2base))]
+            )
         self.commit()
 
     def rename_view(self, old: str, new: str) -> None:
         """Rename a stored view (committed at once)."""
         self._exec_many("UPDATE views SET name=? WHERE name=?", [(new, old)])
+        self._exec_many("UPDATE view_em SET name=? WHERE name=?", [(new, old)])
         self.commit()
 
     def delete_view(self, name: str) -> None:
         """Delete a stored view (committed at once)."""
         self._exec_many("DELETE FROM views WHERE name=?", [(name,)])
+        self._exec_many("DELETE FROM view_em WHERE name=?", [(name,)])
         self.commit()
 
     def save_calibration(
@@ -608,6 +622,7 @@ class SessionStore:
             "SELECT name, vertex, phi1, phi2, phi3, d4, created_s, arrival, approach, tip2base, "
             "thumbnail, notes FROM views ORDER BY ordinal"
         ).fetchall()
+        em = {name: _npy_load(blob) for name, blob in self._view_em_rows()}
         for r in rows:
             lib.add(
                 View(
@@ -620,9 +635,20 @@ class SessionStore:
                     tip2base=_npy_load(r[9]),
                     thumbnail=_npy_load(r[10]),
                     notes=r[11],
+                    em_tip2base=em.get(r[0]),
                 )
             )
         return lib
+
+    def _view_em_rows(self) -> list[tuple[str, bytes]]:
+        """The views' EM poses (table ``view_em``; a file written by an icenav without it has
+        none: its views load with ``em_tip2base`` None)."""
+        known = self._db.execute(
+            "SELECT 1 FROM sqlite_master WHERE type='table' AND name='view_em'"
+        ).fetchone()
+        if known is None:
+            return []
+        return [(r[0], r[1]) for r in self._db.execute("SELECT name, tip2base FROM view_em")]
 
     @_rows_checked("calibrations")
     def calibrations(self) -> dict[str, tuple[str, dict[str, Any], float]]:

@@ -590,6 +590,7 @@ class Roadmap:
         tip2base: ArrayLike | None = None,
         thumbnail: NDArray[np.uint8] | None = None,
         notes: str = "",
+        em_tip2base: ArrayLike | None = None,
     ) -> View:
         """Save the current state (or ``q``, the state the robot is at now, which is recorded
         first and must lie within epsilon of the last recorded state) as a view.
@@ -621,6 +622,7 @@ class Roadmap:
             tip2base=None if tip2base is None else np.asarray(tip2base, np.float64),
             thumbnail=thumbnail,
             notes=notes,
+            em_tip2base=None if em_tip2base is None else np.asarray(em_tip2base, np.float64),
         )
 
     def _approach_ids(self, vid: int) -> list[int]:

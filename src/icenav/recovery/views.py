@@ -46,6 +46,10 @@ class View:
     """(H, W) or (H, W, 3) uint8 thumbnail of the ultrasound image, if any."""
     notes: str = ""
     """Free text."""
+    em_tip2base: NDArray[np.float64] | None = None
+    """(4, 4) tracked tip pose in the base frame (mm) averaged over complete breaths / beats
+    of the still catheter when the view was saved: the target of the EM refinement (None:
+    no tracker, or the catheter was not held still long enough)."""
 
     def __post_init__(self) -> None:
         if not isinstance(self.name, str) or not self.name.strip():
@@ -71,6 +75,12 @@ class View:
                 raise InvalidValueError(f"view tip2base must have shape (4, 4), got {t.shape}")
             t.setflags(write=False)
             object.__setattr__(self, "tip2base", t)
+        if self.em_tip2base is not None:
+            e = np.array(check_transform(self.em_tip2base, "view em_tip2base"), np.float64)
+            if e.shape != (4, 4):
+                raise InvalidValueError(f"view em_tip2base must have shape (4, 4), got {e.shape}")
+            e.setflags(write=False)
+            object.__setattr__(self, "em_tip2base", e)
         if self.thumbnail is not None:
             img = np.array(self.thumbnail)
             if (
