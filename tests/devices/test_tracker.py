@@ -111,12 +111,14 @@ def test_n_average_must_be_a_whole_number_of_samples(bad: object) -> None:
 def test_the_sample_buffer_keeps_the_last_seconds_thinned_to_the_rate() -> None:
     buf = PoseSampleBuffer(capacity_s=2.0, max_rate_hz=50.0)
     assert buf.sample_window(1.0, 10.0)[0].shape == (0,)
+    assert buf.span_s() == 0.0
     for k in range(500):  # 5 s at 100 Hz: every other sample kept, the last 2 s
         pose = np.eye(4)
         pose[0, 3] = k
         buf.push(0.01 * k, pose)
         buf.push(0.01 * k, None)  # no VALID sample: skipped
     assert len(buf) == 102
+    assert buf.span_s() == pytest.approx(2.02)  # the 102 kept, 20 ms apart
     t, p = buf.sample_window(1.0, 10.0)
     assert len(t) == 10 and t[-1] == pytest.approx(4.98) and t[0] > 3.98
     assert np.all(np.diff(t) >= 0.1 - 1e-9)

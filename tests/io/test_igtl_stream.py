@@ -33,7 +33,10 @@ def streamed() -> Iterator[tuple[SimSession, IgtlStreamer, RecordingClient]]:
     forwarder = CommandForwarder()
     bridge = IgtlBridge(
         IgtlConfig(
-            port=0, accepted_commands=frozenset({IgtlCommand.SAVE_VIEW, IgtlCommand.GO_TO_VIEW})
+            port=0,
+            accepted_commands=frozenset(
+                {IgtlCommand.SAVE_VIEW, IgtlCommand.GO_TO_VIEW, IgtlCommand.REFINE_VIEW}
+            ),
         ),
         on_command=forwarder,
     )
@@ -93,6 +96,10 @@ def test_commands_from_the_client_get_the_controllers_answer(streamed: Any) -> N
     assert "slicer-view" in ctrl.views
     refused = _command(client, "save_view slicer-view")
     assert refused.startswith("refused: save_view slicer-view: ") and "exists" in refused
+    # saved before the loop had buffered the tracker for the refinement's window: no EM
+    # pose, and the controller's refusal reaches Slicer
+    no_em = _command(client, "refine_view slicer-view")
+    assert no_em.startswith("refused: refine_view slicer-view: ") and "EM pose" in no_em
     ctrl.estop("test")
     estopped = _command(client, "go_to_view slicer-view")
     assert estopped.startswith("refused: go_to_view slicer-view: ") and "ESTOP" in estopped.upper()

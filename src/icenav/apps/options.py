@@ -51,7 +51,7 @@ VESSELS = ("straight", "moderate", "steep")
 TRACKERS = ("sim", "ndi", "none")
 """Trackers of ``--tracker``: the twin's EM tracker (following the drives), an NDI Aurora,
 or none."""
-IGTL_COMMAND_NAMES = ("stop", "save_view", "go_to_view")
+IGTL_COMMAND_NAMES = ("stop", "save_view", "go_to_view", "refine_view")
 """Commands ``--igtl-commands`` may enable (``icenav.io.igtl.IgtlCommand`` values)."""
 
 

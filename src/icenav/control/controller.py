@@ -497,9 +497,12 @@ class Controller:
 
     def still_em_pose(self) -> Array | None:
         """The cycle-averaged EM pose (4, 4) (mm) of the last ``refine_window_s`` when the
-        catheter has been still that long and the tracker gave samples; else None."""
+        catheter has been still that long and the tracker's buffer spans it; else None."""
         window = self.config.refine_window_s
-        if self.pose_buffer is None or self._clock() - self._still_since < window:
+        buf = self.pose_buffer
+        if buf is None or self._clock() - self._still_since < window:
+            return None
+        if buf.span_s() + 2.0 * buf.min_dt < window:  # the loop has not buffered that long
             return None
         pose: Array | None = self.cycle_pose(window).measure_tip2base()
         return pose

@@ -156,6 +156,14 @@ class PoseSampleBuffer:
     def __len__(self) -> int:
         return self._count
 
+    def span_s(self) -> float:
+        """Time from the oldest kept sample to the newest (s; 0 with fewer than two)."""
+        with self._lock:
+            if self._count < 2:
+                return 0.0
+            kept = self._t[np.isfinite(self._t)]
+            return float(kept.max() - kept.min())
+
     def push(self, t: float, tip2base: Array | None) -> None:
         """Keep the pose (4, 4) (mm, base frame) sampled at time ``t`` (s); None (no VALID
         sample) and samples closer than ``1 / max_rate_hz`` to the last kept are skipped."""

@@ -14,8 +14,8 @@ Each message is packed once (pyigtl) and queued to every client; a client that r
 slowly gets the newest frame of each device and skips older ones.
 
 Commands (STRING messages on ``IcenavCommand``, one command per line: ``stop``,
-``save_view <name>``, ``go_to_view <name>``) are read only when enabled in
-:class:`IgtlConfig`. Every command gets exactly one reply on ``IcenavCommandAck``,
+``save_view <name>``, ``go_to_view <name>``, ``refine_view <name>``) are read only when
+enabled in :class:`IgtlConfig`. Every command gets exactly one reply on ``IcenavCommandAck``,
 ``<outcome>: <command>[: <reason>]`` with the outcome ``accepted``, ``refused``, ``done``
 or ``failed``, from the ``on_command`` callback (which decides: the controller's answer)
 or from the bridge (not enabled, unknown, wrong token, unreadable message). Several lines
@@ -96,6 +96,8 @@ class IgtlCommand(enum.Enum):
     """Save the current view under a name."""
     GO_TO_VIEW = "go_to_view"
     """Go to a saved view by name."""
+    REFINE_VIEW = "refine_view"
+    """Refine the view returned to (the EM pose stage towards its saved tracked pose)."""
 
 
 class IgtlOutcome(enum.Enum):
@@ -128,7 +130,7 @@ class IgtlRequest:
     command: IgtlCommand
     """What to do."""
     argument: str
-    """The view name for SAVE_VIEW / GO_TO_VIEW ("" for STOP)."""
+    """The view name for SAVE_VIEW / GO_TO_VIEW / REFINE_VIEW ("" for STOP)."""
     timestamp: float
     """Time stamp of the OpenIGTLink message (s since 1970)."""
     peer: str = ""

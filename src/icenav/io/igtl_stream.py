@@ -17,7 +17,7 @@ import time
 
 import numpy as np
 
-from icenav.control.commands import Command, GoToView, SaveView, Source, Stop
+from icenav.control.commands import Command, GoToView, RefineView, SaveView, Source, Stop
 from icenav.control.controller import Controller
 from icenav.errors import IcenavError, IgtlError
 from icenav.io.igtl import (
@@ -67,6 +67,8 @@ def to_command(request: IgtlRequest) -> Command:
         return Stop(source=source)
     if request.command is IgtlCommand.SAVE_VIEW:
         return SaveView(request.argument, source=source)
+    if request.command is IgtlCommand.REFINE_VIEW:
+        return RefineView(request.argument, source=source)
     return GoToView(request.argument, source=source)
 
 
