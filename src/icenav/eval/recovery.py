@@ -180,6 +180,9 @@ class RecoveryConfig:
     """Window of the cycle-averaged estimates (s); None: 9 s with breathing, 3 s without."""
     cycle_rate_hz: float = 10.0
     """EM (and truth) samples per second of the cycle-averaged estimates (Hz)."""
+    refine_window_s: float | None = None
+    """Window of the pose stage's own cycle-averaged estimates (s); None: the cycle window
+    (the saved pose and the static metric always use the cycle window)."""
     cycle_pose_stage: PoseStageConfig = field(default_factory=lambda: CYCLE_POSE_STAGE)
     """Pose stage settings with the cycle-averaged estimator (its hold is set to the
     window): few, deliberate corrections."""
@@ -401,10 +404,11 @@ def _one_return(
         elif cfg.pose_stage is not None and name in saved_em:
             sensor: Any = b.tracker
             ps_cfg = cfg.pose_stage
-            if b.cycle_sensor is not None:
-                sensor = b.cycle_sensor
+            if b.refine_sensor is not None:
+                sensor = b.refine_sensor
                 ps_cfg = replace(
-                    cfg.cycle_pose_stage, hold_s=b.cycle_window_s + cfg.cycle_pose_stage.settle_s
+                    cfg.cycle_pose_stage,
+                    hold_s=sensor.window_s + cfg.cycle_pose_stage.settle_s,
                 )
             ps = pose_stage(
                 b.robot,

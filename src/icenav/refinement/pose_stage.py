@@ -143,6 +143,17 @@ class PoseStageConfig:
     retried from the best state at half the gain), and the stage does not go back to the
     best state at the end (that would be one more stick-slip move); with the cycle-averaged
     estimator."""
+    revisit_best: bool = False
+    """With ``step_from_last``: when a correction landed worse than the best measured state
+    by more than ``min_decrease_mm``, the next move re-approaches the best state's command
+    (every engaged joint from its engaged side) instead of stepping from the worse one, and
+    the stage ends there (measured again) rather than at a worse state: a new draw of the
+    shaft's lost motion around a command known to be good, where going back to the start
+    is a draw around the open-loop return."""
+    approach_always: bool = False
+    """Every correction re-approaches every engaged joint that has a backoff from its
+    engaged side (not only those whose step reverses): the play and the shaft's lost
+    motion are taken up the same way at every measured state, as by the return."""
     undo_if_worse: bool = True
     """At the end, if the last measurement is worse than the first (the stage made it
     worse), go back to the start state (re-approached) and stop there: never farther from
@@ -257,6 +268,8 @@ class PoseStageResult:
     """(4,) largest |set-point - q_view| per joint over the run (rad, rad, rad, mm)."""
     undone: bool = False
     """The stage ended worse than it started and went back to the start state."""
+    revisits: int = 0
+    """Re-approaches of the best measured state (``revisit_best``)."""
 
 
 @dataclass(frozen=True)
@@ -378,6 +391,7 @@ class PoseStageTask:
         self._final: PoseMeasurement | None = None
         self._best_q = self.q_start.copy()
         self._undone = False
+        self._revisits = 0
 
     # --- the servo (a generator of requests) ----------------------------------------------
     def _engaged(self) -> Array:
@@ -433,6 +447,9 @@ class PoseStageTask:
     def _cost(self, m: PoseMeasurement) -> float:
         return float(np.linalg.norm(self._w * m.error))
 
+    def _worse_than_best(self, m: PoseMeasurement, best: PoseMeasurement) -> bool:
+        return self._cost(m) > self._cost(best) + self.config.min_decrease_mm
+
     def _within(self, m: PoseMeasurement) -> bool:
         cfg = self.config
         return m.position_mm <= cfg.tolerance_mm and m.rotation_rad <= cfg.tolerance_rad
@@ -473,9 +490,15 @@ class PoseStageTask:
                 self._status = PoseStageStatus.STALLED
                 break
             iterations += 1
+            revisit = False
             if cfg.step_from_last:
-                target = self._step(self._run.cmd.copy(), m.error)
-                moves = self._approach(target)
+                if cfg.revisit_best and self._worse_than_best(m, best):
+                    revisit = True
+                    moves = self._approach(best.q.copy(), force=True)
+                    self._revisits += 1
+                else:
+                    target = self._step(self._run.cmd.copy(), m.error)
+                    moves = self._approach(target, force=cfg.approach_always)
             else:
                 target = self._step(best.q.copy(), best.error, gain)
                 moves = self._approach(target, force=not np.array_equal(self._run.cmd, best.q))
@@ -487,13 +510,25 @@ class PoseStageTask:
                 return
             m = m2
             self._final = m
-            if self._cost(m) < self._cost(best) - cfg.min_decrease_mm:
+            if self._cost(m) < self._cost(best) - cfg.min_decrease_mm or (
+                cfg.step_from_last and revisit
+            ):
+                # (a revisit is a new draw at the best command: its measurement replaces
+                # the old one, which was the luckier of the two)
                 best, self._best_q = m, m.q.copy()
             elif not cfg.step_from_last:
                 gain *= 0.5  # the step did not pay: a shorter one from the best state
         else:
             self._status = PoseStageStatus.CONVERGED
             return
+        if cfg.step_from_last and cfg.revisit_best and self._worse_than_best(m, best):
+            # the last draw is worse than a measured one: end at the best command instead
+            self._revisits += 1
+            for t in self._approach(best.q.copy(), force=True):
+                yield _Move(t)
+            m5 = yield _MeasurePose()
+            if m5 is not None:
+                self._final = m5
         if (
             not cfg.step_from_last
             and self._cost(m) > self._cost(best)
@@ -601,6 +636,7 @@ class PoseStageTask:
             n_commands=run.n_cmd,
             max_offset=run.max_off.copy(),
             undone=self._undone,
+            revisits=self._revisits,
         )
 
 
