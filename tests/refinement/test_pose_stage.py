@@ -209,6 +209,7 @@ def test_pose_stage_timeout_and_bad_inputs() -> None:
         ({"min_gain": 0.0}, "min_gain"),
         ({"damping": math.nan}, "damping"),
         ({"backoff": (0.1, 0.1, 0.1)}, "backoff"),
+        ({"undo_margin_mm": -0.1}, "undo_margin_mm"),
     ],
 )
 def test_bad_pose_stage_config_is_rejected(kwargs: dict[str, object], match: str) -> None:
@@ -300,3 +301,19 @@ def test_a_correction_that_landed_worse_goes_back_to_the_best_measured_state() -
     res2 = pose_stage(robot, q0, np.eye(4), _Scripted(robot, [2.0, 0.8, 3.0]), config=plain,
                       sleep=clock.advance, arrival_direction=(1, 1, 1, 1))  # fmt: skip
     assert res2.revisits == 0 and res2.final is not None and res2.final.position_mm == 3.0
+
+
+def test_a_difference_within_the_undo_margin_is_not_undone() -> None:
+    """``undo_margin_mm``: last 2.2 mm against a first 2.0 mm is within a 0.3 mm margin (the
+    estimator's scatter), so the stage stays; 2.4 mm is beyond it and goes back."""
+    clock, plant, robot, _ = em_bench(110)
+    q0 = np.array([0.05, -0.05, 0.3, 2.0])
+    cfg = PoseStageConfig(max_iterations=1, reapproach_first=False, hold_s=0.1,
+                          step_from_last=True, undo_margin_mm=0.3)  # fmt: skip
+    for last, undone in ((2.2, False), (2.4, True)):
+        robot.command_position(q0)
+        clock.advance(0.5)
+        res = pose_stage(robot, q0, np.eye(4), _Scripted(robot, [2.0, last, 2.0]), config=cfg,
+                         sleep=clock.advance, arrival_direction=(1, 1, 1, 1))  # fmt: skip
+        assert res.undone is undone
+        assert len(res.measurements) == (3 if undone else 2)

@@ -154,6 +154,10 @@ class PoseStageConfig:
     """Every correction re-approaches every engaged joint that has a backoff from its
     engaged side (not only those whose step reverses): the play and the shaft's lost
     motion are taken up the same way at every measured state, as by the return."""
+    undo_margin_mm: float = 0.0
+    """``undo_if_worse`` goes back only when the last measurement is worse than the first by
+    more than this (weighted mm): a difference within the estimator's own scatter is no
+    evidence, and going back is itself a new draw of the shaft's lost motion."""
     undo_if_worse: bool = True
     """At the end, if the last measurement is worse than the first (the stage made it
     worse), go back to the start state (re-approached) and stop there: never farther from
@@ -183,6 +187,8 @@ class PoseStageConfig:
             if isinstance(n, bool) or not isinstance(n, int) or n < 1:
                 raise ConfigurationError(f"{name} must be an int >= 1, got {n!r}")
         check_positive(self.sample_rate_hz, "sample_rate_hz", "Hz")
+        if not (math.isfinite(self.undo_margin_mm) and self.undo_margin_mm >= 0.0):
+            raise ConfigurationError(f"undo_margin_mm must be >= 0 mm, got {self.undo_margin_mm}")
         check_positive(self.tolerance_mm, "tolerance_mm", "mm")
         check_positive(self.tolerance_rad, "tolerance_rad", "rad")
         check_positive(self.rotation_weight_mm_per_rad, "rotation_weight_mm_per_rad", "mm/rad")
@@ -543,7 +549,7 @@ class PoseStageTask:
         if (
             cfg.undo_if_worse
             and last is not None
-            and self._cost(last) > self._cost(first)
+            and self._cost(last) > self._cost(first) + cfg.undo_margin_mm
             and not np.array_equal(self._run.cmd, self.q_start)
         ):
             # worse than at the start, as the same estimator tells: back to the start state
