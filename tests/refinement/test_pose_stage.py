@@ -317,3 +317,24 @@ def test_a_difference_within_the_undo_margin_is_not_undone() -> None:
                          sleep=clock.advance, arrival_direction=(1, 1, 1, 1))  # fmt: skip
         assert res.undone is undone
         assert len(res.measurements) == (3 if undone else 2)
+
+
+def test_the_stage_makes_no_move_it_cannot_measure_within_its_time() -> None:
+    """With ``step_from_last`` a correction starts only when it and a measurement after it
+    (and, with ``undo_if_worse``, a way back to the start) fit in ``max_duration_s``: the
+    stage ends at its last *measured* state (status BUDGET), never with a blind move."""
+    clock, plant, robot, _ = em_bench(110)
+    q0 = np.array([0.05, -0.05, 0.3, 2.0])
+    for undo, n_meas in ((False, 2), (True, 1)):
+        robot.command_position(q0)
+        clock.advance(0.5)
+        sensor = _Scripted(robot, [2.0] * 10)
+        cfg = PoseStageConfig(max_iterations=10, reapproach_first=False, hold_s=10.0,
+                              max_duration_s=25.0, step_from_last=True, undo_if_worse=undo,
+                              tolerance_mm=0.1)  # fmt: skip
+        res = pose_stage(robot, q0, np.eye(4), sensor, config=cfg, sleep=clock.advance,
+                         arrival_direction=(1, 1, 1, 1))  # fmt: skip
+        assert res.status is PoseStageStatus.BUDGET
+        assert len(res.measurements) == n_meas
+        np.testing.assert_allclose(res.q_final, sensor.q[-1], atol=1e-12)
+        assert res.duration_s <= 25.0

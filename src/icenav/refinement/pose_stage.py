@@ -453,6 +453,29 @@ class PoseStageTask:
     def _cost(self, m: PoseMeasurement) -> float:
         return float(np.linalg.norm(self._w * m.error))
 
+    def _time_for(self, moves: list[Array], *, reserve: bool = True) -> bool:
+        """Whether ``moves`` (at the stage's speed) and a measurement after them fit in the
+        controller time left, keeping (``reserve``, with ``undo_if_worse``) the time to go
+        back to the start and measure there; with ``step_from_last`` (else always True)."""
+        cfg = self.config
+        if not cfg.step_from_last:
+            return True
+        vel = np.array(cfg.max_velocity)
+
+        def travel(q: Array, targets: list[Array]) -> float:
+            t = 0.0
+            for target in targets:
+                t += float(np.max(np.abs(target - q) / vel)) + 0.1
+                q = target
+            return t
+
+        need = travel(self._run.cmd, moves) + self._hold_s
+        if reserve and cfg.undo_if_worse:
+            end = moves[-1] if moves else self._run.cmd
+            need += travel(end, [end - self._engaged() * np.array(cfg.backoff), self.q_start])
+            need += self._hold_s
+        return self._run.elapsed + need <= cfg.max_duration_s
+
     def _worse_than_best(self, m: PoseMeasurement, best: PoseMeasurement) -> bool:
         return self._cost(m) > self._cost(best) + self.config.min_decrease_mm
 
@@ -508,6 +531,11 @@ class PoseStageTask:
             else:
                 target = self._step(best.q.copy(), best.error, gain)
                 moves = self._approach(target, force=not np.array_equal(self._run.cmd, best.q))
+            if not self._time_for(moves):
+                # a move it could not measure before the time budget ends would leave the
+                # robot at an unmeasured new draw: stay at the last measured state
+                self._status = PoseStageStatus.BUDGET
+                break
             for t in moves:
                 yield _Move(t)
             m2 = yield _MeasurePose()
@@ -527,10 +555,16 @@ class PoseStageTask:
         else:
             self._status = PoseStageStatus.CONVERGED
             return
-        if cfg.step_from_last and cfg.revisit_best and self._worse_than_best(m, best):
+        end_moves = self._approach(best.q.copy(), force=True)
+        if (
+            cfg.step_from_last
+            and cfg.revisit_best
+            and self._worse_than_best(m, best)
+            and self._time_for(end_moves)
+        ):
             # the last draw is worse than a measured one: end at the best command instead
             self._revisits += 1
-            for t in self._approach(best.q.copy(), force=True):
+            for t in end_moves:
                 yield _Move(t)
             m5 = yield _MeasurePose()
             if m5 is not None:
