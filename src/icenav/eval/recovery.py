@@ -81,6 +81,7 @@ from icenav.sim.conditions import CONDITIONS, DISTURBANCES
 
 __all__ = [
     "CYCLE_POSE_STAGE",
+    "CYCLE_POSE_STAGE_PHANTOM",
     "FORCE_MARGIN_N",
     "MODES",
     "RecoveryConfig",
@@ -104,20 +105,35 @@ MODES = ("open_loop", "refined")
 
 
 CYCLE_POSE_STAGE = PoseStageConfig(
-    max_iterations=3,
+    max_iterations=5,
     max_step=(2.0 * _DEG, 2.0 * _DEG, 4.0 * _DEG, 2.0),
     step_from_last=True,
+    revisit_best=True,
     tolerance_mm=0.6,
     tolerance_rad=0.8 * _DEG,
     min_decrease_mm=0.3,
+    undo_margin_mm=0.3,
     reapproach_first=False,
     max_duration_s=60.0,
 )
-"""The pose stage on the cycle-averaged estimator: at most 2 corrections, larger ones, each
-measured over complete breaths; tolerances and the least decrease that counts above the
-estimator's scatter between breaths (about 0.4 mm on the twin: a still catheter's static
-pose wanders that much), no re-approach of the start (a stick-slip move of its own), back
-to the start when it ended worse."""
+"""The pose stage on the cycle-averaged estimator (in vivo): integral corrections, each
+measured over complete breaths, as many as fit in 60 s with a measurement after each and
+the way back kept (at most 5); a dead band (tolerance) and a least decrease that counts
+above the estimator's scatter between breaths (about 0.4 mm on the twin: a still
+catheter's static pose wanders that much) and below the targets (1.0 mm / 1.5 deg); ends
+at the best measured command when the last correction landed worse by more than the
+scatter; back to the start only when worse than at the start by more than the scatter."""
+
+CYCLE_POSE_STAGE_PHANTOM = replace(
+    CYCLE_POSE_STAGE,
+    tolerance_mm=0.35,
+    tolerance_rad=0.35 * _DEG,
+    min_decrease_mm=0.1,
+    undo_margin_mm=0.1,
+)
+"""The same in the phantom (complete beats, no breathing): the dead band below the
+phantom's targets (0.5 mm / 0.5 deg), the least decrease and the undo margin at the
+smaller scatter of a still catheter there."""
 
 
 @dataclass(frozen=True)
@@ -183,9 +199,10 @@ class RecoveryConfig:
     refine_window_s: float | None = None
     """Window of the pose stage's own cycle-averaged estimates (s); None: the cycle window
     (the saved pose and the static metric always use the cycle window)."""
-    cycle_pose_stage: PoseStageConfig = field(default_factory=lambda: CYCLE_POSE_STAGE)
+    cycle_pose_stage: PoseStageConfig | None = None
     """Pose stage settings with the cycle-averaged estimator (its hold is set to the
-    window): few, deliberate corrections."""
+    window); None: :data:`CYCLE_POSE_STAGE_PHANTOM` in the phantom, else
+    :data:`CYCLE_POSE_STAGE`."""
     image_stage: bool = False
     """On a disturbed twin, run the image stage after the EM stage too (it always runs when
     there is no EM stage, ``--no-em``, and on today's twin); off by default: under the
@@ -406,10 +423,11 @@ def _one_return(
             ps_cfg = cfg.pose_stage
             if b.refine_sensor is not None:
                 sensor = b.refine_sensor
-                ps_cfg = replace(
-                    cfg.cycle_pose_stage,
-                    hold_s=sensor.window_s + cfg.cycle_pose_stage.settle_s,
-                )
+                base = cfg.cycle_pose_stage
+                if base is None:
+                    phantom = cfg.condition == "phantom"
+                    base = CYCLE_POSE_STAGE_PHANTOM if phantom else CYCLE_POSE_STAGE
+                ps_cfg = replace(base, hold_s=sensor.window_s + base.settle_s)
             ps = pose_stage(
                 b.robot,
                 view.q,

@@ -144,7 +144,7 @@ class Bench:
         self.refine_sensor: CycleAveragedPose | None = self.cycle_sensor
         """The pose stage's estimator: Eq. (R1) over ``cfg.refine_window_s`` when set (a
         shorter window, more corrections in the same time), else :attr:`cycle_sensor`."""
-        if self.cycle_sensor is not None and cfg.refine_window_s is not None:
+        if self.twin is not None and self.cycle_sensor is not None and cfg.refine_window_s:
             self.refine_sensor = CycleAveragedPose(
                 self.twin.tracker,
                 self.twin.breathing,
