@@ -3,8 +3,9 @@
 
 Usage::
 
-    python docs/figures/make_recovery_tables.py 'docs/figures/recovery_s6_in-vivo_seed11?_*.json'
-    python docs/figures/make_recovery_tables.py 'docs/figures/recovery_s6_phantom_seed11?_*.json'
+    cd docs/figures
+    python make_recovery_tables.py 'recovery_s6_in-vivo_seed11?_patient10?.json'
+    python make_recovery_tables.py 'recovery_s6_phantom_seed11?_patient10?.json'
 
 Per target: the mean over the pairs of each pair's mean, and in how many pairs the target
 holds (in vivo static true tip < 1.0 mm and orientation < 1.5 deg, phantom < 0.5 mm and
@@ -100,5 +101,5 @@ def main(pattern: str) -> None:
 
 
 if __name__ == "__main__":
-    for arg in sys.argv[1:] or ["docs/figures/recovery_s6_in-vivo_seed11?_*.json"]:
+    for arg in sys.argv[1:] or ["docs/figures/recovery_s6_in-vivo_seed11?_patient10?.json"]:
         main(arg)
