@@ -59,6 +59,7 @@ from typing import Any
 import numpy as np
 
 from icenav._typing import Array
+from icenav._validation import check_positive
 from icenav.errors import ConfigurationError, IcenavError
 from icenav.eval.recovery_bench import DT, FORCE_MARGIN_N, Bench
 from icenav.eval.recovery_report import (
@@ -90,6 +91,7 @@ __all__ = [
     "ReturnSample",
     "TARGETS",
     "config_from_args",
+    "cycle_stage_config",
     "format_table",
     "main",
     "run_recovery",
@@ -301,6 +303,17 @@ class RecoveryRun:
     """True pose at each saved view averaged over complete breaths / beats (mm)."""
 
 
+def cycle_stage_config(cfg: RecoveryConfig, window_s: float) -> PoseStageConfig:
+    """The pose stage's settings on the cycle-averaged estimator of window ``window_s`` (s):
+    ``cfg.cycle_pose_stage``, else :data:`CYCLE_POSE_STAGE_PHANTOM` in the phantom and
+    :data:`CYCLE_POSE_STAGE` otherwise, holding the catheter for the whole window before
+    every measurement."""
+    base = cfg.cycle_pose_stage
+    if base is None:
+        base = CYCLE_POSE_STAGE_PHANTOM if cfg.condition == "phantom" else CYCLE_POSE_STAGE
+    return replace(base, hold_s=check_positive(window_s, "window_s", "s") + base.settle_s)
+
+
 def run_recovery(cfg: RecoveryConfig | None = None) -> RecoveryRun:
     """Run the experiment (see the module docstring)."""
     cfg = cfg if cfg is not None else RecoveryConfig()
@@ -423,11 +436,7 @@ def _one_return(
             ps_cfg = cfg.pose_stage
             if b.refine_sensor is not None:
                 sensor = b.refine_sensor
-                base = cfg.cycle_pose_stage
-                if base is None:
-                    phantom = cfg.condition == "phantom"
-                    base = CYCLE_POSE_STAGE_PHANTOM if phantom else CYCLE_POSE_STAGE
-                ps_cfg = replace(base, hold_s=sensor.window_s + base.settle_s)
+                ps_cfg = cycle_stage_config(cfg, sensor.window_s)
             ps = pose_stage(
                 b.robot,
                 view.q,
