@@ -308,7 +308,12 @@ class PoseStageTask:
     play ends as at saving. With ``reapproach_first`` the first off measurement triggers
     such a re-approach of the current state before any step. The stage iterates on the
     measured error (never trusting one step), keeps the best measured state and ends
-    there (re-approached, measured again) if the last one is worse.
+    there (re-approached, measured again) if the last one is worse. With
+    ``step_from_last`` (the cycle-averaged estimator, where every move is a new draw of the
+    shaft's lost motion) the steps are integral, no correction starts that cannot be
+    measured within ``max_duration_s``, ``revisit_best`` goes back to the best measured
+    command after a worse draw, and ``undo_margin_mm`` keeps it from going back to the start
+    on a difference within the estimator's scatter.
 
     Safety: every set-point stays in the box ``q_view +- radius``
     (:class:`NeighbourhoodError` otherwise); bounded speed, iterations and controller time;
