@@ -9,13 +9,18 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from icenav.errors import ConfigurationError
 from icenav.eval.metrics import rotation_angle
 from icenav.eval.recovery import (
+    CYCLE_POSE_STAGE,
+    CYCLE_POSE_STAGE_PHANTOM,
     MODES,
     TARGETS,
+    RecoveryConfig,
     RecoveryRun,
     _parser,
     config_from_args,
+    cycle_stage_config,
     format_table,
     main,
     run_recovery,
@@ -201,3 +206,23 @@ def test_catheters_and_patients_are_paired_in_order() -> None:
         _parser().parse_args(["--condition", "phantom", "--disable", "shaft"]), 111, 101
     )
     assert (cfg.seed, cfg.patient, cfg.condition, cfg.disable) == (111, 101, "phantom", ("shaft",))
+
+
+def test_the_pose_stage_settings_follow_the_condition() -> None:
+    """The phantom's dead band lies below its targets (0.5 mm / 0.5 deg), the in-vivo one
+    below the in-vivo targets (1.0 mm / 1.5 deg); an explicit setting wins; the hold covers
+    the estimator's whole window."""
+    ph = cycle_stage_config(RecoveryConfig(condition="phantom"), 3.0)
+    iv = cycle_stage_config(RecoveryConfig(condition="in-vivo"), 9.0)
+    assert ph.tolerance_mm == CYCLE_POSE_STAGE_PHANTOM.tolerance_mm < 0.5
+    assert math.degrees(ph.tolerance_rad) < 0.5
+    assert iv.tolerance_mm == CYCLE_POSE_STAGE.tolerance_mm < 1.0
+    assert math.degrees(iv.tolerance_rad) < 1.5
+    assert ph.hold_s == pytest.approx(3.0 + ph.settle_s)
+    assert iv.hold_s == pytest.approx(9.0 + iv.settle_s)
+    own = cycle_stage_config(
+        RecoveryConfig(condition="phantom", cycle_pose_stage=CYCLE_POSE_STAGE), 3.0
+    )
+    assert own.tolerance_mm == CYCLE_POSE_STAGE.tolerance_mm
+    with pytest.raises(ConfigurationError, match="window_s"):
+        cycle_stage_config(RecoveryConfig(), 0.0)

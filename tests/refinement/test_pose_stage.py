@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -208,6 +209,7 @@ def test_pose_stage_timeout_and_bad_inputs() -> None:
         ({"min_gain": 0.0}, "min_gain"),
         ({"damping": math.nan}, "damping"),
         ({"backoff": (0.1, 0.1, 0.1)}, "backoff"),
+        ({"undo_margin_mm": -0.1}, "undo_margin_mm"),
     ],
 )
 def test_bad_pose_stage_config_is_rejected(kwargs: dict[str, object], match: str) -> None:
@@ -257,3 +259,82 @@ def test_a_stage_that_made_it_worse_goes_back_to_where_it_started() -> None:
     res2 = pose_stage(robot, q0, np.eye(4), sensor, config=off, sleep=clock.advance,
                       arrival_direction=(1, 1, 1, 1))  # fmt: skip
     assert not res2.undone
+
+
+class _Scripted:
+    """EM 'tracker' whose measured position error follows a script, one value per
+    measurement (mm along the base x axis); records the commanded state of each."""
+
+    def __init__(self, robot: SimulatedRobot, errors_mm: list[float]) -> None:
+        self.robot, self.errors = robot, list(errors_mm)
+        self.q: list[Array] = []
+
+    def measure_tip2base(self, n_average: int = 1) -> Array:
+        self.q.append(np.asarray(self.robot.read_state().q, np.float64).copy())
+        out = np.eye(4)
+        out[0, 3] = self.errors.pop(0) if self.errors else 5.0
+        return out
+
+
+def test_a_correction_that_landed_worse_goes_back_to_the_best_measured_state() -> None:
+    """With ``revisit_best`` the stage ends at the best *measured* command (re-approached,
+    measured again), not at the worse last one and not at the start: start 2.0 mm, first
+    correction 0.8 mm, second 3.0 mm (a bad draw) -> back to the first correction's state."""
+    clock, plant, robot, _ = em_bench(110)
+    q0 = np.array([0.05, -0.05, 0.3, 2.0])
+    robot.command_position(q0)
+    clock.advance(0.5)
+    sensor = _Scripted(robot, [2.0, 0.8, 3.0, 0.9])
+    cfg = PoseStageConfig(max_iterations=2, reapproach_first=False, hold_s=0.1,
+                          step_from_last=True, revisit_best=True, tolerance_mm=0.5,
+                          min_decrease_mm=0.3)  # fmt: skip
+    res = pose_stage(robot, q0, np.eye(4), sensor, config=cfg, sleep=clock.advance,
+                     arrival_direction=(1, 1, 1, 1))  # fmt: skip
+    assert res.revisits == 1 and not res.undone
+    assert [round(m.position_mm, 3) for m in res.measurements] == [2.0, 0.8, 3.0, 0.9]
+    # the end state is the first correction's command, roll and translation re-approached
+    np.testing.assert_allclose(res.q_final[2:], sensor.q[1][2:], atol=1e-12)
+    assert not np.allclose(sensor.q[1], q0) and not np.allclose(sensor.q[1], sensor.q[2])
+    # without it, the stage stays at its worse last state (and would undo to the start)
+    robot.command_position(q0)
+    plain = replace(cfg, revisit_best=False, undo_if_worse=False)
+    res2 = pose_stage(robot, q0, np.eye(4), _Scripted(robot, [2.0, 0.8, 3.0]), config=plain,
+                      sleep=clock.advance, arrival_direction=(1, 1, 1, 1))  # fmt: skip
+    assert res2.revisits == 0 and res2.final is not None and res2.final.position_mm == 3.0
+
+
+def test_a_difference_within_the_undo_margin_is_not_undone() -> None:
+    """``undo_margin_mm``: last 2.2 mm against a first 2.0 mm is within a 0.3 mm margin (the
+    estimator's scatter), so the stage stays; 2.4 mm is beyond it and goes back."""
+    clock, plant, robot, _ = em_bench(110)
+    q0 = np.array([0.05, -0.05, 0.3, 2.0])
+    cfg = PoseStageConfig(max_iterations=1, reapproach_first=False, hold_s=0.1,
+                          step_from_last=True, undo_margin_mm=0.3)  # fmt: skip
+    for last, undone in ((2.2, False), (2.4, True)):
+        robot.command_position(q0)
+        clock.advance(0.5)
+        res = pose_stage(robot, q0, np.eye(4), _Scripted(robot, [2.0, last, 2.0]), config=cfg,
+                         sleep=clock.advance, arrival_direction=(1, 1, 1, 1))  # fmt: skip
+        assert res.undone is undone
+        assert len(res.measurements) == (3 if undone else 2)
+
+
+def test_the_stage_makes_no_move_it_cannot_measure_within_its_time() -> None:
+    """With ``step_from_last`` a correction starts only when it and a measurement after it
+    (and, with ``undo_if_worse``, a way back to the start) fit in ``max_duration_s``: the
+    stage ends at its last *measured* state (status BUDGET), never with a blind move."""
+    clock, plant, robot, _ = em_bench(110)
+    q0 = np.array([0.05, -0.05, 0.3, 2.0])
+    for undo, n_meas in ((False, 2), (True, 1)):
+        robot.command_position(q0)
+        clock.advance(0.5)
+        sensor = _Scripted(robot, [2.0] * 10)
+        cfg = PoseStageConfig(max_iterations=10, reapproach_first=False, hold_s=10.0,
+                              max_duration_s=25.0, step_from_last=True, undo_if_worse=undo,
+                              tolerance_mm=0.1)  # fmt: skip
+        res = pose_stage(robot, q0, np.eye(4), sensor, config=cfg, sleep=clock.advance,
+                         arrival_direction=(1, 1, 1, 1))  # fmt: skip
+        assert res.status is PoseStageStatus.BUDGET
+        assert len(res.measurements) == n_meas
+        np.testing.assert_allclose(res.q_final, sensor.q[-1], atol=1e-12)
+        assert res.duration_s <= 25.0

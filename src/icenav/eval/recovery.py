@@ -59,6 +59,7 @@ from typing import Any
 import numpy as np
 
 from icenav._typing import Array
+from icenav._validation import check_positive
 from icenav.errors import ConfigurationError, IcenavError
 from icenav.eval.recovery_bench import DT, FORCE_MARGIN_N, Bench
 from icenav.eval.recovery_report import (
@@ -81,6 +82,7 @@ from icenav.sim.conditions import CONDITIONS, DISTURBANCES
 
 __all__ = [
     "CYCLE_POSE_STAGE",
+    "CYCLE_POSE_STAGE_PHANTOM",
     "FORCE_MARGIN_N",
     "MODES",
     "RecoveryConfig",
@@ -89,6 +91,7 @@ __all__ = [
     "ReturnSample",
     "TARGETS",
     "config_from_args",
+    "cycle_stage_config",
     "format_table",
     "main",
     "run_recovery",
@@ -104,20 +107,35 @@ MODES = ("open_loop", "refined")
 
 
 CYCLE_POSE_STAGE = PoseStageConfig(
-    max_iterations=3,
+    max_iterations=5,
     max_step=(2.0 * _DEG, 2.0 * _DEG, 4.0 * _DEG, 2.0),
     step_from_last=True,
+    revisit_best=True,
     tolerance_mm=0.6,
     tolerance_rad=0.8 * _DEG,
     min_decrease_mm=0.3,
+    undo_margin_mm=0.3,
     reapproach_first=False,
     max_duration_s=60.0,
 )
-"""The pose stage on the cycle-averaged estimator: at most 2 corrections, larger ones, each
-measured over complete breaths; tolerances and the least decrease that counts above the
-estimator's scatter between breaths (about 0.4 mm on the twin: a still catheter's static
-pose wanders that much), no re-approach of the start (a stick-slip move of its own), back
-to the start when it ended worse."""
+"""The pose stage on the cycle-averaged estimator (in vivo): integral corrections, each
+measured over complete breaths, as many as fit in 60 s with a measurement after each and
+the way back kept (at most 5); a dead band (tolerance) and a least decrease that counts
+above the estimator's scatter between breaths (about 0.4 mm on the twin: a still
+catheter's static pose wanders that much) and below the targets (1.0 mm / 1.5 deg); ends
+at the best measured command when the last correction landed worse by more than the
+scatter; back to the start only when worse than at the start by more than the scatter."""
+
+CYCLE_POSE_STAGE_PHANTOM = replace(
+    CYCLE_POSE_STAGE,
+    tolerance_mm=0.35,
+    tolerance_rad=0.35 * _DEG,
+    min_decrease_mm=0.1,
+    undo_margin_mm=0.1,
+)
+"""The same in the phantom (complete beats, no breathing): the dead band below the
+phantom's targets (0.5 mm / 0.5 deg), the least decrease and the undo margin at the
+smaller scatter of a still catheter there."""
 
 
 @dataclass(frozen=True)
@@ -180,9 +198,13 @@ class RecoveryConfig:
     """Window of the cycle-averaged estimates (s); None: 9 s with breathing, 3 s without."""
     cycle_rate_hz: float = 10.0
     """EM (and truth) samples per second of the cycle-averaged estimates (Hz)."""
-    cycle_pose_stage: PoseStageConfig = field(default_factory=lambda: CYCLE_POSE_STAGE)
+    refine_window_s: float | None = None
+    """Window of the pose stage's own cycle-averaged estimates (s); None: the cycle window
+    (the saved pose and the static metric always use the cycle window)."""
+    cycle_pose_stage: PoseStageConfig | None = None
     """Pose stage settings with the cycle-averaged estimator (its hold is set to the
-    window): few, deliberate corrections."""
+    window); None: :data:`CYCLE_POSE_STAGE_PHANTOM` in the phantom, else
+    :data:`CYCLE_POSE_STAGE`."""
     image_stage: bool = False
     """On a disturbed twin, run the image stage after the EM stage too (it always runs when
     there is no EM stage, ``--no-em``, and on today's twin); off by default: under the
@@ -279,6 +301,17 @@ class RecoveryRun:
     """True pose at each saved view averaged over the DCT window (mm)."""
     saved_static_tip2base: dict[str, Array] = field(default_factory=dict)
     """True pose at each saved view averaged over complete breaths / beats (mm)."""
+
+
+def cycle_stage_config(cfg: RecoveryConfig, window_s: float) -> PoseStageConfig:
+    """The pose stage's settings on the cycle-averaged estimator of window ``window_s`` (s):
+    ``cfg.cycle_pose_stage``, else :data:`CYCLE_POSE_STAGE_PHANTOM` in the phantom and
+    :data:`CYCLE_POSE_STAGE` otherwise, holding the catheter for the whole window before
+    every measurement."""
+    base = cfg.cycle_pose_stage
+    if base is None:
+        base = CYCLE_POSE_STAGE_PHANTOM if cfg.condition == "phantom" else CYCLE_POSE_STAGE
+    return replace(base, hold_s=check_positive(window_s, "window_s", "s") + base.settle_s)
 
 
 def run_recovery(cfg: RecoveryConfig | None = None) -> RecoveryRun:
@@ -401,11 +434,9 @@ def _one_return(
         elif cfg.pose_stage is not None and name in saved_em:
             sensor: Any = b.tracker
             ps_cfg = cfg.pose_stage
-            if b.cycle_sensor is not None:
-                sensor = b.cycle_sensor
-                ps_cfg = replace(
-                    cfg.cycle_pose_stage, hold_s=b.cycle_window_s + cfg.cycle_pose_stage.settle_s
-                )
+            if b.refine_sensor is not None:
+                sensor = b.refine_sensor
+                ps_cfg = cycle_stage_config(cfg, sensor.window_s)
             ps = pose_stage(
                 b.robot,
                 view.q,

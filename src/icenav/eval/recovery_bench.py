@@ -141,6 +141,17 @@ class Bench:
                     window_s=self.cycle_window_s,
                     rate_hz=cfg.cycle_rate_hz,
                 )
+        self.refine_sensor: CycleAveragedPose | None = self.cycle_sensor
+        """The pose stage's estimator: Eq. (R1) over ``cfg.refine_window_s`` when set (a
+        shorter window, more corrections in the same time), else :attr:`cycle_sensor`."""
+        if self.twin is not None and self.cycle_sensor is not None and cfg.refine_window_s:
+            self.refine_sensor = CycleAveragedPose(
+                self.twin.tracker,
+                self.twin.breathing,
+                self.twin.rhythm.phase,
+                window_s=cfg.refine_window_s,
+                rate_hz=cfg.cycle_rate_hz,
+            )
         self.forces = ForceMap()
         """Per roadmap vertex, the contact force of the operator's trace (N)."""
         self.force_sensor: TwinForceSensor | None = None

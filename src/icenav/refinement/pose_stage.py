@@ -143,6 +143,21 @@ class PoseStageConfig:
     retried from the best state at half the gain), and the stage does not go back to the
     best state at the end (that would be one more stick-slip move); with the cycle-averaged
     estimator."""
+    revisit_best: bool = False
+    """With ``step_from_last``: when a correction landed worse than the best measured state
+    by more than ``min_decrease_mm``, the next move re-approaches the best state's command
+    (every engaged joint from its engaged side) instead of stepping from the worse one, and
+    the stage ends there (measured again) rather than at a worse state: a new draw of the
+    shaft's lost motion around a command known to be good, where going back to the start
+    is a draw around the open-loop return."""
+    approach_always: bool = False
+    """Every correction re-approaches every engaged joint that has a backoff from its
+    engaged side (not only those whose step reverses): the play and the shaft's lost
+    motion are taken up the same way at every measured state, as by the return."""
+    undo_margin_mm: float = 0.0
+    """``undo_if_worse`` goes back only when the last measurement is worse than the first by
+    more than this (weighted mm): a difference within the estimator's own scatter is no
+    evidence, and going back is itself a new draw of the shaft's lost motion."""
     undo_if_worse: bool = True
     """At the end, if the last measurement is worse than the first (the stage made it
     worse), go back to the start state (re-approached) and stop there: never farther from
@@ -172,6 +187,8 @@ class PoseStageConfig:
             if isinstance(n, bool) or not isinstance(n, int) or n < 1:
                 raise ConfigurationError(f"{name} must be an int >= 1, got {n!r}")
         check_positive(self.sample_rate_hz, "sample_rate_hz", "Hz")
+        if not (math.isfinite(self.undo_margin_mm) and self.undo_margin_mm >= 0.0):
+            raise ConfigurationError(f"undo_margin_mm must be >= 0 mm, got {self.undo_margin_mm}")
         check_positive(self.tolerance_mm, "tolerance_mm", "mm")
         check_positive(self.tolerance_rad, "tolerance_rad", "rad")
         check_positive(self.rotation_weight_mm_per_rad, "rotation_weight_mm_per_rad", "mm/rad")
@@ -257,6 +274,8 @@ class PoseStageResult:
     """(4,) largest |set-point - q_view| per joint over the run (rad, rad, rad, mm)."""
     undone: bool = False
     """The stage ended worse than it started and went back to the start state."""
+    revisits: int = 0
+    """Re-approaches of the best measured state (``revisit_best``)."""
 
 
 @dataclass(frozen=True)
@@ -289,7 +308,12 @@ class PoseStageTask:
     play ends as at saving. With ``reapproach_first`` the first off measurement triggers
     such a re-approach of the current state before any step. The stage iterates on the
     measured error (never trusting one step), keeps the best measured state and ends
-    there (re-approached, measured again) if the last one is worse.
+    there (re-approached, measured again) if the last one is worse. With
+    ``step_from_last`` (the cycle-averaged estimator, where every move is a new draw of the
+    shaft's lost motion) the steps are integral, no correction starts that cannot be
+    measured within ``max_duration_s``, ``revisit_best`` goes back to the best measured
+    command after a worse draw, and ``undo_margin_mm`` keeps it from going back to the start
+    on a difference within the estimator's scatter.
 
     Safety: every set-point stays in the box ``q_view +- radius``
     (:class:`NeighbourhoodError` otherwise); bounded speed, iterations and controller time;
@@ -378,6 +402,7 @@ class PoseStageTask:
         self._final: PoseMeasurement | None = None
         self._best_q = self.q_start.copy()
         self._undone = False
+        self._revisits = 0
 
     # --- the servo (a generator of requests) ----------------------------------------------
     def _engaged(self) -> Array:
@@ -433,6 +458,32 @@ class PoseStageTask:
     def _cost(self, m: PoseMeasurement) -> float:
         return float(np.linalg.norm(self._w * m.error))
 
+    def _time_for(self, moves: list[Array], *, reserve: bool = True) -> bool:
+        """Whether ``moves`` (at the stage's speed) and a measurement after them fit in the
+        controller time left, keeping (``reserve``, with ``undo_if_worse``) the time to go
+        back to the start and measure there; with ``step_from_last`` (else always True)."""
+        cfg = self.config
+        if not cfg.step_from_last:
+            return True
+        vel = np.array(cfg.max_velocity)
+
+        def travel(q: Array, targets: list[Array]) -> float:
+            t = 0.0
+            for target in targets:
+                t += float(np.max(np.abs(target - q) / vel)) + 0.1
+                q = target
+            return t
+
+        need = travel(self._run.cmd, moves) + self._hold_s
+        if reserve and cfg.undo_if_worse:
+            end = moves[-1] if moves else self._run.cmd
+            need += travel(end, [end - self._engaged() * np.array(cfg.backoff), self.q_start])
+            need += self._hold_s
+        return self._run.elapsed + need <= cfg.max_duration_s
+
+    def _worse_than_best(self, m: PoseMeasurement, best: PoseMeasurement) -> bool:
+        return self._cost(m) > self._cost(best) + self.config.min_decrease_mm
+
     def _within(self, m: PoseMeasurement) -> bool:
         cfg = self.config
         return m.position_mm <= cfg.tolerance_mm and m.rotation_rad <= cfg.tolerance_rad
@@ -473,12 +524,23 @@ class PoseStageTask:
                 self._status = PoseStageStatus.STALLED
                 break
             iterations += 1
+            revisit = False
             if cfg.step_from_last:
-                target = self._step(self._run.cmd.copy(), m.error)
-                moves = self._approach(target)
+                if cfg.revisit_best and self._worse_than_best(m, best):
+                    revisit = True
+                    moves = self._approach(best.q.copy(), force=True)
+                    self._revisits += 1
+                else:
+                    target = self._step(self._run.cmd.copy(), m.error)
+                    moves = self._approach(target, force=cfg.approach_always)
             else:
                 target = self._step(best.q.copy(), best.error, gain)
                 moves = self._approach(target, force=not np.array_equal(self._run.cmd, best.q))
+            if not self._time_for(moves):
+                # a move it could not measure before the time budget ends would leave the
+                # robot at an unmeasured new draw: stay at the last measured state
+                self._status = PoseStageStatus.BUDGET
+                break
             for t in moves:
                 yield _Move(t)
             m2 = yield _MeasurePose()
@@ -487,13 +549,31 @@ class PoseStageTask:
                 return
             m = m2
             self._final = m
-            if self._cost(m) < self._cost(best) - cfg.min_decrease_mm:
+            if self._cost(m) < self._cost(best) - cfg.min_decrease_mm or (
+                cfg.step_from_last and revisit
+            ):
+                # (a revisit is a new draw at the best command: its measurement replaces
+                # the old one, which was the luckier of the two)
                 best, self._best_q = m, m.q.copy()
             elif not cfg.step_from_last:
                 gain *= 0.5  # the step did not pay: a shorter one from the best state
         else:
             self._status = PoseStageStatus.CONVERGED
             return
+        end_moves = self._approach(best.q.copy(), force=True)
+        if (
+            cfg.step_from_last
+            and cfg.revisit_best
+            and self._worse_than_best(m, best)
+            and self._time_for(end_moves)
+        ):
+            # the last draw is worse than a measured one: end at the best command instead
+            self._revisits += 1
+            for t in end_moves:
+                yield _Move(t)
+            m5 = yield _MeasurePose()
+            if m5 is not None:
+                self._final = m5
         if (
             not cfg.step_from_last
             and self._cost(m) > self._cost(best)
@@ -508,7 +588,7 @@ class PoseStageTask:
         if (
             cfg.undo_if_worse
             and last is not None
-            and self._cost(last) > self._cost(first)
+            and self._cost(last) > self._cost(first) + cfg.undo_margin_mm
             and not np.array_equal(self._run.cmd, self.q_start)
         ):
             # worse than at the start, as the same estimator tells: back to the start state
@@ -601,6 +681,7 @@ class PoseStageTask:
             n_commands=run.n_cmd,
             max_offset=run.max_off.copy(),
             undone=self._undone,
+            revisits=self._revisits,
         )
 
 
