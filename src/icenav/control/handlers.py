@@ -51,26 +51,12 @@ from icenav.recovery.views import View
 
 
 def refine_stage_config(window_s: float) -> Any:
-    """The pose stage of "refine view" on the cycle-averaged pose: the settings measured in
-    ``icenav eval recovery`` (``CYCLE_POSE_STAGE`` there: at most 2 corrections, each
-    measured over complete breaths, back to the start when it ended worse), holding the
-    window before each measurement."""
-    import math
+    """The pose stage of "refine view" on the cycle-averaged pose: the in-vivo settings
+    measured in ``icenav eval recovery`` (:data:`icenav.refinement.presets.CYCLE_POSE_STAGE`),
+    holding the estimator's window (``window_s``, s) before each measurement."""
+    from icenav.refinement.presets import product_stage
 
-    from icenav.refinement.pose_stage import PoseStageConfig
-
-    deg = math.pi / 180.0
-    return PoseStageConfig(
-        max_iterations=3,
-        max_step=(2.0 * deg, 2.0 * deg, 4.0 * deg, 2.0),
-        step_from_last=True,
-        tolerance_mm=0.6,
-        tolerance_rad=0.8 * deg,
-        min_decrease_mm=0.3,
-        reapproach_first=False,
-        max_duration_s=60.0 + 4.0 * window_s,
-        hold_s=window_s + 0.5,
-    )
+    return product_stage(window_s)
 
 
 if TYPE_CHECKING:

@@ -77,6 +77,7 @@ from icenav.recovery.views import View
 from icenav.refinement.gating import GatedBeatImager
 from icenav.refinement.image_search import RefinementConfig, refine
 from icenav.refinement.pose_stage import PoseStageConfig, pose_stage
+from icenav.refinement.presets import CYCLE_POSE_STAGE, CYCLE_POSE_STAGE_PHANTOM
 from icenav.refinement.retry import RetryConfig, retry_return
 from icenav.sim.conditions import CONDITIONS, DISTURBANCES
 
@@ -104,38 +105,6 @@ TARGETS = ("aortic_valve", "mitral_valve", "tricuspid_valve")
 """The paper's three imaging targets (names of the views and ROI labels)."""
 MODES = ("open_loop", "refined")
 """Open-loop return (the paper) and return + closed-loop refinement."""
-
-
-CYCLE_POSE_STAGE = PoseStageConfig(
-    max_iterations=5,
-    max_step=(2.0 * _DEG, 2.0 * _DEG, 4.0 * _DEG, 2.0),
-    step_from_last=True,
-    revisit_best=True,
-    tolerance_mm=0.6,
-    tolerance_rad=0.8 * _DEG,
-    min_decrease_mm=0.3,
-    undo_margin_mm=0.3,
-    reapproach_first=False,
-    max_duration_s=60.0,
-)
-"""The pose stage on the cycle-averaged estimator (in vivo): integral corrections, each
-measured over complete breaths, as many as fit in 60 s with a measurement after each and
-the way back kept (at most 5); a dead band (tolerance) and a least decrease that counts
-above the estimator's scatter between breaths (about 0.4 mm on the twin: a still
-catheter's static pose wanders that much) and below the targets (1.0 mm / 1.5 deg); ends
-at the best measured command when the last correction landed worse by more than the
-scatter; back to the start only when worse than at the start by more than the scatter."""
-
-CYCLE_POSE_STAGE_PHANTOM = replace(
-    CYCLE_POSE_STAGE,
-    tolerance_mm=0.35,
-    tolerance_rad=0.35 * _DEG,
-    min_decrease_mm=0.1,
-    undo_margin_mm=0.1,
-)
-"""The same in the phantom (complete beats, no breathing): the dead band below the
-phantom's targets (0.5 mm / 0.5 deg), the least decrease and the undo margin at the
-smaller scatter of a still catheter there."""
 
 
 @dataclass(frozen=True)
