@@ -177,6 +177,9 @@ class Calibrations:
     dense_effective: ElasticityMap
     """The ablation ``dense+knob-hysteresis``: F from the same raster (tracker bias removed)
     in the per-joint model's effective knob angles."""
+    knob_hysteresis: HysteresisCompensator
+    """The ablation's per-joint compensator: the knobs' plays from their own sweeps (run
+    after ours, not a part of it), the roll's and the twist's from ours."""
     seconds: float
     """Wall time of the calibration (s)."""
     short: HysteresisCompensator | None = None
@@ -190,8 +193,8 @@ class Calibrations:
 
     @property
     def compensator(self) -> HysteresisCompensator:
-        """The per-joint (knob, roll, twist) hysteresis compensator of the sweeps."""
-        return self.catheter.hysteresis.compensator
+        """The per-joint (knob, roll, twist) hysteresis compensator of the ablation."""
+        return self.knob_hysteresis
 
     @property
     def tracker_bias(self) -> TrackerBias:
@@ -291,8 +294,20 @@ def calibrate(seed: int, plant: PlantSpec = None, *, short: bool = False) -> Cal
         rec = run_visits(plan_visits(splan.plan), rig.move, tracker)
         short_comp = fit_hysteresis(splan, rec).compensator
     cat: CatheterCalibration = ours.details
-    # the ablation: F on the per-joint model's effective knobs along the raster (from rest)
-    comp = cat.hysteresis.compensator
+    # the ablation: the knobs' own sweeps (not in our calibration), the roll's plays of ours
+    rig.reset()
+    kplan = hysteresis_plan(joints=(0, 1))
+    knobs = fit_hysteresis(kplan, run_visits(plan_visits(kplan.plan), rig.move, tracker))
+    k, r = knobs.compensator, cat.hysteresis.compensator
+    comp = HysteresisCompensator(
+        [k.joints[0], k.joints[1], r.joints[2], None],
+        roll_play_per_bend=r.roll_play_per_bend,
+        knob_play_per_bend=k.knob_play_per_bend,
+        twist_play_per_bend=r.twist_play_per_bend,
+        roll_play=r.roll_play,
+        twist_play=r.twist_play,
+    )
+    # F on the per-joint model's effective knobs along the raster (from rest)
     raster = raster_grid()
     eff = comp.effective_path(np.vstack([np.zeros(4), raster]))[1:]
     # a play's centre offset can put an effective knob past the limit F is defined on
@@ -307,6 +322,7 @@ def calibrate(seed: int, plant: PlantSpec = None, *, short: bool = False) -> Cal
         simplified=five,
         ours=ours,
         dense_effective=ElasticityMap.build(dense_eff),
+        knob_hysteresis=comp,
         seconds=time.perf_counter() - t0,
         short=short_comp,
     )
