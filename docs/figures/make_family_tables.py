@@ -15,7 +15,8 @@ This script only reads them and prints the tables and the issue's targets
 BEFORE.json AFTER.json`` it prints ours (``dense+hysteresis``, EM) before -> after per family
 and bend, e.g. on the development catheters 210-212
 (``docs/figures/families_dev210-212_before.json``, ``..._after.json``: the same command
-with ``--seeds 210-212 --conditions dense+hysteresis`` at bcf97b2 and at 899b631).
+with ``--seeds 210-212 --conditions dense+hysteresis`` at bcf97b2 and at 899b631); with
+``--short FULL.json SHORT.json`` the short calibrations against ours on the same catheters.
 """
 
 from __future__ import annotations
@@ -102,7 +103,35 @@ def compare(before: list[SpinRecord], after: list[SpinRecord]) -> None:
         print(f"| `{plant}` | " + " | ".join(row) + " |")
 
 
+def short_ratios(full: list[SpinRecord], short: list[SpinRecord]) -> None:
+    """Each short condition against ours (mean EM over the same catheters): position and
+    rotation, and their ratio to ours (the issue: within 25 %, i.e. <= 1.25)."""
+    f_cells, s_cells = summarize_plants(full), summarize_plants(short)
+    print("| family | condition | 20 deg | 40 deg | 60 deg |\n|---|---|---|---|---|")
+    for plant in dict.fromkeys(r.plant for r in short):
+        for cond in dict.fromkeys(r.condition for r in short):
+            row = []
+            for bend in BENDS:
+                f = f_cells.get((plant, "straight", OURS, bend))
+                c = s_cells.get((plant, "straight", cond, bend))
+                if f is None or c is None:
+                    row.append("-")
+                    continue
+                row.append(
+                    f"{c.position_mm:.1f} mm, {c.rotation_deg:.1f} deg "
+                    f"({c.position_mm / f.position_mm:.1f}x, "
+                    f"{c.rotation_deg / f.rotation_deg:.1f}x)"
+                )
+            print(f"| `{plant}` | {cond} | " + " | ".join(row) + " |")
+
+
 def main() -> None:
+    if len(sys.argv) == 4 and sys.argv[1] == "--short":
+        full, short = load(Path(sys.argv[2])), load(Path(sys.argv[3]))
+        if full and short:
+            print("short calibrations (EM mean) and their ratio to ours on the same catheters\n")
+            short_ratios(full, short)
+        return
     if len(sys.argv) == 4 and sys.argv[1] == "--compare":
         before, after = load(Path(sys.argv[2])), load(Path(sys.argv[3]))
         if before and after:
