@@ -1,14 +1,22 @@
 """Markdown tables of docs/results.md (plant families) from the records of ``icenav eval spin``.
 
-The held-out records are made by ONE run (methods frozen at commit b41cbd4; 32 minutes
-on a busy 2-core machine):
+The held-out records are made by ONE run each. Catheters 305-309 (methods frozen at commit
+899b631; started 10:54 UTC on the busy 2-core machine shared by five engineers):
 
-    nice icenav eval spin --plant-family all --seeds 300-304 --jobs 2 \\
+    nice icenav eval spin --plant-family all --seeds 305-309 --jobs 2 \\
         --conditions none,dense,dense+hysteresis \\
-        --json docs/figures/families_seeds300-304.json
+        --json docs/figures/families_seeds305-309.json
+
+and, the round before (methods frozen at commit b41cbd4; now spent),
+``--seeds 300-304 --json docs/figures/families_seeds300-304.json``.
 
 This script only reads them and prints the tables and the issue's targets
-(run: python docs/figures/make_family_tables.py [records.json]).
+(run: python docs/figures/make_family_tables.py [records.json]); with ``--compare
+BEFORE.json AFTER.json`` it prints ours (``dense+hysteresis``, EM) before -> after per family
+and bend, e.g. on the development catheters 210-212
+(``docs/figures/families_dev210-212_before.json``, ``..._after.json``: the same command
+with ``--seeds 210-212 --conditions dense+hysteresis`` at bcf97b2 and at 899b631); with
+``--short FULL.json SHORT.json`` the short calibrations against ours on the same catheters.
 """
 
 from __future__ import annotations
@@ -76,8 +84,62 @@ def _marks(oks: list[bool]) -> str:
     return " / ".join("met" if ok else "**missed**" for ok in oks)
 
 
+def compare(before: list[SpinRecord], after: list[SpinRecord]) -> None:
+    """Ours before -> after: mean EM position (mm) and rotation (deg) per family and bend."""
+    b_cells, a_cells = summarize_plants(before), summarize_plants(after)
+    print("| family | 20 deg | 40 deg | 60 deg |\n|---|---|---|---|")
+    for plant in dict.fromkeys(r.plant for r in after):
+        row = []
+        for bend in BENDS:
+            b = b_cells.get((plant, "straight", OURS, bend))
+            a = a_cells.get((plant, "straight", OURS, bend))
+            if a is None or b is None:
+                row.append("-")
+                continue
+            row.append(
+                f"{b.position_mm:.2f} -> {a.position_mm:.2f} mm, "
+                f"{b.rotation_deg:.2f} -> {a.rotation_deg:.2f} deg"
+            )
+        print(f"| `{plant}` | " + " | ".join(row) + " |")
+
+
+def short_ratios(full: list[SpinRecord], short: list[SpinRecord]) -> None:
+    """Each short condition against ours (mean EM over the same catheters): position and
+    rotation, and their ratio to ours (the issue: within 25 %, i.e. <= 1.25)."""
+    f_cells, s_cells = summarize_plants(full), summarize_plants(short)
+    print("| family | condition | 20 deg | 40 deg | 60 deg |\n|---|---|---|---|---|")
+    for plant in dict.fromkeys(r.plant for r in short):
+        for cond in dict.fromkeys(r.condition for r in short):
+            row = []
+            for bend in BENDS:
+                f = f_cells.get((plant, "straight", OURS, bend))
+                c = s_cells.get((plant, "straight", cond, bend))
+                if f is None or c is None:
+                    row.append("-")
+                    continue
+                row.append(
+                    f"{c.position_mm:.1f} mm, {c.rotation_deg:.1f} deg "
+                    f"({c.position_mm / f.position_mm:.1f}x, "
+                    f"{c.rotation_deg / f.rotation_deg:.1f}x)"
+                )
+            print(f"| `{plant}` | {cond} | " + " | ".join(row) + " |")
+
+
 def main() -> None:
-    path = Path(sys.argv[1]) if len(sys.argv) > 1 else HERE / "families_seeds300-304.json"
+    if len(sys.argv) == 4 and sys.argv[1] == "--short":
+        full, short = load(Path(sys.argv[2])), load(Path(sys.argv[3]))
+        if full and short:
+            print("short calibrations (EM mean) and their ratio to ours on the same catheters\n")
+            short_ratios(full, short)
+        return
+    if len(sys.argv) == 4 and sys.argv[1] == "--compare":
+        before, after = load(Path(sys.argv[2])), load(Path(sys.argv[3]))
+        if before and after:
+            seeds = sorted({r.seed for r in after})
+            print(f"ours (EM mean over catheters {seeds}), before -> after\n")
+            compare(before, after)
+        return
+    path = Path(sys.argv[1]) if len(sys.argv) > 1 else HERE / "families_seeds305-309.json"
     records = load(path)
     if records:
         seeds = sorted({r.seed for r in records})

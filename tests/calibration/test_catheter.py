@@ -7,7 +7,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from icenav.calibration.catheter import DENSE_RASTER, catheter_plan, fit_catheter
+from icenav.calibration.catheter import (
+    DENSE_RASTER,
+    KNOB_CIRCLE_STEP,
+    catheter_plan,
+    fit_catheter,
+)
 from icenav.calibration.hysteresis import hysteresis_plan
 from icenav.calibration.plans import Recording
 from icenav.calibration.tracker_bias import ROLL_CIRCLES, roll_circle_plan
@@ -29,7 +34,10 @@ def test_the_plan_strings_the_procedures_together_from_rest_to_rest() -> None:
     sl = slice(cp.hysteresis_start, cp.hysteresis_start + h.n)
     np.testing.assert_array_equal(plan.q_motor[sl], h.q_motor)
     np.testing.assert_array_equal(plan.n_average[sl], h.n_average)
-    assert plan.n == 361 + h.n + roll_circle_plan().n + circle_plan().n
+    assert plan.n == 361 + h.n + roll_circle_plan().n + circle_plan(step=KNOB_CIRCLE_STEP).n
+    # only the roll is swept: the knobs' plays are the per-tendon model's (raster, circles)
+    assert cp.hysteresis.joints == (2,)
+    assert all("phi1" not in name.split(",")[0] for name in names if name.startswith("sweep"))
     np.testing.assert_array_equal(plan.q_motor[-1], np.zeros(4))  # ends at rest
     lim = DEFAULT_GEOMETRY.joint_limits
     assert np.all(plan.q_motor >= lim[:, 0]) and np.all(plan.q_motor <= lim[:, 1])

@@ -131,10 +131,33 @@ def test_the_roll_play_law_is_measured_on_a_plant_of_another_form() -> None:
     line = BendPlay.linear(comp.roll_play_per_bend)
     plant.reset()
     straight = plant.roll_play()
-    for knob in (40.0, 60.0):
+    assert comp.twist_play is not None and len(comp.twist_play.bends) == 3  # none saturated
+    for knob in (40.0, 60.0, 75.0):
         pose = plant.move([math.radians(knob), 0.0, 0.0, 0.0])
         bend = math.acos(float(pose[2, 2]))
         truth = plant.roll_play() - straight
         err = abs(comp.roll_play.at(bend) - truth)
         assert err < math.radians(1.0)
-        assert err < 0.5 * abs(line.at(bend) - truth)
+        if knob < 75.0:
+            assert err < 0.5 * abs(line.at(bend) - truth)
+        # the twist play too, up to the largest bend swept (about 30 deg there; read at
+        # 9 deg when the sweep was narrower than the plays together)
+        assert abs(comp.twist_play.at(bend) - plant.twist_play()) < math.radians(1.5)
+
+
+def test_a_play_reading_at_the_search_bound_is_dropped() -> None:
+    """A roll sweep narrower than the play (plus the margin) cannot read it: the reading at
+    the search bound is dropped from the law, the others kept; a sweep widened with the
+    bend reads every one (data of a single play growing with the knob, 0.5 rad/rad)."""
+    cath = SyntheticCatheter(r=(0.0, 0.0, 1.5 * DEG), roll_per_bend=0.5)
+    narrow = hysteresis_plan(joints=(2,), roll_amplitude=40 * DEG, roll_widening=0.0)
+    comp = fit_hysteresis(narrow, run_visits(plan_visits(narrow.plan), cath.move, Tracker(cath)))
+    play = comp.compensator.roll_play
+    assert play is not None and len(play.bends) == 2  # 37.5 deg of play at 75 deg: dropped
+    np.testing.assert_allclose(play.extra, np.radians([12.5, 25.0]), atol=1.0 * DEG)
+    cath = SyntheticCatheter(r=(0.0, 0.0, 1.5 * DEG), roll_per_bend=0.5)
+    wide = hysteresis_plan(joints=(2,), roll_amplitude=40 * DEG, roll_widening=0.8)
+    comp = fit_hysteresis(wide, run_visits(plan_visits(wide.plan), cath.move, Tracker(cath)))
+    play = comp.compensator.roll_play
+    assert play is not None and len(play.bends) == 3
+    np.testing.assert_allclose(play.extra, np.radians([12.5, 25.0, 37.5]), atol=1.0 * DEG)

@@ -38,3 +38,10 @@ def test_the_short_calibration_is_the_5_points_and_at_most_100_moves() -> None:
     assert five.n_readings == 10  # the paper's 5 points, two readings each on the model
     assert 0 < short.n_moves - five.n_moves <= 100
     assert five.robot_s < short.robot_s < 0.2 * calibration_costs(("dense+hysteresis",))[0].robot_s
+    rings = short_calibration_cost(rings=True)
+    assert rings.kind == "short+rings" and 0 < rings.n_moves - five.n_moves <= 100
+
+
+def test_ours_is_under_10_minutes_of_robot_time() -> None:
+    (ours,) = calibration_costs(("dense+hysteresis",))
+    assert ours.robot_s < 600.0

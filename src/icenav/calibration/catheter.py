@@ -2,11 +2,12 @@
 one fit (beyond the paper).
 
 :func:`catheter_plan` strings together, from rest at zeros: the paper's dense raster, the
-hysteresis sweeps (:func:`icenav.calibration.hysteresis.hysteresis_plan`), the roll circles
-that separate the tracker's field bias (:func:`icenav.calibration.tracker_bias.roll_circle_plan`)
-and the knob circles of the per-tendon model (:func:`icenav.calibration.transmission.circle_plan`):
-2,345 states. :func:`fit_catheter` turns its :class:`~icenav.calibration.plans.Recording` into
-:class:`CatheterCalibration` -- F, the per-joint hysteresis, the tracker bias and the
+roll sweeps straight and at three bends (:func:`icenav.calibration.hysteresis.hysteresis_plan`),
+the roll circles that separate the tracker's field bias
+(:func:`icenav.calibration.tracker_bias.roll_circle_plan`) and the knob circles of the
+per-tendon model (:func:`icenav.calibration.transmission.circle_plan`): 1,071 states.
+:func:`fit_catheter` turns its :class:`~icenav.calibration.plans.Recording` into
+:class:`CatheterCalibration` -- F, the roll's and the twist's plays, the tracker bias and the
 per-tendon transmission. :meth:`CatheterCalibration.knob_map` is the controller's compensation
 (:class:`icenav.compensation.tendon_map.TendonKnobMap`).
 
@@ -47,6 +48,7 @@ __all__ = [
     "CatheterCalibration",
     "CatheterPlan",
     "DENSE_RASTER",
+    "KNOB_CIRCLE_STEP",
     "catheter_plan",
     "fit_catheter",
 ]
@@ -70,22 +72,32 @@ class CatheterPlan:
     """Index in ``plan`` where the sweeps' plan starts."""
 
 
+KNOB_CIRCLE_STEP = math.radians(6.0)
+"""Largest knob change per sample of the knob circles (rad): 6 deg (3 before), the circles
+half as long; re-checked on the development catheters (docs/calibration.md, section 7)."""
+
+
 def catheter_plan(
     *,
     raster_n_average: int = 4,
     raster_step: float = math.radians(10.0),
+    circle_step: float = KNOB_CIRCLE_STEP,
     geometry: CatheterGeometry = DEFAULT_GEOMETRY,
 ) -> CatheterPlan:
-    """The raster (``raster_n_average`` tracker samples averaged per knob pair), the sweeps,
-    the roll circles and the knob circles, from rest at zeros back to rest."""
+    """The raster (``raster_n_average`` tracker samples averaged per knob pair), the roll
+    sweeps (straight and at three bends), the roll circles and the knob circles (in
+    ``circle_step``), from rest at zeros back to rest. The knobs' own sweeps are not in it:
+    the per-tendon model identifies the knobs' plays from the raster and the circles (the
+    per-knob model of :func:`icenav.calibration.hysteresis.hysteresis_plan` with joints 0, 1
+    is an ablation's)."""
     raster = raster_grid(raster_step, geometry.knob_limit)
-    hplan = hysteresis_plan()
+    hplan = hysteresis_plan(joints=(2,))
     plan = MotionPlan.concat(
         [
             MotionPlan.make(raster, DENSE_RASTER, n_average=raster_n_average, retries=10),
             hplan.plan,
             roll_circle_plan(),
-            circle_plan(),
+            circle_plan(step=circle_step),
         ]
     )
     return CatheterPlan(plan=plan, raster=raster, hysteresis=hplan, hysteresis_start=len(raster))
@@ -100,7 +112,8 @@ class CatheterCalibration:
     elasticity_map: ElasticityMap
     """The paper's F from them."""
     hysteresis: HysteresisIdentification
-    """The per-joint dead-zone / backlash of the knobs, the roll's play and the twist."""
+    """The roll's play and the twist's, against the bend (no knob models: the knobs'
+    plays are the per-tendon model's)."""
     tracker_bias: TrackerBias
     """The tracker's base-frame field bias, from the roll circles."""
     transmission: TransmissionCalibration

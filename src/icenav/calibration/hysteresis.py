@@ -257,7 +257,7 @@ class HysteresisPlan:
     sweep: Array
     """(m,) joint values of one sweep (rad): 0 -> +A -> -A -> +A -> 0 of the knobs."""
     roll_sweep: Array
-    """(m',) the same for the roll."""
+    """(m',) the same for the straight roll (the bent roll sweeps swing wider)."""
     joints: tuple[int, ...]
     """Joints swept (0, 1, 2: phi1, phi2, phi3)."""
     bend: float
@@ -272,18 +272,27 @@ def hysteresis_plan(
     *,
     amplitude: float = math.radians(60.0),
     step: float = math.radians(3.0),
-    roll_amplitude: float = math.radians(60.0),
+    roll_amplitude: float = math.radians(30.0),
+    roll_step: float = math.radians(5.0),
+    roll_widening: float = 0.8,
     roll_bend: float = math.radians(50.0),
     more_roll_bends: Sequence[float] = (math.radians(25.0), math.radians(75.0)),
     joints: Sequence[int] = (0, 1, 2),
     retries: int = 10,
 ) -> HysteresisPlan:
-    """The sweeps: each joint of ``joints`` 0 -> +A -> -A -> +A -> 0 with the others at 0,
-    one tracker sample per step; phi1 again with phi2 at ``roll_bend``, phi3 again with phi1
+    """The sweeps: each knob of ``joints`` 0 -> +A -> -A -> +A -> 0 (``amplitude``, in
+    ``step``) with the others at 0, one tracker sample per step; phi1 again with phi2 at
+    ``roll_bend``. The roll straight (``roll_amplitude``, in ``roll_step``), again with phi1
     at ``roll_bend`` and then a 5-sample reading of the bend there (0: no bent sweeps), and
-    likewise phi3 at each of ``more_roll_bends`` (rad, AP knob; the play against the bend
-    is measured at every bent sweep). The robot starts and ends at zeros (unread moves)."""
+    likewise at each of ``more_roll_bends`` (rad, AP knob; the play against the bend is
+    measured at every bent sweep). A bent roll sweep at knob angle k swings
+    ``roll_amplitude + roll_widening * k``: the plays widen with the bend, and a sweep
+    narrower than the roll's and the twist's plays together leaves the image frame still
+    (its reading saturates, :data:`SATURATION_MARGIN`). The robot starts and ends at zeros
+    (unread moves)."""
     _check_counts(retries, 1)
+    if not (0.0 <= roll_widening <= 2.0):
+        raise ConfigurationError(f"roll_widening must be in [0, 2] rad/rad, got {roll_widening}")
     js = tuple(int(j) for j in joints)
     more = tuple(float(b) for b in more_roll_bends) if roll_bend > 0.0 else ()
     for b in more:
@@ -296,7 +305,11 @@ def hysteresis_plan(
         if j not in (0, 1, 2):
             raise ConfigurationError(f"joints must be among 0, 1, 2 (phi1..phi3), got {j}")
     sweep = sweep_path(amplitude, step)
-    roll_sweep = sweep_path(roll_amplitude, step)
+    roll_sweep = sweep_path(roll_amplitude, roll_step)
+
+    def bent_roll_sweep(knob: float) -> Array:
+        return sweep_path(min(roll_amplitude + roll_widening * knob, math.pi), roll_step)
+
     zero = np.zeros((1, 4))
     parts: list[MotionPlan] = []
 
@@ -318,7 +331,7 @@ def hysteresis_plan(
             base = np.array([roll_bend, 0.0, 0.0, 0.0])
             parts += [
                 unread(base, "to zero"),
-                swept(path, 2, base, "sweep phi3, phi1 bent"),
+                swept(bent_roll_sweep(roll_bend), 2, base, "sweep phi3, phi1 bent"),
                 MotionPlan.make(base[None, :], "bend check", n_average=5, retries=retries),
             ]
             for b in more:
@@ -326,7 +339,7 @@ def hysteresis_plan(
                 tag = f"{math.degrees(b):.0f}"
                 parts += [
                     unread(base, "to zero"),
-                    swept(path, 2, base, f"sweep phi3, phi1 bent {tag}"),
+                    swept(bent_roll_sweep(b), 2, base, f"sweep phi3, phi1 bent {tag}"),
                     MotionPlan.make(
                         base[None, :], f"bend check {tag}", n_average=5, retries=retries
                     ),
@@ -342,28 +355,69 @@ def hysteresis_plan(
     )
 
 
+SATURATION_MARGIN = math.radians(10.0)
+"""A bent roll sweep reads a play half-width only up to its amplitude less this margin (rad):
+beyond, the output would swing less than twice the margin after a reversal, too little to
+tell a wide play from a stalled tip; a width found at that bound is *saturated* and dropped."""
+
+
 def _bent_roll_play(
     observed: Any, recording: Recording, straight_play: float, knob: float, tag: str
 ) -> tuple[float, float, float]:
     """One bent roll sweep (segment ``sweep phi3, phi1 bent{tag}``): the true bend there
     (rad, from the 5-sample ``bend check{tag}``; the AP knob angle ``knob`` when it was not
     tracked), the roll play's extra half-width over the straight ``straight_play`` and the
-    twist play's half-width (the image frame's extra lag over the section's) (rad)."""
+    twist play's half-width (the image frame's extra lag over the section's) (rad).
+
+    The play is searched up to the sweep's amplitude less :data:`SATURATION_MARGIN`; a width
+    found at that bound is not a measurement (the plays together nearly fill the sweep, the
+    tip hardly responds) and comes back NaN: the roll's extra play when the section's play
+    saturates, the twist when the image frame's does."""
     x, y, y_frame = observed(f"sweep phi3, phi1 bent{tag}", 2)
-    wide = math.radians(30.0)
-    bent = identify(x, y, cubic=False, with_dead_zone=False, max_slope=0.0, max_width=wide)
-    frame = identify(x, y_frame, cubic=False, with_dead_zone=False, max_slope=0.0, max_width=wide)
+    resolution = math.radians(0.5)
+    wide = max(float(np.max(np.abs(x))) - SATURATION_MARGIN, 2.0 * resolution)
+    kw: dict[str, Any] = {
+        "cubic": False,
+        "with_dead_zone": False,
+        "max_slope": 0.0,
+        "max_width": wide,
+        "resolution": resolution,
+    }
+    bent = identify(x, y, **kw)
+    frame = identify(x, y_frame, **kw)
     _, check = recording.part(f"bend check{tag}")
     pose = check[0]
     true_bend = (
         knob if not np.all(np.isfinite(pose)) else math.acos(max(-1.0, min(1.0, float(pose[2, 2]))))
     )
     true_bend = max(true_bend, math.radians(1.0))
+    bound = wide - resolution
+    roll_ok = bent.model.backlash < bound
+    frame_ok = roll_ok and frame.model.backlash < bound
     return (
         true_bend,
-        bent.model.backlash - straight_play,
-        frame.model.backlash - bent.model.backlash,
+        bent.model.backlash - straight_play if roll_ok else math.nan,
+        frame.model.backlash - bent.model.backlash if frame_ok else math.nan,
     )
+
+
+def _first_slope(points: Sequence[tuple[float, float, float]], k: int) -> float:
+    """Play per rad of bend (clipped to [0, 0.5]) of the first bent sweep whose reading
+    ``k`` (1: roll, 2: twist) is not saturated (the ``roll_bend`` sweep when it is not); 0
+    when every reading is."""
+    for p in points:
+        if math.isfinite(p[k]):
+            return min(max(0.0, p[k] / p[0]), 0.5)
+    return 0.0
+
+
+def _bend_law(points: Sequence[tuple[float, float, float]], k: int) -> BendPlay | None:
+    """The law against the bend of reading ``k`` (1: roll, 2: twist) over the bent sweeps
+    whose reading is not saturated (:func:`select_bend_play`); None when none is."""
+    kept = [(p[0], p[k]) for p in points if math.isfinite(p[k])]
+    if not kept:
+        return None
+    return select_bend_play([b for b, _ in kept], [e for _, e in kept])
 
 
 def short_hysteresis_plan() -> HysteresisPlan:
@@ -374,7 +428,8 @@ def short_hysteresis_plan() -> HysteresisPlan:
     return hysteresis_plan(
         joints=(2,),
         roll_amplitude=math.radians(30.0),
-        step=math.radians(5.0),
+        roll_step=math.radians(5.0),
+        roll_widening=0.0,
         more_roll_bends=(),
     )
 
@@ -434,13 +489,11 @@ def fit_hysteresis(
                 _bent_roll_play(observed, recording, fit.model.backlash, knob, tag)
                 for knob, tag in [(bend, ""), *((b, f" {math.degrees(b):.0f}") for b in more)]
             ]
-            true_bend, extra, twist = points[0]
-            per_bend = min(max(0.0, extra / true_bend), 0.5)
-            twist_per_bend = min(max(0.0, twist / true_bend), 0.5)
+            per_bend = _first_slope(points, 1)
+            twist_per_bend = _first_slope(points, 2)
             if more:
-                b_all = [p[0] for p in points]
-                roll_play = select_bend_play(b_all, [p[1] for p in points])
-                twist_play = select_bend_play(b_all, [p[2] for p in points])
+                roll_play = _bend_law(points, 1)
+                twist_play = _bend_law(points, 2)
     return HysteresisIdentification(
         compensator=HysteresisCompensator(
             models,

@@ -38,7 +38,7 @@ __all__ = ["BEND_PLAY_FORMS", "BendPlay", "MAX_EXTRA", "select_bend_play"]
 
 BEND_PLAY_FORMS = ("linear", "quadratic", "table")
 """The forms, simplest first (the order that breaks a tie of residuals)."""
-MAX_EXTRA = math.radians(30.0)
+MAX_EXTRA = math.radians(60.0)
 """Largest extra play half-width any form returns (rad)."""
 
 

@@ -66,11 +66,12 @@ class JointHysteresis:
     """eps: width over which the inverse crosses the dead-zone (rad), > 0."""
 
     def __post_init__(self) -> None:
-        for name in ("backlash", "dead_zone"):
+        # a bent roll's play with the twist's (the image frame's) can near 60 deg
+        for name, top in (("backlash", 90.0), ("dead_zone", 45.0)):
             v = float(getattr(self, name))
-            if not math.isfinite(v) or v < 0.0 or v > math.radians(45.0):
+            if not math.isfinite(v) or v < 0.0 or v > math.radians(top):
                 raise ConfigurationError(
-                    f"{name} must be in [0, {math.radians(45.0):.4f}] rad ([0, 45] deg), "
+                    f"{name} must be in [0, {math.radians(top):.4f}] rad ([0, {top:.0f}] deg), "
                     f"got {v} rad"
                 )
         r1 = float(self.backlash_slope)

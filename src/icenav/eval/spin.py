@@ -63,6 +63,7 @@ from icenav.calibration.hysteresis import (
 from icenav.calibration.plans import raster_grid
 from icenav.calibration.procedure import CalibrationOutcome, run_procedure, run_visits
 from icenav.calibration.procedures import make_procedure, plan_visits
+from icenav.calibration.short import ShortRingCalibration, fit_short_rings, short_ring_plan
 from icenav.calibration.transmission import (
     KNOB_CIRCLES,
     circle_plan,
@@ -114,7 +115,11 @@ SHORT = "short"
 """The short calibration (not in the default set): the paper's 5-point F and the roll's and
 the twist's play from two short roll sweeps (:func:`short_hysteresis_plan`; 89 moves in all),
 no knob play, no tracker bias."""
-ALL_CONDITIONS = (*CONDITIONS, SHORT)
+SHORT_RINGS = "short+rings"
+"""A development condition (not in the default set): the 5-point search, coarse roll sweeps
+and stops on three knob rings turned the spin's way, F over the five points and the ring
+stops (:mod:`icenav.calibration.short`; 105 moves in all)."""
+ALL_CONDITIONS = (*CONDITIONS, SHORT, SHORT_RINGS)
 """Every condition ``--conditions`` accepts."""
 FILE = "file"
 """The paper's F built on the samples of a calibration file (``--calibration CAL.json``: a
@@ -177,10 +182,15 @@ class Calibrations:
     dense_effective: ElasticityMap
     """The ablation ``dense+knob-hysteresis``: F from the same raster (tracker bias removed)
     in the per-joint model's effective knob angles."""
+    knob_hysteresis: HysteresisCompensator
+    """The ablation's per-joint compensator: the knobs' plays from their own sweeps (run
+    after ours, not a part of it), the roll's and the twist's from ours."""
     seconds: float
     """Wall time of the calibration (s)."""
     short: HysteresisCompensator | None = None
     """The short calibration's roll and twist plays (with ``simplified``'s F), if run."""
+    short_rings: ShortRingCalibration | None = None
+    """The ``short+rings`` calibration, if run."""
 
     @property
     def catheter(self) -> CatheterCalibration:
@@ -190,8 +200,8 @@ class Calibrations:
 
     @property
     def compensator(self) -> HysteresisCompensator:
-        """The per-joint (knob, roll, twist) hysteresis compensator of the sweeps."""
-        return self.catheter.hysteresis.compensator
+        """The per-joint (knob, roll, twist) hysteresis compensator of the ablation."""
+        return self.knob_hysteresis
 
     @property
     def tracker_bias(self) -> TrackerBias:
@@ -274,11 +284,14 @@ def run_calibration(kind: str, plant: Any, tracker: Any) -> CalibrationOutcome:
     return procedure.fit(run_procedure(procedure, plant.move, tracker))
 
 
-def calibrate(seed: int, plant: PlantSpec = None, *, short: bool = False) -> Calibrations:
+def calibrate(
+    seed: int, plant: PlantSpec = None, *, short: bool = False, short_rings: bool = False
+) -> Calibrations:
     """Calibrate catheter ``seed`` of ``plant`` in the straight vessel with the console's
     procedures: ``dense``, ``five_point`` and ``dense+hysteresis``, one after the other on one
     robot and tracker (each from rest); with ``short`` also the short calibration's roll
-    sweeps (:func:`short_hysteresis_plan`)."""
+    sweeps (:func:`short_hysteresis_plan`), with ``short_rings`` the ``short+rings`` one
+    (:func:`icenav.calibration.short.short_ring_plan` after the 5-point search's)."""
     t0 = time.perf_counter()
     rig, tracker = make_rig(seed, "straight", plant)
     dense = run_calibration("dense", rig, tracker)
@@ -290,9 +303,27 @@ def calibrate(seed: int, plant: PlantSpec = None, *, short: bool = False) -> Cal
         splan = short_hysteresis_plan()
         rec = run_visits(plan_visits(splan.plan), rig.move, tracker)
         short_comp = fit_hysteresis(splan, rec).compensator
+    rings = None
+    if short_rings:
+        rig.reset()
+        rplan = short_ring_plan()
+        rec = run_visits(plan_visits(rplan.plan), rig.move, tracker)
+        rings = fit_short_rings(rplan, rec, five.calibration_set)
     cat: CatheterCalibration = ours.details
-    # the ablation: F on the per-joint model's effective knobs along the raster (from rest)
-    comp = cat.hysteresis.compensator
+    # the ablation: the knobs' own sweeps (not in our calibration), the roll's plays of ours
+    rig.reset()
+    kplan = hysteresis_plan(joints=(0, 1))
+    knobs = fit_hysteresis(kplan, run_visits(plan_visits(kplan.plan), rig.move, tracker))
+    k, r = knobs.compensator, cat.hysteresis.compensator
+    comp = HysteresisCompensator(
+        [k.joints[0], k.joints[1], r.joints[2], None],
+        roll_play_per_bend=r.roll_play_per_bend,
+        knob_play_per_bend=k.knob_play_per_bend,
+        twist_play_per_bend=r.twist_play_per_bend,
+        roll_play=r.roll_play,
+        twist_play=r.twist_play,
+    )
+    # F on the per-joint model's effective knobs along the raster (from rest)
     raster = raster_grid()
     eff = comp.effective_path(np.vstack([np.zeros(4), raster]))[1:]
     # a play's centre offset can put an effective knob past the limit F is defined on
@@ -307,8 +338,10 @@ def calibrate(seed: int, plant: PlantSpec = None, *, short: bool = False) -> Cal
         simplified=five,
         ours=ours,
         dense_effective=ElasticityMap.build(dense_eff),
+        knob_hysteresis=comp,
         seconds=time.perf_counter() - t0,
         short=short_comp,
+        short_rings=rings,
     )
 
 
@@ -376,17 +409,23 @@ def _effective_path(q_model: Array, cal: Calibrations) -> tuple[Array, Array]:
     return eff, bends
 
 
-def _short_commands(q_model: Array, cal: Calibrations) -> Array:
+def _short_commands(q_model: Array, cal: Calibrations, rings: bool = False) -> Array:
     """The short calibration's commands (APPROACH_STEPS + n, 4): the twist pre-shaped, the
-    5-point F, the roll's play inverse at the intended bend (knobs without play model)."""
-    comp = cal.short
-    if comp is None:
+    5-point F (with ``rings``: F over the five points and the ring stops), the roll's play
+    inverse at the intended bend (knobs without play model)."""
+    if rings:
+        if cal.short_rings is None:
+            raise InvalidValueError(f"condition {SHORT_RINGS!r} needs its calibration")
+        comp, fmap = cal.short_rings.hysteresis, cal.short_rings.elasticity_map
+    elif cal.short is None:
         raise InvalidValueError(f"condition {SHORT!r} needs the short calibration")
+    else:
+        comp, fmap = cal.short, cal.simplified.knob_map
     path = _approach_path(q_model)
     lim = DEFAULT_GEOMETRY.knob_limit
     model = comp.preshape_model(path)
     model[:, :2] = np.clip(model[:, :2], -lim, lim)
-    eff = np.asarray(cal.simplified.knob_map.model_to_motor(model, check=False), np.float64)
+    eff = np.asarray(fmap.model_to_motor(model, check=False), np.float64)
     bends = DEFAULT_GEOMETRY.knob_ratio * np.hypot(path[:, 0], path[:, 1])
     comp.reset(np.zeros(4))
     cmd = comp.command_path(eff, bends=bends)
@@ -422,6 +461,8 @@ def _commands(
         raise InvalidValueError(f"condition {condition!r} needs the calibrations")
     if condition == SHORT:
         return _short_commands(q_model, cal)
+    if condition == SHORT_RINGS:
+        return _short_commands(q_model, cal, rings=True)
     if condition == KNOB_HYSTERESIS:
         eff, bends = _effective_path(q_model, cal)
         comp = cal.compensator
@@ -660,7 +701,11 @@ def evaluate_catheter(
     if FILE in conditions and file_map is None:
         raise InvalidValueError("condition 'file' needs calibration_file")
     needs_calibration = any(c not in ("none", FILE) for c in conditions)
-    cal = calibrate(seed, plant, short=SHORT in conditions) if needs_calibration else None
+    cal = (
+        calibrate(seed, plant, short=SHORT in conditions, short_rings=SHORT_RINGS in conditions)
+        if needs_calibration
+        else None
+    )
     records: list[SpinRecord] = []
     commands: dict[tuple[str, int, str], Array] = {}
     tips: dict[tuple[str, int, str], Array] = {}

@@ -278,7 +278,15 @@ def main(argv: Sequence[str] | None = None) -> int:
             short_calibration_cost,
         )
 
-        print(format_costs([*calibration_costs(), short_calibration_cost()]))
+        print(
+            format_costs(
+                [
+                    *calibration_costs(),
+                    short_calibration_cost(),
+                    short_calibration_cost(rings=True),
+                ]
+            )
+        )
         return 0
     try:
         bends = [int(b) for b in args.bends.split(",") if b.strip()]

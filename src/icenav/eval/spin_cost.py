@@ -22,6 +22,7 @@ import numpy as np
 from icenav.calibration.hysteresis import short_hysteresis_plan
 from icenav.calibration.procedure import CalibrationOutcome, VisitGenerator
 from icenav.calibration.procedures import make_procedure, plan_visits
+from icenav.calibration.short import short_ring_plan
 from icenav.control.calibration_runner import preview
 from icenav.control.config import ControllerConfig
 from icenav.errors import ConfigurationError
@@ -79,29 +80,35 @@ def calibration_costs(
 
 
 @dataclass(frozen=True)
-class _RollSweeps:
-    """The short calibration's roll sweeps as a procedure, for the runner's preview."""
+class _ShortMoves:
+    """The short calibration's moves after the 5-point search, as a procedure, for the
+    runner's preview."""
 
-    kind: str = "short roll sweeps"
-    label: str = "short calibration: roll sweeps"
+    rings: bool = False
+    kind: str = "short moves"
+    label: str = "short calibration: the moves after the 5-point search"
 
     def visits(self) -> VisitGenerator:
-        return plan_visits(short_hysteresis_plan().plan)
+        plan = short_ring_plan().plan if self.rings else short_hysteresis_plan().plan
+        return plan_visits(plan)
 
     def fit(self, recording: object) -> CalibrationOutcome:
         raise ConfigurationError(  # pragma: no cover - only previewed
-            "the short roll sweeps are fitted by icenav.eval.spin.calibrate(short=True)"
+            "the short calibrations are fitted by icenav.eval.spin.calibrate(short=True)"
         )
 
 
-def short_calibration_cost(config: ControllerConfig | None = None) -> CalibrationCost:
+def short_calibration_cost(
+    config: ControllerConfig | None = None, *, rings: bool = False
+) -> CalibrationCost:
     """The short calibration (``eval spin`` condition ``short``): the 5-point search and the
     short roll sweeps (:func:`icenav.calibration.hysteresis.short_hysteresis_plan`), each
-    from rest, added up."""
+    from rest, added up; with ``rings`` the ``short+rings`` one
+    (:func:`icenav.calibration.short.short_ring_plan` after the 5-point search)."""
     cfg = ControllerConfig() if config is None else config
     (five,) = calibration_costs(("five_point",), cfg)
     p = preview(
-        _RollSweeps(),
+        _ShortMoves(rings),
         np.zeros(4),
         np.asarray(cfg.max_velocity),
         settle_s=cfg.plan_settle_s,
@@ -110,7 +117,7 @@ def short_calibration_cost(config: ControllerConfig | None = None) -> Calibratio
         geometry=cfg.geometry,
     )
     return CalibrationCost(
-        "short",
+        "short+rings" if rings else "short",
         five.n_moves + p.n_visits,
         five.n_readings + p.n_readings,
         five.robot_s + p.duration_s,

@@ -56,6 +56,7 @@ _CONDITION_ORDER = (
     "dense+knob-hysteresis",
     "dense+hysteresis+em",
     "short",
+    "short+rings",
     "file",
 )
 
