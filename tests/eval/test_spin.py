@@ -222,3 +222,37 @@ def test_plots_of_one_vessel_run_the_others_for_the_curvature_figure(
     assert [r["vessel"] for r in records] == ["steep"]  # the table and the file keep one
     assert (tmp_path / "curvature_rotation.png").stat().st_size > 10_000
     assert (tmp_path / "spin_tip_steep_40deg.png").exists()
+
+
+def test_a_version_3_calibration_file_reproduces_our_condition(
+    cal52: spin.Calibrations, tmp_path: Path
+) -> None:
+    """``eval spin --calibration CAL.json`` with the file of the dense+hysteresis fit runs the
+    same commands as condition dense+hysteresis on the same catheter: the file keeps the
+    fitted model (not only the samples), and the stateful map starts relaxed at every spin."""
+    from icenav.calibration.files import CalibrationFile
+
+    path = tmp_path / "cal.json"
+    CalibrationFile.from_outcome(cal52.ours).save(path)
+    file_map = CalibrationFile.load(path).compensation()
+    commands: dict[tuple[int, str], object] = {}
+    records = spin.run_vessel(
+        52,
+        "straight",
+        cal52,
+        bends_deg=(20, 60),
+        n_samples=72,
+        conditions=(spin.OURS, spin.FILE),
+        file_map=file_map,
+        keep_commands=commands,  # type: ignore[arg-type]
+    )
+    by = {(r.bend_deg, r.condition): r for r in records}
+    for bend in (20, 60):
+        ours, file = by[(bend, spin.OURS)], by[(bend, spin.FILE)]
+        # the same motor commands to rounding (the tables of F rebuilt from their nodes:
+        # differences of 1e-15 rad measured), hence the same spin on the twin
+        diff = abs(commands[(bend, spin.OURS)] - commands[(bend, spin.FILE)])  # type: ignore[operator]
+        assert float(diff.max()) <= 1e-12
+        assert file.true_position_rmse_mm == pytest.approx(ours.true_position_rmse_mm, abs=1e-9)
+        assert file.position_rmse_mm == pytest.approx(ours.position_rmse_mm, abs=1e-9)
+        assert file.rotation_rmse_deg == pytest.approx(ours.rotation_rmse_deg, abs=1e-9)
