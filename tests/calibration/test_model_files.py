@@ -73,7 +73,7 @@ def test_a_twin_fit_loads_as_the_same_knob_map(
     fitted = twin_catheter_calibration.knob_map()
     again = loaded.compensation()
     assert isinstance(again, TendonKnobMap)
-    states = _random_states(40)
+    states = _random_states(20)
     worst = 0.0
     for q in states:  # one command after the other: the maps' states follow them alike
         a = fitted.model_to_motor(q)

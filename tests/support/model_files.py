@@ -21,7 +21,7 @@ from icenav.sim import CatheterPlant, EMTracker
 
 
 def small_catheter_calibration(seed: int = 52) -> CatheterCalibration:
-    """A CatheterCalibration of twin catheter ``seed`` (a development seed) from a 10 x 10
+    """A CatheterCalibration of twin catheter ``seed`` (a development seed) from an 8 x 8 (+-70 deg)
     raster, 10-degree sweeps and the roll circles; the per-tendon identification limited to
     a few evaluations (the file keeps whatever was identified)."""
     plant = CatheterPlant(seed=seed, vessel="straight")
@@ -37,7 +37,7 @@ def small_catheter_calibration(seed: int = 52) -> CatheterCalibration:
         plant.move(np.zeros(4))
         return run_visits(plan_visits(plan), move, tracker)
 
-    raster = raster_grid(math.radians(20.0))
+    raster = raster_grid(math.radians(20.0), math.radians(70.0))
     dense_rec = record(MotionPlan.make(raster, "dense raster", n_average=2, retries=10))
     dense = calibration_set_from(dense_rec, "dense raster").calibration
     hplan = hysteresis_plan(step=math.radians(10.0))
