@@ -303,11 +303,16 @@ class CalibrationRunner:
         )
 
 
-def calibration_document(outcome: CalibrationOutcome) -> dict[str, Any]:
+def calibration_document(outcome: CalibrationOutcome) -> dict[str, Any] | None:
     """The calibration-file document (:class:`icenav.calibration.files.CalibrationFile`,
     version 3: the samples, the kind and the fitted model) of a finished calibration, for
     the session (``icenav export-calibration`` writes it out with the session's
-    registration). Some 0.1-0.5 s for ``dense+hysteresis``: call it off the control loop."""
+    registration); None for a kind a calibration file does not hold (the registration,
+    which the session stores apart). Some 0.1-0.5 s for ``dense+hysteresis``: call it off the
+    control loop."""
     from icenav.calibration.files import CalibrationFile
+    from icenav.calibration.model_files import MODEL_KINDS
 
+    if outcome.kind not in MODEL_KINDS:
+        return None
     return CalibrationFile.from_outcome(outcome).to_dict()

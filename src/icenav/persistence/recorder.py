@@ -21,7 +21,7 @@ EVENTS = ("state", "view_saved", "view_renamed", "view_deleted", "event", "comma
 """The events a controller records: a control cycle (the roadmap is synced every
 ``sync_every``), a view saved / renamed / deleted, and rows of the event log (a text event, a
 command with its outcome, a calibration installed: with a ``document`` callable in its
-payload, what it returns is stored as the session's calibration in use)."""
+payload, what it returns (unless None) is stored as the session's calibration in use)."""
 
 
 class StoreRecorder:
@@ -109,7 +109,9 @@ class StoreRecorder:
 
             def write(st: SessionStore) -> None:
                 st.log_event(t, event, data)
-                st.save_calibration_document(kind, make(), t)
+                document = make()
+                if document is not None:
+                    st.save_calibration_document(kind, document, t)
 
             self._run(write)
         else:  # "event", "command", "calibration": rows of the session's event log
