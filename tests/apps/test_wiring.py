@@ -60,12 +60,15 @@ CHILD = textwrap.dedent(
     import numpy as np
 
     from icenav.apps.wiring import make_sim_controller
+    from icenav.control.config import ControllerConfig
     from icenav.control.modes import Mode
 
-    session = make_sim_controller(seed=103, imaging=False, session=sys.argv[1])
+    # 25 Hz: the same motions at the same speeds in a quarter of the cycles
+    config = ControllerConfig(rate_hz=25.0)
+    session = make_sim_controller(seed=103, imaging=False, session=sys.argv[1], config=config)
     ctrl = session.controller
     ticket = ctrl.start_calibration("five_point")
-    ctrl.run_until(lambda s: s.mode is Mode.IDLE and s.cycle > 5, 40000)
+    ctrl.run_until(lambda s: s.mode is Mode.IDLE and s.cycle > 5, 10000)
     ctrl.run_cycles(3)  # the fit is installed by the loop
     print("RESULT", ticket.final(timeout=0).outcome.value, flush=True)
     q = np.array(json.loads(sys.argv[2]))
