@@ -58,11 +58,11 @@ from icenav.errors import FileFormatError, IcenavError
 from icenav.geometry.kinematics import CatheterGeometry
 
 __all__ = [
+    "HYSTERESIS_COMPENSATOR_KEYS",
     "MODEL_KINDS",
+    "TENDON_COMPENSATOR_KEYS",
     "decode_model",
     "encode_model",
-    "geometry_from_dict",
-    "geometry_to_dict",
 ]
 
 MODEL_KINDS = ("dense", "five_point", "dense+hysteresis")
@@ -181,7 +181,7 @@ def _data(obj: Any, **values: Any) -> dict[str, Any]:
 # --- geometry ------------------------------------------------------------------------------------
 
 
-def geometry_to_dict(g: CatheterGeometry) -> dict[str, Any]:
+def _geometry_to_dict(g: CatheterGeometry) -> dict[str, Any]:
     """The catheter geometry a model was fitted for."""
     return _data(g, translation_limits=list(g.translation_limits))
 
@@ -190,8 +190,8 @@ def _pair(v: tuple[float, ...]) -> tuple[float, float]:
     return (v[0], v[1])
 
 
-def geometry_from_dict(r: _Field) -> CatheterGeometry:
-    """Inverse of :func:`geometry_to_dict`."""
+def _geometry_from_dict(r: _Field) -> CatheterGeometry:
+    """Inverse of :func:`_geometry_to_dict`."""
     return r.build(
         lambda: CatheterGeometry(
             bending_length=r.number("bending_length"),
@@ -218,7 +218,7 @@ def _encode_map(m: ElasticityMap) -> dict[str, Any]:
     fwd = np.stack(m.model_to_motor_knobs(a, b, check=False), axis=-1)
     inv = np.stack(m.motor_to_model_knobs(a, b, check=False), axis=-1)
     return {
-        "geometry": geometry_to_dict(m.geometry),
+        "geometry": _geometry_to_dict(m.geometry),
         "calibration": m.calibration.to_dict(),
         "report": _data(m.report),
         "dead_zone_det": float(m.dead_zone_det),
@@ -229,7 +229,7 @@ def _encode_map(m: ElasticityMap) -> dict[str, Any]:
 
 
 def _decode_map(r: _Field) -> ElasticityMap:
-    g = geometry_from_dict(r.sub("geometry"))
+    g = _geometry_from_dict(r.sub("geometry"))
     cal_doc = r.get("calibration")
     cal = CalibrationSet.from_dict(cal_doc, f"{r.source}: {r.path}.calibration")
     rep = r.sub("report")
