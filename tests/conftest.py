@@ -27,3 +27,13 @@ def ray_local() -> Iterator[Any]:
         yield ray
     finally:
         ray.shutdown()
+
+
+@pytest.fixture(scope="session")
+def twin_catheter_calibration() -> Any:
+    """A reduced dense+hysteresis fit on twin catheter 52 (a development seed), for the
+    calibration-file tests (:func:`tests.support.model_files.small_catheter_calibration`;
+    about 5 s on an idle core, once per session)."""
+    from tests.support.model_files import small_catheter_calibration
+
+    return small_catheter_calibration(52)

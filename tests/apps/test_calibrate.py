@@ -44,6 +44,8 @@ def test_a_twin_recording_gives_a_calibration_file_with_an_estimated_registratio
     assert "dense+hysteresis: not in the recording (361 of" in text  # no sweeps recorded
     loaded = CalibrationFile.load(out)
     assert loaded.calibration.n_samples > 300
+    assert loaded.kind == "dense" and loaded.model is not None  # version 3: F is kept
+    assert '"version": 3' in out.read_text(encoding="utf-8")[:200]
     reg = loaded.registration
     assert reg is not None and reg.n_points >= 30
     truth = EMTracker(CatheterPlant(seed=SEED), seed=SEED).config.tracker2base

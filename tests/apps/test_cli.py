@@ -10,11 +10,21 @@ from icenav.apps.cli import main
 def test_help_lists_commands(capsys: pytest.CaptureFixture[str]) -> None:
     assert main(["--help"]) == 0
     out = capsys.readouterr().out
-    for command in ("demo", "serve", "run", "calibrate", "eval", "export-view"):
+    for command in (
+        "demo",
+        "serve",
+        "run",
+        "calibrate",
+        "eval",
+        "export-view",
+        "export-calibration",
+    ):
         assert f"  {command} " in out
 
 
-@pytest.mark.parametrize("command", ["serve", "run", "calibrate", "export-view"])
+@pytest.mark.parametrize(
+    "command", ["serve", "run", "calibrate", "export-view", "export-calibration"]
+)
 def test_every_new_command_has_help(command: str, capsys: pytest.CaptureFixture[str]) -> None:
     with pytest.raises(SystemExit) as exc:
         main([command, "--help"])

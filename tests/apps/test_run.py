@@ -10,6 +10,10 @@ import numpy as np
 import pytest
 
 from icenav.apps.run import main
+from icenav.calibration.files import CalibrationFile
+from icenav.calibration.plans import five_point_targets
+from icenav.compensation.elasticity import CalibrationSet, ElasticityMap
+from icenav.geometry.kinematics import forward
 from icenav.persistence.store import SessionStore
 from tests.support.hardware import (
     TRUE_TRACKER2BASE,
@@ -17,6 +21,19 @@ from tests.support.hardware import (
     emulated_bench,
     tracker_toml,
 )
+
+
+def five_point_file(path: Path) -> Path:
+    """A version 3 five_point calibration file of a catheter that bends 10 % further than the
+    model (F from five tracked samples)."""
+    knobs, _ = five_point_targets()
+    q = np.zeros((5, 4))
+    q[:, :2] = knobs
+    truth = q.copy()
+    truth[:, :2] *= 1.1
+    samples = CalibrationSet(q_motor=q, tip2base=forward(truth, check=False), method="five-point")
+    CalibrationFile(samples, kind="five_point", model=ElasticityMap.build(samples)).save(path)
+    return path
 
 
 def test_run_registers_an_ndi_tracker_on_the_drives_and_stores_it(
@@ -28,16 +45,19 @@ def test_run_registers_an_ndi_tracker_on_the_drives_and_stores_it(
         aurora.install(monkeypatch)
         argv = ["--robot-config", str(robot), "--tracker", "ndi"]
         argv += ["--tracker-config", str(tracker_toml(tmp_path)), "--session", str(session)]
-        assert main([*argv, "--headless", "--duration", "0.5"]) == 0
+        cal = five_point_file(tmp_path / "cal.json")
+        assert main([*argv, "--headless", "--duration", "0.5", "--calibration", str(cal)]) == 0
         out = capsys.readouterr().out
         assert "registration state 36" in out
         assert "TSTART:" in aurora.commands and aurora.commands[-1] == "TSTOP:"
-        # the second run reuses the session's registration: no registration motion
+        # the second run reuses the session's registration: no registration motion; and the
+        # calibration installed in the first is installed again from the session
         n_reads = aurora.commands.count("BX:0801")
         assert main([*argv, "--headless", "--duration", "0.3"]) == 0
         out2 = capsys.readouterr().out
     assert "registration: from the session" in out2
     assert "registration state" not in out2
+    assert "calibration re-installed from the session: 5 samples (five_point)" in out2
     assert aurora.commands.count("BX:0801") - n_reads < 36
     with SessionStore(session, read_only=True) as store:
         reg = store.registration()

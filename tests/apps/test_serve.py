@@ -7,15 +7,38 @@ import signal
 import subprocess
 import sys
 import time
+from pathlib import Path
+from xml.etree import ElementTree
 
 import numpy as np
 import pytest
 
 from icenav.apps.serve import main
-from icenav.io.igtl import DEVICE_IMAGE, DEVICE_TIP_TO_BASE
+from icenav.io.igtl import (
+    DEFAULT_PORT,
+    DEVICE_COMMAND_ACK,
+    DEVICE_IMAGE,
+    DEVICE_SENSOR_TO_TRACKER,
+    DEVICE_STATUS,
+    DEVICE_TIP_TO_BASE,
+)
 from tests.support.igtl import RecordingClient
 
 MEASURE_S = 2.0
+SCENE = Path(__file__).parents[2] / "examples" / "slicer" / "icenav.mrml"
+SCENE_TAG = {
+    "TransformMessage": "LinearTransform",
+    "ImageMessage": "Volume",
+    "StringMessage": "Text",
+}
+"""pyigtl message class -> the MRML node tag OpenIGTLinkIF fills for it (TRANSFORM:
+LinearTransform, IMAGE: Volume, STRING: Text; vtkMRMLIGTLConnectorNode's device-type map)."""
+
+
+def scene_nodes() -> set[tuple[str, str]]:
+    """(name, tag) of every node of the Slicer scene."""
+    root = ElementTree.parse(SCENE).getroot()
+    return {(node.get("name", ""), node.tag) for node in root}
 
 
 def _start_serve(*extra: str) -> tuple[subprocess.Popen[str], int]:
@@ -58,6 +81,11 @@ def test_serve_streams_pose_and_image_in_real_time_to_two_clients_until_sigterm(
         assert np.allclose(poses[-1].matrix[3], [0, 0, 0, 1])
         assert images[-1].image.size > 0
         assert idle.socket is not None
+        # the Slicer scene has a node, of the class Slicer fills, for every device received
+        nodes = scene_nodes()
+        for message in watcher.received:
+            tag = SCENE_TAG[type(message).__name__]
+            assert (message.device_name, tag) in nodes, (message.device_name, tag)
     finally:
         for c in (watcher, idle):
             if c is not None:
@@ -104,3 +132,45 @@ def test_serve_help(capsys: pytest.CaptureFixture[str]) -> None:
         main(["--help"])
     out = capsys.readouterr().out
     assert "OpenIGTLink" in out and "--robot-config" in out and "--plant-family" in out
+
+
+def test_the_slicer_scene_connects_to_serve_and_every_reference_resolves() -> None:
+    root = ElementTree.parse(SCENE).getroot()  # well-formed XML
+    assert root.tag == "MRML"
+    ids = [node.get("id") for node in root]
+    assert len(ids) == len(set(ids)) and all(ids)
+    by_id = {node.get("id"): node for node in root}
+    refs = 0
+    for node in root:
+        for key, value in node.attrib.items():
+            if key.endswith("Ref"):
+                refs += 1
+                assert value in by_id, f"{node.get('id')} {key}={value!r} resolves to no node"
+    assert refs >= 4
+    # the client connects where serve listens (127.0.0.1: serve binds IPv4 loopback)
+    (connector,) = root.iter("IGTLConnector")
+    assert connector.get("connectorType") == "CLIENT"
+    assert connector.get("serverHostname") == "127.0.0.1"
+    assert int(connector.get("serverPort", "0")) == DEFAULT_PORT
+    assert connector.get("persistent") == "1" and connector.get("state") == "1"
+    # a node for every device the server can send, of the class Slicer fills
+    nodes = {(n.get("name"), n.tag) for n in root}
+    assert (DEVICE_TIP_TO_BASE, "LinearTransform") in nodes
+    assert (DEVICE_SENSOR_TO_TRACKER, "LinearTransform") in nodes
+    assert (DEVICE_IMAGE, "Volume") in nodes
+    assert (DEVICE_STATUS, "Text") in nodes and (DEVICE_COMMAND_ACK, "Text") in nodes
+    # the image carries its own pixel-to-base matrix: not under a transform; the tip model
+    # follows TipToBase, and its geometry file is beside the scene
+    (image,) = [n for n in root.iter("Volume") if n.get("name") == DEVICE_IMAGE]
+    assert image.get("transformNodeRef") is None
+    (tip,) = root.iter("Model")
+    assert by_id[tip.get("transformNodeRef")].get("name") == DEVICE_TIP_TO_BASE
+    storage = by_id[tip.get("storageNodeRef")]
+    vtk = (SCENE.parent / storage.get("fileName", "")).read_text(encoding="ascii").splitlines()
+    assert vtk[0].startswith("# vtk DataFile") and vtk[3] == "DATASET POLYDATA"
+    n_points = int(vtk[4].split()[1])
+    polygons = next(i for i, line in enumerate(vtk) if line.startswith("POLYGONS"))
+    assert polygons == 5 + n_points
+    for line in vtk[polygons + 1 :]:
+        n, *idx = (int(v) for v in line.split())
+        assert n == len(idx) and all(0 <= i < n_points for i in idx)

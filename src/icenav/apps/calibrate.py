@@ -15,9 +15,11 @@ and its quality printed; ``auto`` tries them all. The registration (tracker to r
 is given (``--registration``: a calibration file that has one, a session file, or a
 registration JSON) or estimated from the recording's registration states (the straight
 catheter translated and rolled) with the sensor mount of ``--tracker-config``. The file
-written (:class:`icenav.calibration.files.CalibrationFile`) holds the tracked samples of the
-best kind found (the dense raster, else the five points) with the registration; ``icenav
-demo|serve|run --calibration CAL.json`` load it. ``--record-twin`` writes such a recording
+written (:class:`icenav.calibration.files.CalibrationFile`, version 3) holds the best kind
+found (dense+hysteresis, else the dense raster, else the five points): its tracked samples,
+its fitted model (the per-tendon / hysteresis knob map, or F) and the registration; ``icenav
+demo|serve|run --calibration CAL.json`` and ``icenav eval spin --calibration`` install that
+model. ``--record-twin`` writes such a recording
 from the twin (the registration states first, then the kind's).
 """
 
@@ -295,12 +297,14 @@ def _fit_from_csv(args: argparse.Namespace) -> int:
             f"(see above; --joint-tol {args.joint_tol:g} rad or mm)"
         )
     best = next(k for k in ("dense+hysteresis", "dense", "five_point") if k in fitted)
-    cal = fitted[best].calibration_set
-    from dataclasses import replace
-
-    cal = replace(cal, catheter_id=args.catheter_id, notes=f"icenav calibrate: {best}")
-    CalibrationFile(calibration=cal, registration=registration).save(args.out)
-    print(f"wrote {args.out}: {cal.n_samples} samples ({best}) with the registration")
+    out = CalibrationFile.from_outcome(
+        fitted[best], registration, catheter_id=args.catheter_id, notes=f"icenav calibrate: {best}"
+    )
+    out.save(args.out)
+    print(
+        f"wrote {args.out}: {best} calibration ({out.calibration.n_samples} samples, the fitted "
+        "model) with the registration"
+    )
     return 0
 
 

@@ -31,6 +31,10 @@ COMMANDS: dict[str, tuple[str, str]] = {
         "a calibration file from a recorded CSV of joint states and tracked poses",
     ),
     "eval": ("icenav.eval", "run an evaluation that reproduces a table of the paper"),
+    "export-calibration": (
+        "icenav.apps.export_calibration",
+        "write a session's calibration in use (fitted model included) as a calibration file",
+    ),
     "export-view": (
         "icenav.apps.export_view",
         "export a saved view's image from a session file as ultrasound DICOM",

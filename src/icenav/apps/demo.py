@@ -147,14 +147,18 @@ def start_new_session(args: argparse.Namespace) -> None:
 
 
 def _install_calibration(session: Any, args: argparse.Namespace) -> None:
-    """Install ``--calibration`` (if given) on the session's controller and say so; a file
-    that cannot be installed closes the session and raises."""
+    """Say what the reopened session re-installed (its calibration in use), then install
+    ``--calibration`` (if given) on the session's controller, store it as the session's
+    calibration in use and say so; a file that cannot be installed closes the session and
+    raises."""
+    if session.resumed_calibration is not None:
+        print(session.resumed_calibration)
     if args.calibration is None:
         return
     from icenav.apps.wiring import install_calibration
 
     try:
-        print(install_calibration(session.controller, args.calibration))
+        print(install_calibration(session.controller, args.calibration, session.store))
     except BaseException:
         session.close()
         raise

@@ -30,7 +30,7 @@ import numpy as np
 
 from icenav._typing import Array
 from icenav._validation import check_transform, read_toml
-from icenav.apps.wiring import SimSession
+from icenav.apps.wiring import SimSession, resume_calibration
 from icenav.control.controller import Controller, ControllerConfig
 from icenav.control.teleop import InputSource
 from icenav.devices.registration import Registration
@@ -400,12 +400,13 @@ def make_hardware_controller(
             trk.stop()
         robot.close()
         raise
-    recorder = None
+    recorder = resumed = None
     if store is not None:
+        resumed = resume_calibration(ctrl, store)
         recorder = StoreRecorder(store, ctrl.roadmap, threaded=True)
         ctrl.set_recorder(recorder)
     plant = twin.plant if twin is not None else None
-    return SimSession(ctrl, plant, trk, renderer, store, recorder)
+    return SimSession(ctrl, plant, trk, renderer, store, recorder, resumed_calibration=resumed)
 
 
 def _controller(

@@ -94,11 +94,13 @@ def make_session(
 
     config = ControllerConfig(image_rate_hz=getattr(args, "image_rate_hz", 20.0))
     session = _make_session(args, input_source, config, register, report, stop)
+    if session.resumed_calibration is not None:
+        report(session.resumed_calibration)
     if getattr(args, "calibration", None) is not None:
         from icenav.apps.wiring import install_calibration
 
         try:
-            report(install_calibration(session.controller, args.calibration))
+            report(install_calibration(session.controller, args.calibration, session.store))
         except BaseException:
             session.close()
             raise

@@ -33,8 +33,10 @@ __all__ = [
     "anatomy_meshes",
     "force_channel",
     "install_calibration",
+    "install_compensation",
     "make_imager",
     "make_sim_controller",
+    "resume_calibration",
 ]
 
 
@@ -50,6 +52,9 @@ class SimSession:
     recorder: StoreRecorder | None
     drives: Any = None
     """The emulated CANopen drives, when the robot is "emulated-canopen"."""
+    resumed_calibration: str | None = None
+    """What :func:`resume_calibration` re-installed from the session (or why it could not),
+    for the operator; None: the session holds no calibration."""
 
     def close(self) -> None:
         """Stop the loop and flush the store."""
@@ -178,10 +183,12 @@ def make_sim_controller(
         force_sensor=force_channel(model),
         forces=forces,
     )
+    resumed = None
     if store is not None:
+        resumed = resume_calibration(controller, store)
         recorder = StoreRecorder(store, controller.roadmap, threaded=True, forces=controller.forces)
         controller.set_recorder(recorder)
-    return SimSession(controller, model, tracker, renderer, store, recorder, drives)
+    return SimSession(controller, model, tracker, renderer, store, recorder, drives, resumed)
 
 
 def force_channel(model: Any) -> Any:
@@ -195,26 +202,61 @@ def force_channel(model: Any) -> Any:
     return TwinForceSensor(model)
 
 
-def install_calibration(controller: Controller, path: str | Path) -> str:
+def install_calibration(
+    controller: Controller, path: str | Path, store: SessionStore | None = None
+) -> str:
     """Load a calibration file (:class:`icenav.calibration.files.CalibrationFile`, as
-    ``icenav calibrate`` or the console write it), build the paper's compensation F on its
-    samples (:meth:`icenav.compensation.elasticity.ElasticityMap.build`) and install it on
-    ``controller`` (compensation on), before the controller starts. Returns what was loaded,
-    for the operator."""
+    ``icenav calibrate`` or the console write it) and install its compensation on
+    ``controller`` (compensation on), before the controller starts: the stored model of a
+    version 3 file (the ``dense+hysteresis`` knob map, relaxed where the robot is, or the
+    fitted F), the paper's F built on the samples of an older file
+    (:meth:`~icenav.calibration.files.CalibrationFile.compensation`). With ``store`` the
+    file's document becomes the session's calibration in use (a reopened session installs it
+    again). Returns what was loaded, for the operator."""
     from icenav.calibration.files import CalibrationFile
-    from icenav.compensation.elasticity import ElasticityMap
 
     loaded = CalibrationFile.load(path)
-    cal = loaded.calibration
-    controller.compensation = ElasticityMap.build(cal, controller.config.geometry)
-    controller.compensation_enabled = True
-    controller.calibration = cal
-    text = f"compensation from {path}: {cal.n_samples} samples ({cal.method or 'unnamed'})"
-    if loaded.registration is not None:
-        text += (
-            f", recorded through a registration of {loaded.registration.rms_residual_mm:.2f} mm RMS"
-        )
+    install_compensation(controller, loaded)
+    if store is not None:
+        store.save_calibration_document(loaded.kind or "file", loaded.to_dict(), time.time())
+    return f"compensation from {path}: {loaded.describe()}"
+
+
+def resume_calibration(controller: Controller, store: SessionStore) -> str | None:
+    """Install the session's calibration in use (stored when a calibration finished in the
+    console, or a ``--calibration`` file was installed), as a reopened session (a restart
+    after a crash) must; before the controller starts. Returns what was installed for the
+    operator (also the controller's message), or why it could not be (compensation stays
+    off), or None when the session holds no calibration."""
+    from icenav.calibration.files import CalibrationFile
+    from icenav.errors import IcenavError
+
+    stored = store.calibration_document()
+    if stored is None:
+        return None
+    source = f"{store.path}: calibration in use"
+    try:
+        loaded = CalibrationFile.from_dict(stored[1], source)
+        install_compensation(controller, loaded)
+    except IcenavError as exc:
+        text = f"calibration of the session NOT installed (compensation off): {exc}"
+    else:
+        text = f"calibration re-installed from the session: {loaded.describe()}; compensation on"
+    controller._message = text  # noqa: SLF001 (the console shows it before the first command)
     return text
+
+
+def install_compensation(controller: Controller, loaded: Any) -> None:
+    """Install a :class:`~icenav.calibration.files.CalibrationFile`'s compensation on
+    ``controller`` (compensation on); a map with state follows the motor state the robot
+    was last commanded from here (``observe``), as after a calibration in the console."""
+    comp = loaded.compensation(controller.config.geometry)
+    observe = getattr(comp, "observe", None)
+    if callable(observe):
+        observe(controller.q_command)
+    controller.compensation = comp
+    controller.compensation_enabled = True
+    controller.calibration = loaded.calibration
 
 
 def make_imager() -> tuple[Any, Callable[[Array, float], NDArray[np.uint8]], Array]:

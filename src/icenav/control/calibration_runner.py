@@ -17,6 +17,9 @@ loop, so every move is under the controller's speed limits, Stop and E-STOP:
 :func:`preview` says what a calibration will do and about how long it takes, before it runs
 (the console asks the operator to confirm with it): it drives the procedure with the model's
 own tip poses as readings and adds up the moves at the runner's speeds.
+:func:`calibration_document` is what the session stores of a finished calibration (its
+calibration file's document, fitted model included), so that a reopened session installs it
+again.
 """
 
 from __future__ import annotations
@@ -37,7 +40,13 @@ from icenav.control.tasks import Done, PathTask, Running, TaskStatus
 from icenav.errors import TrackerError
 from icenav.geometry.kinematics import DEFAULT_GEOMETRY, CatheterGeometry, forward
 
-__all__ = ["CalibrationPreview", "CalibrationRunner", "RunnableProcedure", "preview"]
+__all__ = [
+    "CalibrationPreview",
+    "CalibrationRunner",
+    "RunnableProcedure",
+    "calibration_document",
+    "preview",
+]
 
 
 class RunnableProcedure(Protocol):
@@ -292,3 +301,18 @@ class CalibrationRunner:
             label=self.label,
             ramp_s=self._ramp_s,
         )
+
+
+def calibration_document(outcome: CalibrationOutcome) -> dict[str, Any] | None:
+    """The calibration-file document (:class:`icenav.calibration.files.CalibrationFile`,
+    version 3: the samples, the kind and the fitted model) of a finished calibration, for
+    the session (``icenav export-calibration`` writes it out with the session's
+    registration); None for a kind a calibration file does not hold (the registration,
+    which the session stores apart). Some 0.1-0.5 s for ``dense+hysteresis``: call it off the
+    control loop."""
+    from icenav.calibration.files import CalibrationFile
+    from icenav.calibration.model_files import MODEL_KINDS
+
+    if outcome.kind not in MODEL_KINDS:
+        return None
+    return CalibrationFile.from_outcome(outcome).to_dict()

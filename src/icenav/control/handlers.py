@@ -13,13 +13,14 @@ import time
 from collections.abc import Callable
 from concurrent.futures import Future
 from dataclasses import dataclass
+from functools import partial
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from icenav._typing import Array
 from icenav.calibration.procedure import CalibrationOutcome
-from icenav.control.calibration_runner import CalibrationRunner, preview
+from icenav.control.calibration_runner import CalibrationRunner, calibration_document, preview
 from icenav.control.commands import (
     Calibrate,
     Command,
@@ -577,6 +578,8 @@ class Handlers:
                 "kind": run.kind,
                 "n_samples": outcome.quality.n_used,
                 "quality": outcome.quality.describe(),
+                # its calibration-file document, made by the recorder off the loop
+                "document": partial(calibration_document, outcome),
             },
         )
         ctrl.settle(run.ticket, Outcome.DONE, text)

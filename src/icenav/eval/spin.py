@@ -122,8 +122,10 @@ stops (:mod:`icenav.calibration.short`; 105 moves in all)."""
 ALL_CONDITIONS = (*CONDITIONS, SHORT, SHORT_RINGS)
 """Every condition ``--conditions`` accepts."""
 FILE = "file"
-"""The paper's F built on the samples of a calibration file (``--calibration CAL.json``: a
-file ``icenav calibrate`` or the console wrote), the map the console installs from it."""
+"""The compensation of a calibration file (``--calibration CAL.json``: a file ``icenav
+calibrate`` or the console wrote), the map the console installs from it: the stored model of
+a version 3 file (the knob map of ``dense+hysteresis``, F of ``dense`` / ``five_point``), the
+paper's F built on the samples of an older one."""
 SETTLE_UPDATES = 10
 """Closed loop: tracker updates at the start pose before the spin starts (1/8 s at 80 Hz)."""
 SAVGOL_WINDOW = 15
@@ -456,6 +458,9 @@ def _commands(
     if condition == FILE:
         if knob_map is None:
             raise InvalidValueError("condition 'file' needs the calibration file's map")
+        reset = getattr(knob_map, "reset", None)
+        if callable(reset):  # a map with state (dense+hysteresis): relaxed at rest per spin
+            reset(np.zeros(4))
         return knob_map_commands(knob_map, path)
     if cal is None:
         raise InvalidValueError(f"condition {condition!r} needs the calibrations")
@@ -688,16 +693,16 @@ def evaluate_catheter(
     """Calibrate catheter ``seed`` in the straight vessel once, then run the spins in each of
     ``vessels`` (:func:`run_vessel`). With ``keep`` the commands and true tips are kept (for
     the plots). ``plant`` (:data:`PlantSpec`) is the catheter's plant (default: the twin).
-    With ``calibration_file`` (a path: loaded in the worker) condition ``file`` runs the
-    paper's F built on that file's samples, as the console installs it.
+    With ``calibration_file`` (a path: loaded in the worker) condition ``file`` runs that
+    file's compensation (:meth:`icenav.calibration.files.CalibrationFile.compensation`), as
+    the console installs it.
     A module-level function, so ``--jobs`` can run catheters in processes."""
     t0 = time.perf_counter()
     file_map = None
     if calibration_file is not None:
         from icenav.calibration.files import CalibrationFile
 
-        loaded = CalibrationFile.load(calibration_file)
-        file_map = ElasticityMap.build(loaded.calibration, DEFAULT_GEOMETRY)
+        file_map = CalibrationFile.load(calibration_file).compensation(DEFAULT_GEOMETRY)
     if FILE in conditions and file_map is None:
         raise InvalidValueError("condition 'file' needs calibration_file")
     needs_calibration = any(c not in ("none", FILE) for c in conditions)

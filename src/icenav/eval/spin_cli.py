@@ -221,9 +221,10 @@ def _parser() -> argparse.ArgumentParser:
         "--calibration",
         type=Path,
         metavar="CAL.json",
-        help="also spin with the paper's F built on this calibration file's samples (as "
-        "'icenav calibrate' or the console wrote it; condition 'file'); with --seed, the "
-        "catheter it was recorded on",
+        help="also spin with this calibration file's compensation, as the console installs "
+        "it (condition 'file': the fitted model of a version 3 file, F built on the samples "
+        "of an older one; 'icenav calibrate' or 'icenav export-calibration' write it); with "
+        "--seed, the catheter it was recorded on",
     )
     plant = p.add_mutually_exclusive_group()
     plant.add_argument(

@@ -23,7 +23,8 @@ __all__ = ["EVENTS", "StoreRecorder"]
 EVENTS = ("state", "view_saved", "view_renamed", "view_deleted", "event", "command", "calibration")
 """The events a controller records: a control cycle (the roadmap is synced every
 ``sync_every``), a view saved / renamed / deleted, and rows of the event log (a text event, a
-command with its outcome, a calibration installed)."""
+command with its outcome, a calibration installed: with a ``document`` callable in its
+payload, what it returns (unless None) is stored as the session's calibration in use)."""
 
 
 class StoreRecorder:
@@ -118,6 +119,21 @@ class StoreRecorder:
         elif event == "view_renamed":
             old, new = str(payload["old"]), str(payload["new"])
             self._run(lambda st: st.rename_view(old, new))
+        elif event == "calibration" and callable(payload.get("document")):
+            # a calibration installed: a row of the event log, and its calibration-file
+            # document (made here, on the writer thread) as the session's calibration in use
+            t = time.time()
+            make = payload["document"]
+            kind = str(payload.get("kind", ""))
+            data = {k: str(v) for k, v in payload.items() if k != "document"}
+
+            def write(st: SessionStore) -> None:
+                st.log_event(t, event, data)
+                document = make()
+                if document is not None:
+                    st.save_calibration_document(kind, document, t)
+
+            self._run(write)
         else:  # "event", "command", "calibration": rows of the session's event log
             row = (time.time(), event, {k: str(v) for k, v in payload.items()})
             if self.writer is None:

@@ -56,6 +56,7 @@ from icenav.recovery.views import View, ViewLibrary
 
 __all__ = [
     "APPLICATION_ID",
+    "CALIBRATION_IN_USE",
     "Event",
     "SCHEMA_VERSION",
     "SessionStore",
@@ -67,6 +68,10 @@ SCHEMA_VERSION = 1
 
 APPLICATION_ID = 0x1CE0A71
 """``PRAGMA application_id`` marking an icenav session file."""
+
+CALIBRATION_IN_USE = "calibration"
+"""Row of the calibrations table that holds the calibration in use (its calibration-file
+document), which a reopened session installs again."""
 
 _SCHEMA = """
 CREATE TABLE meta(key TEXT PRIMARY KEY, value TEXT NOT NULL);
@@ -579,6 +584,22 @@ class SessionStore:
         if stored is None:
             return None
         return CalibrationSet.from_dict(stored[1], source=f"{self.path}: calibration {name!r}")
+
+    def save_calibration_document(
+        self, kind: str, document: dict[str, Any], created_s: float
+    ) -> None:
+        """Store the calibration in use as its calibration-file document
+        (:meth:`icenav.calibration.files.CalibrationFile.to_dict`: samples, kind and fitted
+        model), row :data:`CALIBRATION_IN_USE`, committed at once (a crash-restart of the
+        session re-installs it)."""
+        if not isinstance(document, dict):
+            raise StoreError(f"document must be a dict, got {type(document).__name__}")
+        self.save_calibration(CALIBRATION_IN_USE, str(kind), document, created_s)
+
+    def calibration_document(self) -> tuple[str, dict[str, Any]] | None:
+        """The calibration in use, ``(kind, document)`` (None when the session has none)."""
+        stored = self.calibrations().get(CALIBRATION_IN_USE)
+        return None if stored is None else (stored[0], stored[1])
 
     def log_event(self, t: float, kind: str, data: dict[str, Any] | None = None) -> None:
         """Append an event (committed with the next batch; faults commit at once)."""
