@@ -315,7 +315,10 @@ def open_tracker(
                 f"--tracker ndi needs the sensor mount: [mount] sensor2tip (4, 4, mm) in the "
                 f"tracker configuration ({settings.source})"
             )
-        ndi = NDIAuroraTracker(settings.ndi_config())
+        from icenav.devices.tracker_feed import PolledTracker
+
+        # read on its own thread: a BX round trip never runs on the control loop
+        ndi = PolledTracker(NDIAuroraTracker(settings.ndi_config()))
         ndi.start()
         return ndi, settings.sensor2tip
     raise ConfigurationError(f"--tracker must be one of sim, ndi, none; got {kind!r}")
