@@ -591,7 +591,7 @@ def test_dense_hysteresis_calibration_in_the_loop_installs_the_tendon_map() -> N
             step()  # the map is installed by a queued request
         assert isinstance(ctrl.compensation, TendonKnobMap), ctrl.snapshot().message
         assert "done: compensation on" in ctrl.snapshot().message
-        assert {"dense raster", "sweep phi1", "roll circles", "knob circles"} <= phases
+        assert {"dense raster", "sweep phi3", "roll circles", "knob circles"} <= phases
         assert ctrl.calibration is not None and ctrl.calibration.n_samples >= 355
         ours = _spin_rms(ctrl, plant, step)
         # the map followed every command (jog, spin, jog back): it knows where the tip is
