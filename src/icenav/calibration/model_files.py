@@ -42,9 +42,14 @@ import numpy as np
 from icenav._typing import Array
 from icenav.calibration.catheter import CatheterCalibration
 from icenav.calibration.hysteresis import HysteresisFit, HysteresisIdentification
-from icenav.compensation import elasticity as _elasticity
 from icenav.compensation.bend_play import BendPlay
-from icenav.compensation.elasticity import BuildReport, CalibrationSet, ElasticityMap
+from icenav.compensation.elasticity import (
+    TABLE_NODES,
+    BuildReport,
+    CalibrationSet,
+    ElasticityMap,
+    table_nodes,
+)
 from icenav.compensation.hysteresis import HysteresisCompensator, JointHysteresis
 from icenav.compensation.tracker_bias import TrackerBias
 from icenav.compensation.transmission import (
@@ -207,13 +212,8 @@ def _geometry_from_dict(r: _Field) -> CatheterGeometry:
 # --- the paper's F -------------------------------------------------------------------------------
 
 
-def _table_nodes(g: CatheterGeometry) -> Array:
-    lim = g.knob_limit
-    return np.linspace(-lim, lim, _elasticity._TABLE_NODES)  # noqa: SLF001 (the map's nodes)
-
-
 def _encode_map(m: ElasticityMap) -> dict[str, Any]:
-    nodes = _table_nodes(m.geometry)
+    nodes = table_nodes(m.geometry)
     a, b = (x.ravel() for x in np.meshgrid(nodes, nodes, indexing="ij"))
     fwd = np.stack(m.model_to_motor_knobs(a, b, check=False), axis=-1)
     inv = np.stack(m.motor_to_model_knobs(a, b, check=False), axis=-1)
@@ -250,12 +250,8 @@ def _decode_map(r: _Field) -> ElasticityMap:
             "interpolant", f"must be spline, rbf or clough-tocher, got {report.interpolant!r}"
         )
     n = r.integer("table_nodes")
-    if n != _elasticity._TABLE_NODES:  # noqa: SLF001
-        raise r.error(
-            "table_nodes",
-            f"must be {_elasticity._TABLE_NODES}, got {n}",  # noqa: SLF001
-        )
-    nodes = _table_nodes(g)
+    if n != TABLE_NODES:
+        raise r.error("table_nodes", f"must be {TABLE_NODES}, got {n}")
     fwd = r.array("model_to_motor", (n * n, 2))
     inv = r.array("motor_to_model", (n * n, 2))
     built: list[ElasticityMap] = []
@@ -274,15 +270,8 @@ def _decode_map(r: _Field) -> ElasticityMap:
             )
         return built[0].real_position(a, b)
 
-    make_table = _elasticity._table_from_values  # noqa: SLF001 (F's own table, from its nodes)
-    return ElasticityMap(
-        g,
-        real_position,
-        make_table(nodes, fwd),
-        make_table(nodes, inv),
-        report,
-        cal,
-        r.number("dead_zone_det"),
+    return ElasticityMap.from_tables(
+        g, real_position, fwd, inv, report, cal, r.number("dead_zone_det")
     )
 
 
