@@ -16,7 +16,7 @@ from icenav.persistence.recorder import StoreRecorder
 from icenav.persistence.store import SessionStore
 from icenav.sim.conditions import build_twin
 from icenav.sim.disturbed import DisturbedTracker, TwinForceSensor, mean_pose
-from icenav.sim.tracker import EMTracker, TrackerConfig
+from tests.support.twin import exact_tracker
 
 
 class Clock:
@@ -120,13 +120,7 @@ def test_the_loop_buffers_the_tracker_and_the_estimator_cuts_complete_breaths() 
     clock = Clock()
     twin = build_twin("in-vivo", 100, 0, clock)
     robot = SimulatedRobot(twin.plant, clock=clock)
-    exact = EMTracker(
-        twin.plant.inner, seed=1, clock=clock,
-        config=TrackerConfig(
-            position_jitter_rms_mm=0.0, rotation_jitter_rms_rad=0.0, position_bias_rms_mm=0.0,
-            rotation_bias_rms_rad=0.0, dropout_probability=0.0,
-        ),
-    )  # fmt: skip
+    exact = exact_tracker(twin.plant.inner, clock)
     tracker = DisturbedTracker(exact, twin.plant)  # frames at the disturbed pose of their time
     tracker.start()
     ctrl = Controller(robot, ControllerConfig(), clock=clock, tracker=tracker,

@@ -13,7 +13,7 @@ from icenav.sim.beat_imager import SimClock
 from icenav.sim.conditions import CONDITIONS, DISTURBANCES, build_twin, condition
 from icenav.sim.disturbed import DisturbedPlant, DisturbedTracker, TwinForceSensor, mean_pose
 from icenav.sim.plant import CatheterPlant
-from icenav.sim.tracker import EMTracker, TrackerConfig
+from tests.support.twin import exact_tracker
 
 Q_VIEW = np.array([-0.17453292519943295, 0.3490658503988659, 0.7853981633974483, 0.0])
 
@@ -57,15 +57,7 @@ def test_the_tracker_averages_over_its_window() -> None:
     the last n / rate seconds."""
     clock = SimClock()
     twin = build_twin("phantom", 100, 1, clock.now)
-    exact = EMTracker(
-        twin.plant.inner,
-        seed=1,
-        clock=clock.now,
-        config=TrackerConfig(
-            position_jitter_rms_mm=0.0, rotation_jitter_rms_rad=0.0, position_bias_rms_mm=0.0,
-            rotation_bias_rms_rad=0.0, dropout_probability=0.0,
-        ),
-    )  # fmt: skip
+    exact = exact_tracker(twin.plant.inner, clock.now)
     tracker = DisturbedTracker(exact, twin.plant)
     twin.plant.move(np.asarray(twin.views["mitral_valve"]))
     clock.advance(2.0)
@@ -83,13 +75,7 @@ def test_the_tracker_keeps_its_samples_with_their_times() -> None:
     jitter-free tracker); the force channel reads the last solved contact force."""
     clock = SimClock()
     twin = build_twin("in-vivo", 100, 1, clock.now)
-    exact = EMTracker(
-        twin.plant.inner, seed=1, clock=clock.now,
-        config=TrackerConfig(
-            position_jitter_rms_mm=0.0, rotation_jitter_rms_rad=0.0, position_bias_rms_mm=0.0,
-            rotation_bias_rms_rad=0.0, dropout_probability=0.0,
-        ),
-    )  # fmt: skip
+    exact = exact_tracker(twin.plant.inner, clock.now)
     tracker = DisturbedTracker(exact, twin.plant)
     twin.plant.move(np.asarray(twin.views["aortic_valve"]))
     clock.advance(3.0)
@@ -110,13 +96,7 @@ def test_the_frames_the_control_loop_reads_move_with_the_heart_and_breathing() -
     of its acquisition time, as measure_tip2base does; it returned the undisturbed pose."""
     clock = SimClock()
     twin = build_twin("in-vivo", 100, 1, clock.now)
-    exact = EMTracker(
-        twin.plant.inner, seed=1, clock=clock.now,
-        config=TrackerConfig(
-            position_jitter_rms_mm=0.0, rotation_jitter_rms_rad=0.0, position_bias_rms_mm=0.0,
-            rotation_bias_rms_rad=0.0, dropout_probability=0.0, latency_s=0.0,
-        ),
-    )  # fmt: skip
+    exact = exact_tracker(twin.plant.inner, clock.now, latency_s=0.0)
     tracker = DisturbedTracker(exact, twin.plant)
     tracker.start()
     twin.plant.move(np.asarray(twin.views["aortic_valve"]))

@@ -356,19 +356,12 @@ class Disconnect(Command):
 
 
 @dataclass(frozen=True, eq=False)
-class Export(Command):
+class Export(_ViewCommand):
     """Export a saved view (its image and pose) as a file. The controller authorizes it
     (holder only, the view exists with an image); the adapter that holds the export
     directory writes the file once the command is accepted."""
 
-    view: str
     name: ClassVar[str] = "export"
-
-    def __post_init__(self) -> None:
-        _name(self.view, "a view name")
-
-    def describe(self) -> str:
-        return f"export {self.view!r:.80}"
 
 
 class Outcome(enum.Enum):

@@ -337,10 +337,7 @@ class DisturbedTracker:
             raise ConfigurationError(f"n_average must be an integer >= 1, got {n_average!r}")
         n = int(n_average)
         now = float(self.plant.clock())
-        plant_inv = np.eye(4)
-        pp = self.plant.state_at(now).plant_tip2base
-        plant_inv[:3, :3] = pp[:3, :3].T
-        plant_inv[:3, 3] = -pp[:3, :3].T @ pp[:3, 3]
+        plant_inv = self._plant_inverse(now)
         samples = []
         disturbance: dict[int, Array] = {}
         for k in range(n):
@@ -368,10 +365,7 @@ class DisturbedTracker:
             raise ConfigurationError(f"duration_s must be > 0 s, got {duration_s}")
         n = max(1, int(round(float(duration_s) * rate)))
         now = float(self.plant.clock())
-        pp = self.plant.state_at(now).plant_tip2base
-        plant_inv = np.eye(4)
-        plant_inv[:3, :3] = pp[:3, :3].T
-        plant_inv[:3, 3] = -pp[:3, :3].T @ pp[:3, 3]
+        plant_inv = self._plant_inverse(now)
         times, poses = [], []
         for k in range(n):
             m = self.inner.measure_tip2base(1)
@@ -399,13 +393,19 @@ class DisturbedTracker:
         if tracker2base is None:
             return frame
         t2b = np.asarray(tracker2base, np.float64)
-        pp = self.plant.state_at(float(self.plant.clock())).plant_tip2base
-        d = self.plant.pose_at(float(frame.timestamp)) @ rigid_inverse(pp)
+        d = self.plant.pose_at(float(frame.timestamp)) @ self._plant_inverse(
+            float(self.plant.clock())
+        )
         s2t = rigid_inverse(t2b) @ d @ t2b @ np.asarray(frame.sensor2tracker, np.float64)
         s2t.setflags(write=False)
         out = TrackerFrame(frame.timestamp, s2t, frame.status, frame.quality)
         self._last_frame = (frame.timestamp, out)
         return out
+
+    def _plant_inverse(self, t: float) -> Array:
+        """inv(P_plant) (4, 4) at time ``t``: the undisturbed pose the wrapped tracker
+        measures, removed before the disturbed one is applied (``D = P(t) P_plant^-1``)."""
+        return rigid_inverse(self.plant.state_at(t).plant_tip2base)
 
     def __getattr__(self, name: str) -> Any:
         # registration, start, stop, ... of the wrapped tracker
