@@ -36,31 +36,20 @@ from collections.abc import Callable
 from typing import Any, Literal
 
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import NDArray
 
 from icenav._typing import Array
 from icenav.control.calibration_runner import CalibrationPreview, preview
+from icenav.control.calls import CommandCalls
 from icenav.control.commands import (
-    Calibrate,
     Command,
     CommandResult,
-    DeleteView,
     Disconnect,
     EStop,
-    Export,
-    GoToView,
     Jog,
     Outcome,
-    RefineView,
     ReleaseControl,
-    RenameView,
-    Reset,
-    SaveView,
-    SetCompensation,
-    SetMode,
     Source,
-    Spin,
-    Stop,
     TakeControl,
     Ticket,
 )
@@ -100,7 +89,7 @@ _UNBUFFERED_MODES = (Mode.CALIBRATING, Mode.SPINNING)
 """Modes whose tracker samples no refinement averages (the loop skips the sample buffer)."""
 
 
-class Controller:
+class Controller(CommandCalls):
     """The control loop on a robot backend (simulated or real); see the module docstring.
 
     Parameters
@@ -315,62 +304,6 @@ class Controller:
                 },
             )
         )
-
-    # --- the thin calls (contract: console, scripts, external checks) ------------------
-
-    def request_mode(self, mode: Mode, client: str | Source = "script") -> Ticket:
-        return self.submit(SetMode(mode, source=Source.of(client)))
-
-    def jog(
-        self, velocity: ArrayLike, frame: Literal["knob", "tip"], client: str | Source = "script"
-    ) -> Ticket:
-        return self.submit(Jog(velocity, frame, source=Source.of(client)))  # type: ignore[arg-type]
-
-    def save_view(self, name: str, client: str | Source = "script") -> Ticket:
-        return self.submit(SaveView(name, source=Source.of(client)))
-
-    def goto_view(self, name: str, client: str | Source = "script") -> Ticket:
-        return self.submit(GoToView(name, source=Source.of(client)))
-
-    def refine_view(self, name: str, client: str | Source = "script") -> Ticket:
-        return self.submit(RefineView(name, source=Source.of(client)))
-
-    def rename_view(self, name: str, new_name: str, client: str | Source = "script") -> Ticket:
-        return self.submit(RenameView(name, new_name, source=Source.of(client)))
-
-    def delete_view(self, name: str, client: str | Source = "script") -> Ticket:
-        return self.submit(DeleteView(name, source=Source.of(client)))
-
-    def start_spin(self, client: str | Source = "script") -> Ticket:
-        return self.submit(Spin(source=Source.of(client)))
-
-    def start_calibration(self, kind: CalibrationKind, client: str | Source = "script") -> Ticket:
-        return self.submit(Calibrate(kind, source=Source.of(client)))
-
-    def set_compensation(self, enabled: bool, client: str | Source = "script") -> Ticket:
-        return self.submit(SetCompensation(bool(enabled), source=Source.of(client)))
-
-    def export(self, name: str, client: str | Source = "script") -> Ticket:
-        return self.submit(Export(name, source=Source.of(client)))
-
-    def stop(self, client: str | Source = "script") -> Ticket:
-        return self.submit(Stop(source=Source.of(client)))
-
-    def estop(self, client: str | Source = "script") -> Ticket:
-        """Emergency stop: acts at once from the caller's thread, whatever the loop is doing."""
-        return self.submit(EStop(source=Source.of(client)))
-
-    def reset_fault(self, client: str | Source = "script") -> Ticket:
-        return self.submit(Reset(source=Source.of(client)))
-
-    def acquire_control(self, client: str | Source) -> bool:
-        return self.submit(TakeControl(source=Source.of(client))).result().ok
-
-    def release_control(self, client: str | Source) -> None:
-        self.submit(ReleaseControl(source=Source.of(client)))
-
-    def disconnect(self, client: str | Source) -> None:
-        self.submit(Disconnect(source=Source.of(client)))
 
     def set_view_only(self, client: str, view_only: bool) -> None:
         self.authorization.set_view_only(client, view_only)
