@@ -41,7 +41,6 @@ from typing import Any, TypeVar
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from icenav.compensation.elasticity import CalibrationSet
 from icenav.devices.registration import Registration
 from icenav.errors import (
     FileFormatError,
@@ -566,24 +565,6 @@ class SessionStore:
         if stored is None:
             return None
         return Registration.from_dict(stored[1], source=f"{self.path}: registration")
-
-    def save_calibration_set(
-        self, name: str, kind: str, calibration: CalibrationSet, created_s: float
-    ) -> None:
-        """Store the tracked samples of a calibration in use (the calibration file's
-        document, :meth:`CalibrationSet.to_dict`), committed at once."""
-        if not isinstance(calibration, CalibrationSet):
-            raise StoreError(
-                f"calibration must be a CalibrationSet, got {type(calibration).__name__}"
-            )
-        self.save_calibration(name, kind, calibration.to_dict(), created_s)
-
-    def calibration_set(self, name: str) -> CalibrationSet | None:
-        """The tracked samples stored under ``name`` (None when there are none)."""
-        stored = self.calibrations().get(name)
-        if stored is None:
-            return None
-        return CalibrationSet.from_dict(stored[1], source=f"{self.path}: calibration {name!r}")
 
     def save_calibration_document(
         self, kind: str, document: dict[str, Any], created_s: float
