@@ -119,7 +119,12 @@ IN_VIVO = Condition(
     contact=ContactParams(),
     flow=FlowParams(),
     rhythm=RhythmParams(
-        rr_sd=0.03, rr_correlation=0.5, rsa=0.03, amplitude_sd=0.05, stroke_variation=0.10
+        rr_sd=0.03,
+        rr_correlation=0.5,
+        rsa=0.03,
+        amplitude_sd=0.05,
+        stroke_variation=0.10,
+        shape_sd_mm=1.0,
     ),
     breathing=BreathingParams(period_sd=0.05, amplitude_sd=0.10, baseline_sd=0.05),
     shaft=ShaftParams(
