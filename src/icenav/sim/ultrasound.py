@@ -49,10 +49,10 @@ from icenav.sim.anatomy import ACOUSTICS, BLOOD_LABELS, ROI_LABELS, HeartPhantom
 from icenav.sim.anatomy import default_phantom as _default_phantom
 
 __all__ = [
-    "SPECKLE_REDUCTION_MM",
     "Frame",
     "ProbeConfig",
     "RoiObservation",
+    "SPECKLE_REDUCTION_MM",
     "UltrasoundRenderer",
 ]
 
