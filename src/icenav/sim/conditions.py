@@ -101,8 +101,8 @@ PHANTOM = Condition(
     rhythm=RhythmParams(amplitude_sd=0.02),
     breathing=None,
     shaft=ShaftParams(
-        axial_stiffness_n_per_mm=0.25,
-        torsional_stiffness_nmm_per_rad=20.0,
+        axial_stiffness_n_per_mm=0.30,
+        torsional_stiffness_nmm_per_rad=35.0,
         static_friction_n=0.3,
         kinetic_friction_n=0.1,
         static_friction_sd=0.5,
@@ -128,7 +128,7 @@ IN_VIVO = Condition(
     ),
     breathing=BreathingParams(period_sd=0.05, amplitude_sd=0.10, baseline_sd=0.05),
     shaft=ShaftParams(
-        axial_stiffness_n_per_mm=0.15,
+        axial_stiffness_n_per_mm=0.10,
         torsional_stiffness_nmm_per_rad=15.0,
         static_friction_n=1.0,
         kinetic_friction_n=0.6,
