@@ -1,4 +1,4 @@
-"""Go-to-view paths: the force check of a return, Eq. (F1) of icenav.recovery.force."""
+"""Go-to-view paths: the force check of a return, Eqs. (F1, F4) of icenav.recovery.force."""
 
 from __future__ import annotations
 
@@ -42,9 +42,19 @@ def test_a_path_stops_when_the_force_exceeds_the_trace_plus_the_margin() -> None
     assert isinstance(_run(ok)[0], Done)
     over = PathTask(path, V_MAX, force_sensor=_Sensor([0.1] * 20 + [0.2]),
                     force_profile=np.full(3, 0.05), force_margin_n=0.04,
-                    force_margin_fraction=0.4)  # fmt: skip
+                    force_margin_fraction=0.4, force_hold_s=0.0)  # fmt: skip
     status, k = _run(over)
     assert isinstance(status, Failed) and k == 20
+    held = PathTask(path, V_MAX, force_sensor=_Sensor([0.1] * 20 + [0.2]),
+                    force_profile=np.full(3, 0.05), force_margin_n=0.04,
+                    force_margin_fraction=0.4, force_hold_s=0.25)  # fmt: skip
+    status_held, k_held = _run(held)  # Eq. (F4): above the limit for 0.25 s, then stops
+    assert isinstance(status_held, Failed) and k_held == 20 + 25
+    assert "for 0.25 s" in status_held.reason
+    spike = PathTask(path, V_MAX, force_sensor=_Sensor([0.1] * 20 + [0.2] * 24 + [0.1]),
+                     force_profile=np.full(3, 0.05), force_margin_n=0.04,
+                     force_margin_fraction=0.4, force_hold_s=0.25)  # fmt: skip
+    assert isinstance(_run(spike)[0], Done)  # above the limit 0.23 s: a slip, not a shift
     assert "0.20 N" in status.reason and "0.05 N" in status.reason and "margin" in status.reason
     assert over.failure == status.reason
     assert isinstance(over.step(np.zeros(4), 0.01), Failed)  # stays stopped: the robot holds

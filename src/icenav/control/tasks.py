@@ -32,8 +32,10 @@ from icenav._typing import Array
 from icenav.control.modes import Mode
 from icenav.errors import IcenavError, InvalidValueError
 from icenav.recovery.force import (
+    DEFAULT_HOLD_S,
     DEFAULT_MARGIN_FRACTION,
     DEFAULT_MARGIN_N,
+    ForceCheck,
     ForceSensor,
     PathForces,
     TipForceMap,
@@ -143,6 +145,8 @@ class PathTask:
     """Absolute margin of the force check, Eq. (F1) of :mod:`icenav.recovery.force` (N)."""
     force_margin_fraction: float = DEFAULT_MARGIN_FRACTION
     """Relative margin of the force check (fraction of the recorded force)."""
+    force_hold_s: float = DEFAULT_HOLD_S
+    """Time the force must stay above its limit before the path stops, Eq. (F4) (s)."""
     force_path: PathForces | None = None
     """The recorded forces along the path found as the task goes (the controller's way:
     no whole-path lookup on the control thread), instead of :attr:`force_profile`."""
@@ -160,6 +164,7 @@ class PathTask:
     :attr:`tip_forces`."""
     failure: str | None = field(default=None, init=False)
     """Why the task stopped early (the force check), None while it has not."""
+    _check: ForceCheck = field(init=False, repr=False)
     _cum_time: Array = field(init=False, repr=False)
     _t: float = field(default=0.0, init=False, repr=False)
     _elapsed: float = field(default=0.0, init=False, repr=False)
@@ -183,10 +188,12 @@ class PathTask:
                     f"force_profile must be {len(p)} finite forces (N), got shape {fp.shape}"
                 )
             self.force_profile = fp
-        for name in ("force_margin_n", "force_margin_fraction"):
+        for name in ("force_margin_n", "force_margin_fraction", "force_hold_s"):
             value = getattr(self, name)
             if not (math.isfinite(value) and value >= 0):
                 raise InvalidValueError(f"{name} must be finite and >= 0, got {value}")
+        self._check = ForceCheck(self.force_margin_n, self.force_margin_fraction,
+                                 self.force_hold_s)  # fmt: skip
         seg = np.abs(np.diff(p, axis=0)) / v if len(p) > 1 else np.zeros((0, 4))
         durations = seg.max(axis=1) if len(seg) else np.zeros(0)
         self._cum_time = np.concatenate([[0.0], np.cumsum(durations)])
@@ -221,7 +228,7 @@ class PathTask:
         if self.force_sensor is not None and (
             self.force_profile is not None or self.force_path is not None
         ):
-            stop = self._force_check()
+            stop = self._force_check(dt)
             if stop is not None:
                 return stop
         # path-time rate r in (0, 1]: ramps up over ramp_s, and down to stop at the end
@@ -236,9 +243,10 @@ class PathTask:
         s = 1.0 if t1 <= t0 else (self._t - t0) / (t1 - t0)
         return Running(np.asarray(self.path[i] + s * (self.path[i + 1] - self.path[i])))
 
-    def _force_check(self) -> Failed | None:
-        """Eq. (F1) at the state last commanded: Failed (and the path stops) when the force
-        read exceeds what the operator's trace produced there plus the margin."""
+    def _force_check(self, dt: float) -> Failed | None:
+        """Eqs. (F1, F2, F4) at the state last commanded: Failed (and the path stops) when
+        the force read has stayed above what the operator's trace produced there plus the
+        margin for the hold time."""
         sensor, profile = self.force_sensor, self.force_profile
         if sensor is None or (profile is None and self.force_path is None):
             return None
@@ -247,28 +255,27 @@ class PathTask:
             return None
         i = self.path_index
         if profile is not None:
-            recorded, limit = force_limit(
+            recorded: float | None = force_limit(
                 profile, i, self.force_margin_n, self.force_margin_fraction
-            )
+            )[0]
         else:
-            found = self.force_path.recorded(i)  # type: ignore[union-attr]
-            if found is None:
-                return None  # no force recorded near the path yet: no check
-            recorded = found
-            limit = found + self.force_margin_n + self.force_margin_fraction * found
-        if f <= limit:
-            return None
-        if self.tip_forces is not None and self.tip_pose is not None:  # Eq. (F2)
+            recorded = self.force_path.recorded(i)  # type: ignore[union-attr]
+        if (
+            recorded is not None
+            and f > self._check.limit(recorded)
+            and (self.tip_forces is not None and self.tip_pose is not None)
+        ):  # Eq. (F2): the larger reference where the tip is near the operator's
             at_tip = self.tip_forces.reference(self.tip_pose())
             if at_tip is not None and at_tip > recorded:
                 recorded = at_tip
-                limit = at_tip + self.force_margin_n + self.force_margin_fraction * at_tip
-                if f <= limit:
-                    return None
+        stop = self._check.update(f, recorded, dt)  # Eq. (F4); None: no force recorded near
+        if stop is None:
+            return None
         self.failure = (
             f"{self.label}: stopped at path state {i} of {len(self.path) - 1}: contact force "
-            f"{f:.2f} N exceeds the {recorded:.2f} N the operator's trace produced there by "
-            f"more than the margin (limit {limit:.2f} N: + {self.force_margin_n:.2f} N "
+            f"{stop.force_n:.2f} N exceeds the {stop.recorded_n:.2f} N the operator's trace "
+            f"produced there by more than the margin for {stop.held_s:.2f} s (limit "
+            f"{stop.limit_n:.2f} N: + {self.force_margin_n:.2f} N "
             f"+ {100 * self.force_margin_fraction:.0f} %; has the patient moved?); "
             "the robot holds"
         )

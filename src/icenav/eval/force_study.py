@@ -44,7 +44,13 @@ from icenav.control.controller import ControllerConfig, PathTask
 from icenav.errors import ConfigurationError
 from icenav.eval.recovery import TARGETS, RecoveryConfig
 from icenav.eval.recovery_bench import DT, Bench
-from icenav.recovery.force import ForceMap, TipForceMap, TipTrace, shape_reference
+from icenav.recovery.force import (
+    ForceMap,
+    PathForces,
+    TipForceMap,
+    TipTrace,
+    shape_reference,
+)
 
 __all__ = [
     "FRACTIONS",
@@ -250,6 +256,88 @@ def _follow(
         needed,
         found,
     )
+
+
+RAW_COLUMNS = ("t", "q0", "q1", "q2", "q3", "force", "px", "py", "pz", "zx", "zy", "zz",
+               "ecg_phase", "resp", "f1_ref", "path_index")  # fmt: skip
+"""Columns of the raw rows of :func:`record_pair`: time (s), motor state, force (N), EM tip
+position (mm) and axis (NaN between readings), ECG phase, respiration signal, the motor-state
+reference of Eq. (F1) (N; NaN on the operator's rows) and the path index (-1: operator)."""
+
+
+def record_pair(cfg: ForceStudyConfig) -> dict[str, Array]:
+    """The protocol of the module docstring for one pair, kept raw: every control cycle of
+    the operator and of the returns as rows of :data:`RAW_COLUMNS`, what a check can read
+    (never the twin's hidden state). Returns arrays ``rows`` (n, 16), ``returns`` (k, 3) row
+    ranges [start, stop) and the operator's row count before each return, ``shifts``
+    (k, 3) mm, ``targets`` (k,) indices into ``TARGETS``."""
+    b = Bench(RecoveryConfig(condition=cfg.condition, seed=cfg.seed, patient=cfg.patient,
+                             wander_moves=cfg.wander_moves, force_check=True))  # fmt: skip
+    if b.twin is None or b.force_sensor is None:
+        raise ConfigurationError(f"condition {cfg.condition!r} has no contact (phantom or in-vivo)")
+    twin, sensor = b.twin, b.force_sensor
+    rows: list[list[float]] = []
+    nan3 = [math.nan] * 3
+    motor = ForceMap()
+
+    def row(k: int, q: Array, f: float, ref: float, index: int) -> None:
+        t = b.clock.now()
+        tip = b.tracker.measure_tip2base(1) if k % cfg.em_every == 0 else None
+        pose = nan3 * 2 if tip is None else [*tip[:3, 3], *tip[:3, 2]]
+        resp = float(np.asarray(twin.monitor.signal(t)).reshape(-1)[0])
+        rows.append([t, *q, f, *pose, twin.rhythm.phase(t), resp, ref, float(index)])
+
+    def drive(trace: Array) -> None:
+        for k, q in enumerate(trace):
+            b.robot.command_position(q)
+            b.record(q)
+            f = float(sensor.contact_force_n() or 0.0)
+            motor.record(b.roadmap.current_vertex, f)
+            row(k, q, f, math.nan, -1)
+            b.clock.advance(DT)
+
+    views = {}
+    for name in TARGETS:
+        drive(b.operator.move_to(b.views[name]))
+        drive(b.operator.dwell(0.5))
+        views[name] = b.roadmap.make_view(name, created_s=b.clock.now())
+    drive(b.operator.explore(cfg.wander_moves))
+    plan: list[tuple[float, float, float]] = [(0.0, 0.0, 0.0)] * (cfg.rounds * len(TARGETS))
+    for s in cfg.shifts_mm:
+        for axis in range(3):
+            for sign in (1.0, -1.0):
+                v = [0.0, 0.0, 0.0]
+                v[axis] = sign * s
+                plan.append((v[0], v[1], v[2]))
+    spans: list[tuple[int, int, int]] = []
+    for k, shift in enumerate(plan):
+        drive(b.operator.explore(cfg.moves_between))
+        n_op = len(rows)
+        if any(shift):
+            twin.shift_patient(shift)
+        q0 = np.asarray(b.robot.read_state().q, np.float64)
+        path = b.roadmap.plan(q0, views[TARGETS[k % len(TARGETS)]], approach=True)
+        forces = PathForces(motor, b.roadmap, path)
+        task = PathTask(path, np.array(ControllerConfig().max_velocity))
+        j = 0
+        while (q := task.next_command(np.asarray(b.robot.read_state().q), DT)) is not None:
+            b.robot.command_position(q)
+            b.record(q)
+            b.clock.advance(DT)
+            f = float(sensor.contact_force_n() or 0.0)
+            ref = forces.recorded(task.path_index)
+            row(j, q, f, math.nan if ref is None else ref, task.path_index)
+            j += 1
+        spans.append((n_op, len(rows), n_op))
+        b.clock.advance(0.2)
+        if any(shift):
+            twin.shift_patient([-x for x in shift])
+    return {
+        "rows": np.asarray(rows, np.float64).reshape(-1, len(RAW_COLUMNS)),
+        "returns": np.asarray(spans, np.int64).reshape(-1, 3),
+        "shifts": np.asarray(plan, np.float64).reshape(-1, 3),
+        "targets": np.arange(len(plan)) % len(TARGETS),
+    }
 
 
 def summarize(

@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import math
 import threading
+from dataclasses import dataclass
 from typing import Protocol
 
 import numpy as np
@@ -37,9 +38,12 @@ __all__ = [
     "DEFAULT_ANGLE_DEG",
     "DEFAULT_MARGIN_FRACTION",
     "DEFAULT_MARGIN_N",
+    "DEFAULT_HOLD_S",
     "DEFAULT_MIN_SPACING_MM",
     "DEFAULT_RADIUS_MM",
+    "ForceCheck",
     "ForceMap",
+    "ForceStop",
     "ForceSensor",
     "PathForces",
     "TipForceMap",
@@ -587,3 +591,83 @@ class PathForces:
         self._look_up(j + 1 + self._ahead)
         vals = [v for v in (self._at(i), self._at(j)) if v is not None]
         return max(vals) if vals else None
+
+
+DEFAULT_HOLD_S = 0.25
+"""Time the force must stay above the limit before a return stops, Eq. (F4) (s): chosen
+on the development pairs (``docs/view-recovery.md``)."""
+
+
+@dataclass(frozen=True)
+class ForceStop:
+    """Why a return stops: the force above its limit for the hold time (Eq. F4)."""
+
+    force_n: float
+    """Contact force read when it stopped (N)."""
+    recorded_n: float
+    """The operator's reference there (N), Eq. (F1) or (F2)."""
+    limit_n: float
+    """The limit (N): reference + absolute margin + relative margin * reference."""
+    held_s: float
+    """How long the force had been above its limit (s)."""
+
+
+class ForceCheck:
+    """The stop rule of a return, Eq. (F4): the force read at each control cycle ``k`` is
+    held against the limit of Eq. (F1) or (F2) there, and the return stops when it has been
+    above it at every cycle of the last ``hold_s`` seconds::
+
+        L_k = F_ref,k + margin_n + margin_fraction * F_ref,k
+        stop at k  when  F_j > L_j  for every cycle j with  t_k - t_j < hold_s     (F4)
+
+    A catheter slipping over a wall or the heart pushing it for a moment exceeds the
+    reference briefly; a moved patient pushes it for as long as the return presses on.
+    ``hold_s = 0`` stops at the first cycle above the limit (Eq. F1 as it was). Equivalent
+    on a recorded series: the return stops iff the ``hold_s``-window minimum of
+    ``F_k - (1 + margin_fraction) F_ref,k`` exceeds ``margin_n`` (what
+    :mod:`icenav.eval.force_study` computes).
+
+    Parameters
+    ----------
+    margin_n : float
+        Absolute margin (N).
+    margin_fraction : float
+        Relative margin (fraction of the reference).
+    hold_s : float
+        Time above the limit before a stop (s).
+    """
+
+    def __init__(
+        self,
+        margin_n: float = DEFAULT_MARGIN_N,
+        margin_fraction: float = DEFAULT_MARGIN_FRACTION,
+        hold_s: float = DEFAULT_HOLD_S,
+    ) -> None:
+        for name, value in (("margin_n", margin_n), ("margin_fraction", margin_fraction),
+                            ("hold_s", hold_s)):  # fmt: skip
+            if not (math.isfinite(value) and value >= 0):
+                raise ConfigurationError(f"{name} must be finite and >= 0, got {value}")
+        self.margin_n = float(margin_n)
+        self.margin_fraction = float(margin_fraction)
+        self.hold_s = float(hold_s)
+        self._over_s = -1.0  # time above the limit so far (s); < 0: below it
+
+    def limit(self, recorded_n: float) -> float:
+        """The limit (N) over a reference ``recorded_n`` (N), Eq. (F1)."""
+        return recorded_n + self.margin_n + self.margin_fraction * recorded_n
+
+    def update(self, force_n: float, recorded_n: float | None, dt: float) -> ForceStop | None:
+        """One control cycle ``dt`` (s) after the last: the force read (N) and the reference
+        there (N; None: no reference, the cycle counts as below the limit). A ForceStop
+        when the return must stop (Eq. F4), else None."""
+        if recorded_n is None:
+            self._over_s = -1.0
+            return None
+        limit = self.limit(float(recorded_n))
+        if not float(force_n) > limit:
+            self._over_s = -1.0
+            return None
+        self._over_s = 0.0 if self._over_s < 0 else self._over_s + max(float(dt), 0.0)
+        if self._over_s + 1e-9 < self.hold_s:
+            return None
+        return ForceStop(float(force_n), float(recorded_n), limit, self._over_s)
