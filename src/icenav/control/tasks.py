@@ -32,6 +32,7 @@ from icenav._typing import Array
 from icenav.control.modes import Mode
 from icenav.errors import IcenavError, InvalidValueError
 from icenav.recovery.force import (
+    DEFAULT_DRIFT_MM,
     DEFAULT_HOLD_S,
     DEFAULT_MARGIN_FRACTION,
     DEFAULT_MARGIN_N,
@@ -41,6 +42,7 @@ from icenav.recovery.force import (
     TipForceMap,
     TipIndex,
     force_limit,
+    tip_drift,
 )
 from icenav.recovery.roadmap import Roadmap
 from icenav.recovery.views import View
@@ -162,6 +164,13 @@ class PathTask:
     tip_pose: Callable[[], Array | None] | None = None
     """The measured tip pose now ((4, 4) mm, base frame; None when unknown), for
     :attr:`tip_forces`."""
+    rest_tip: Array | None = None
+    """(3,) where the tracked tip was when the operator last moved the motors (mm,
+    :attr:`icenav.recovery.force.ForceRecord.rest_tip`): before it moves, the path does not
+    start when the tip has since moved more than :attr:`drift_limit_mm` (Eq. F5); None: no
+    such check."""
+    drift_limit_mm: float = DEFAULT_DRIFT_MM
+    """Eq. (F5)'s limit (mm)."""
     failure: str | None = field(default=None, init=False)
     """Why the task stopped early (the force check), None while it has not."""
     _check: ForceCheck = field(init=False, repr=False)
@@ -188,10 +197,16 @@ class PathTask:
                     f"force_profile must be {len(p)} finite forces (N), got shape {fp.shape}"
                 )
             self.force_profile = fp
-        for name in ("force_margin_n", "force_margin_fraction", "force_hold_s"):
+        names = ("force_margin_n", "force_margin_fraction", "force_hold_s", "drift_limit_mm")
+        for name in names:
             value = getattr(self, name)
             if not (math.isfinite(value) and value >= 0):
                 raise InvalidValueError(f"{name} must be finite and >= 0, got {value}")
+        if self.rest_tip is not None:
+            rest = np.asarray(self.rest_tip, dtype=np.float64).reshape(-1)
+            if rest.shape != (3,) or not np.all(np.isfinite(rest)):
+                raise InvalidValueError(f"rest_tip must be 3 finite mm, got {self.rest_tip}")
+            self.rest_tip = rest
         self._check = ForceCheck(self.force_margin_n, self.force_margin_fraction,
                                  self.force_hold_s)  # fmt: skip
         seg = np.abs(np.diff(p, axis=0)) / v if len(p) > 1 else np.zeros((0, 4))
@@ -225,6 +240,10 @@ class PathTask:
             if self.tip_index.exception() is None:
                 self.tip_forces = self.tip_index.result()
             self.tip_index = None
+        if self._elapsed == 0.0 and self.rest_tip is not None and self.tip_pose is not None:
+            stop = self._drift_check()
+            if stop is not None:
+                return stop
         if self.force_sensor is not None and (
             self.force_profile is not None or self.force_path is not None
         ):
@@ -242,6 +261,21 @@ class PathTask:
         t0, t1 = self._cum_time[i], self._cum_time[i + 1]
         s = 1.0 if t1 <= t0 else (self._t - t0) / (t1 - t0)
         return Running(np.asarray(self.path[i] + s * (self.path[i + 1] - self.path[i])))
+
+    def _drift_check(self) -> Failed | None:
+        """Eq. (F5) before the path moves: Failed when the tracked tip has moved more than
+        the limit since the operator last moved the motors."""
+        tip = self.tip_pose() if self.tip_pose is not None else None
+        drift = tip_drift(self.rest_tip, tip)
+        if drift is None or drift <= self.drift_limit_mm:
+            return None
+        self.failure = (
+            f"{self.label}: not started: the tracked tip moved {drift:.1f} mm with the motors "
+            f"still since the operator last moved them (limit {self.drift_limit_mm:.1f} mm; "
+            "has the patient moved? the roadmap's states may no longer give the views); "
+            "the robot holds"
+        )
+        return Failed(self.failure)
 
     def _force_check(self, dt: float) -> Failed | None:
         """Eqs. (F1, F2, F4) at the state last commanded: Failed (and the path stops) when
@@ -271,10 +305,13 @@ class PathTask:
         stop = self._check.update(f, recorded, dt)  # Eq. (F4); None: no force recorded near
         if stop is None:
             return None
+        tip = self.tip_pose() if self.tip_pose is not None else None
+        where = "" if tip is None else " (tip at {:.1f}, {:.1f}, {:.1f} mm)".format(*tip[:3, 3])
         self.failure = (
-            f"{self.label}: stopped at path state {i} of {len(self.path) - 1}: contact force "
-            f"{stop.force_n:.2f} N exceeds the {stop.recorded_n:.2f} N the operator's trace "
-            f"produced there by more than the margin for {stop.held_s:.2f} s (limit "
+            f"{self.label}: stopped at path state {i} of {len(self.path) - 1}{where}: "
+            f"contact force {stop.force_n:.2f} N exceeds the {stop.recorded_n:.2f} N the "
+            f"operator's trace produced there by more than the margin for {stop.held_s:.2f} s "
+            f"(limit "
             f"{stop.limit_n:.2f} N: + {self.force_margin_n:.2f} N "
             f"+ {100 * self.force_margin_fraction:.0f} %; has the patient moved?); "
             "the robot holds"

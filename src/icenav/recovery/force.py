@@ -38,6 +38,7 @@ __all__ = [
     "DEFAULT_ANGLE_DEG",
     "DEFAULT_MARGIN_FRACTION",
     "DEFAULT_MARGIN_N",
+    "DEFAULT_DRIFT_MM",
     "DEFAULT_HOLD_S",
     "DEFAULT_MIN_SPACING_MM",
     "DEFAULT_RADIUS_MM",
@@ -53,6 +54,7 @@ __all__ = [
     "force_excess",
     "force_limit",
     "shape_reference",
+    "tip_drift",
 ]
 
 DEFAULT_MARGIN_N = 0.1
@@ -484,6 +486,25 @@ class ForceRecord:
         self.tips = tips if tips is not None else TipForceMap(min_spacing_mm=DEFAULT_MIN_SPACING_MM)
         self._dirty: set[int] = set()
         self._lock = threading.Lock()
+        self._rest_tip: Array | None = None
+
+    @property
+    def rest_tip(self) -> Array | None:
+        """(3,) where the tracked tip was (mm, base frame) when the operator last moved the
+        motors, None when unknown or when anything else moved them since (Eq. F5)."""
+        return None if self._rest_tip is None else self._rest_tip.copy()
+
+    def note_motion(self, tip2base: ArrayLike | None, operator: bool) -> None:
+        """The motors moved this cycle: by the operator with the tip at ``tip2base`` (4, 4)
+        (mm; None: no pose read), or by anything else (a return, a refinement: the rest pose
+        is forgotten)."""
+        if not operator or tip2base is None:
+            self._rest_tip = None
+            return
+        t = np.asarray(tip2base, np.float64)
+        if t.shape != (4, 4) or not np.all(np.isfinite(t[:3, 3])):
+            raise ShapeError(f"tip2base must be a finite (4, 4) pose, got shape {t.shape}")
+        self._rest_tip = t[:3, 3].copy()
 
     def record(self, vertex: int, force_n: float | None, tip2base: ArrayLike | None) -> None:
         """Note a reading of the operator's trace: the force (N) at ``vertex`` and, with a
@@ -593,6 +614,11 @@ class PathForces:
         return max(vals) if vals else None
 
 
+DEFAULT_DRIFT_MM = 5.0
+"""Largest distance the tracked tip may have moved, with the motors still, between the
+operator's last motion and the start of a return, Eq. (F5) (mm): chosen on the development
+pairs (``docs/view-recovery.md``)."""
+
 DEFAULT_HOLD_S = 0.25
 """Time the force must stay above the limit before a return stops, Eq. (F4) (s): chosen
 on the development pairs (``docs/view-recovery.md``)."""
@@ -671,3 +697,20 @@ class ForceCheck:
         if self._over_s + 1e-9 < self.hold_s:
             return None
         return ForceStop(float(force_n), float(recorded_n), limit, self._over_s)
+
+
+def tip_drift(rest_tip: ArrayLike | None, tip2base: ArrayLike | None) -> float | None:
+    """How far the tracked tip has moved (mm) since the operator last moved the motors,
+    Eq. (F5)::
+
+        D = | p_now - p_rest |                                                    (F5)
+
+    with the motors still since (``rest_tip`` (3,) from :attr:`ForceRecord.rest_tip`,
+    ``tip2base`` (4, 4) now, mm, base frame). The anatomy holds the catheter (the vessel
+    and the walls it lies against): when the patient moves, the tip moves with the motors
+    still; the heart beat, breathing and the shaft's settling move it a few millimetres.
+    None when either is unknown (no check)."""
+    if rest_tip is None or tip2base is None:
+        return None
+    p = np.asarray(tip2base, np.float64)[:3, 3]
+    return float(np.linalg.norm(p - np.asarray(rest_tip, np.float64).reshape(3)))
