@@ -153,3 +153,35 @@ def test_the_return_holds_at_its_start_until_the_tip_index_is_built() -> None:
     assert task.progress == 0.0
     index.set_result(tips.index())
     assert isinstance(_run(task)[0], Done)  # 1.5 N <= 1.0 + 0.1 + 50 %: the tip's reference
+
+
+def test_a_return_does_not_start_when_the_tip_moved_with_the_motors_still() -> None:
+    """Eq. (F5) on the twin: the operator drives to a view and stops; the patient moves
+    10 mm on the table and the vessel and walls carry the catheter: the tracked tip is no
+    longer where the operator left it, and the return does not start. Without the shift it
+    starts (and arrives)."""
+    for shift in (False, True):
+        clock = SimClock()
+        twin = build_twin("phantom", 100, 0, clock.now)
+        robot = SimulatedRobot(twin.plant, clock=clock.now)
+        robot.enable()
+        roadmap = Roadmap(epsilon=1.0)
+        q_view = np.asarray(twin.views["mitral_valve"])
+        for q in np.linspace(np.zeros(4), q_view, 120):  # the operator's trace
+            robot.command_position(q)
+            roadmap.add(q)
+            clock.advance(0.02)
+        rest = twin.tracker.measure_tip2base(1)[:3, 3]
+        if shift:
+            twin.shift_patient([-10.0, 0.0, 0.0])
+        clock.advance(1.0)
+        path = roadmap.plan(q_view, np.zeros(4))
+        tracker = twin.tracker
+        task = PathTask(path, V_MAX, rest_tip=rest, drift_limit_mm=5.0,
+                        tip_pose=lambda tracker=tracker: tracker.measure_tip2base(1))  # fmt: skip
+        status = task.step(np.asarray(robot.read_state().q), 0.02)
+        if shift:
+            assert isinstance(status, Failed) and "not started" in status.reason, status
+            assert "mm with the motors still" in status.reason and task.progress == 0.0
+        else:
+            assert isinstance(status, Running), status

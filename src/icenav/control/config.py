@@ -11,10 +11,10 @@ from icenav._validation import check_finite, check_positive
 from icenav.errors import ConfigurationError
 from icenav.geometry.kinematics import DEFAULT_GEOMETRY, CatheterGeometry
 from icenav.recovery.force import (
+    CHECK_MARGIN_FRACTION,
+    CHECK_MARGIN_N,
     DEFAULT_DRIFT_MM,
     DEFAULT_HOLD_S,
-    DEFAULT_MARGIN_FRACTION,
-    DEFAULT_MARGIN_N,
 )
 
 __all__ = ["ControllerConfig"]
@@ -68,10 +68,10 @@ class ControllerConfig:
     for this long (s)."""
     geometry: CatheterGeometry = DEFAULT_GEOMETRY
     """Catheter geometry and joint limits (the motor limits equal the model limits)."""
-    force_margin_n: float = DEFAULT_MARGIN_N
+    force_margin_n: float = CHECK_MARGIN_N
     """Absolute margin of a return's force check (N), Eqs. (F1, F2) of
     :mod:`icenav.recovery.force` (with a force channel only)."""
-    force_margin_fraction: float = DEFAULT_MARGIN_FRACTION
+    force_margin_fraction: float = CHECK_MARGIN_FRACTION
     """Relative margin of a return's force check (fraction of the recorded force)."""
     force_hold_s: float = DEFAULT_HOLD_S
     """Time the force must stay above its limit before a return stops (s), Eq. (F4)."""

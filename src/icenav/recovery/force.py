@@ -35,6 +35,8 @@ from icenav.errors import ConfigurationError, ShapeError
 from icenav.recovery.roadmap import IntArray, Roadmap
 
 __all__ = [
+    "CHECK_MARGIN_FRACTION",
+    "CHECK_MARGIN_N",
     "DEFAULT_ANGLE_DEG",
     "DEFAULT_MARGIN_FRACTION",
     "DEFAULT_MARGIN_N",
@@ -169,10 +171,10 @@ def force_excess(
     return float(force_n) - force_limit(profile, index, margin_n, margin_fraction)[1]
 
 
-DEFAULT_RADIUS_MM = 8.0
+DEFAULT_RADIUS_MM = 4.0
 """Radius of the tip positions whose recorded forces form the reference of Eq. (F2) (mm):
-chosen on the development pairs among 2, 4 and 8 mm (``icenav.eval.force_study``,
-``docs/view-recovery.md``)."""
+chosen on the development pairs among 4 and 8 mm with the hold of Eq. (F4)
+(``icenav.eval.force_study``, ``docs/view-recovery.md``; 8 mm without the hold)."""
 DEFAULT_ANGLE_DEG = 180.0
 """Largest angle between the tip's axis now and a recorded one for Eq. (F2) (deg); 180: the
 position alone (30 deg did no better at 4 mm on the development pairs)."""
@@ -619,9 +621,15 @@ DEFAULT_DRIFT_MM = 5.0
 operator's last motion and the start of a return, Eq. (F5) (mm): chosen on the development
 pairs (``docs/view-recovery.md``)."""
 
-DEFAULT_HOLD_S = 0.25
+DEFAULT_HOLD_S = 0.5
 """Time the force must stay above the limit before a return stops, Eq. (F4) (s): chosen
-on the development pairs (``docs/view-recovery.md``)."""
+on the development pairs among 0, 0.25 and 0.5 s (``docs/view-recovery.md``)."""
+CHECK_MARGIN_N = 0.05
+"""The product's absolute margin with the hold of Eq. (F4) (N): the smallest considered
+(about a force channel's resolution), chosen on the development pairs."""
+CHECK_MARGIN_FRACTION = 0.5
+"""The product's relative margin with the hold of Eq. (F4), chosen on the development
+pairs (0.5 and 1.0 considered)."""
 
 
 @dataclass(frozen=True)
