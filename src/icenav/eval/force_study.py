@@ -282,7 +282,7 @@ position (mm) and axis (NaN between readings), ECG phase, respiration signal, th
 reference of Eq. (F1) (N; NaN on the operator's rows) and the path index (-1: operator)."""
 
 
-def record_pair(cfg: ForceStudyConfig) -> dict[str, Array]:
+def record_pair(cfg: ForceStudyConfig) -> dict[str, Any]:
     """The protocol of the module docstring for one pair, kept raw: every control cycle of
     the operator and of the returns as rows of :data:`RAW_COLUMNS`, what a check can read
     (never the twin's hidden state). Returns arrays ``rows`` (n, 16), ``returns`` (k, 3) row
@@ -612,7 +612,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         for s, p in zip(seeds, patients, strict=True):
             t0 = time.perf_counter()
             cfg = ForceStudyConfig(condition=args.condition, seed=s, patient=p, rounds=args.rounds)
-            np.savez_compressed(f"{args.raw}/{args.condition}_{s}_{p}.npz", **record_pair(cfg))
+            raw = record_pair(cfg)
+            np.savez_compressed(f"{args.raw}/{args.condition}_{s}_{p}.npz", **raw)
             print(f"catheter {s} / patient {p}: {time.perf_counter() - t0:.0f} s", flush=True)
         return 0
     records: list[ReturnForces] = []
