@@ -36,6 +36,7 @@ from icenav.recovery.force import (
     DEFAULT_HOLD_S,
     DEFAULT_MARGIN_FRACTION,
     DEFAULT_MARGIN_N,
+    DRIFT_WINDOW_S,
     ForceCheck,
     ForceSensor,
     PathForces,
@@ -166,9 +167,9 @@ class PathTask:
     :attr:`tip_forces`."""
     rest_tip: Array | None = None
     """(3,) where the tracked tip was when the operator last moved the motors (mm,
-    :attr:`icenav.recovery.force.ForceRecord.rest_tip`): before it moves, the path does not
-    start when the tip has since moved more than :attr:`drift_limit_mm` (Eq. F5); None: no
-    such check."""
+    :attr:`icenav.recovery.force.ForceRecord.rest_tip`): in its first
+    :data:`~icenav.recovery.force.DRIFT_WINDOW_S`, the path stops when the tip has since
+    moved more than :attr:`drift_limit_mm` (Eq. F5); None: no such check."""
     drift_limit_mm: float = DEFAULT_DRIFT_MM
     """Eq. (F5)'s limit (mm)."""
     failure: str | None = field(default=None, init=False)
@@ -240,7 +241,8 @@ class PathTask:
             if self.tip_index.exception() is None:
                 self.tip_forces = self.tip_index.result()
             self.tip_index = None
-        if self._elapsed == 0.0 and self.rest_tip is not None and self.tip_pose is not None:
+        starting = self._elapsed < DRIFT_WINDOW_S
+        if starting and self.rest_tip is not None and self.tip_pose is not None:
             stop = self._drift_check()
             if stop is not None:
                 return stop
@@ -263,15 +265,16 @@ class PathTask:
         return Running(np.asarray(self.path[i] + s * (self.path[i + 1] - self.path[i])))
 
     def _drift_check(self) -> Failed | None:
-        """Eq. (F5) before the path moves: Failed when the tracked tip has moved more than
-        the limit since the operator last moved the motors."""
+        """Eq. (F5) as the path starts: Failed when the tracked tip has moved more than the
+        limit since the operator last moved the motors."""
         tip = self.tip_pose() if self.tip_pose is not None else None
         drift = tip_drift(self.rest_tip, tip)
         if drift is None or drift <= self.drift_limit_mm:
             return None
         self.failure = (
-            f"{self.label}: not started: the tracked tip moved {drift:.1f} mm with the motors "
-            f"still since the operator last moved them (limit {self.drift_limit_mm:.1f} mm; "
+            f"{self.label}: stopped as it started: the tracked tip moved {drift:.1f} mm with "
+            f"the motors still since the operator last moved them (limit "
+            f"{self.drift_limit_mm:.1f} mm; "
             "has the patient moved? the roadmap's states may no longer give the views); "
             "the robot holds"
         )

@@ -44,6 +44,7 @@ __all__ = [
     "DEFAULT_HOLD_S",
     "DEFAULT_MIN_SPACING_MM",
     "DEFAULT_RADIUS_MM",
+    "DRIFT_WINDOW_S",
     "ForceCheck",
     "ForceMap",
     "ForceStop",
@@ -620,6 +621,11 @@ DEFAULT_DRIFT_MM = 5.0
 """Largest distance the tracked tip may have moved, with the motors still, between the
 operator's last motion and the start of a return, Eq. (F5) (mm): chosen on the development
 pairs (``docs/view-recovery.md``)."""
+
+DRIFT_WINDOW_S = 0.2
+"""Eq. (F5) is checked at every control cycle of a return's first 0.2 s (a tracker's newest
+sample may be a frame old when the return starts; the path ramps up from rest, and in
+0.2 s its set-point moves less than 0.4 mm and 0.04 rad)."""
 
 DEFAULT_HOLD_S = 0.5
 """Time the force must stay above the limit before a return stops, Eq. (F4) (s): chosen
