@@ -588,8 +588,14 @@ def main(argv: Sequence[str] | None = None) -> int:
             return 0
         pt = CheckPoint()
         print(f"the product's check: {pt}")
+        kept: dict[str, list[dict[str, float]]] = {}
         for name, rs in raws.items():
-            print(f"  {name}: {tally([x for r in rs for x in check_returns(r, pt)], pt)}")
+            checks = [x for r in rs for x in check_returns(r, pt)]
+            kept[name] = [asdict(x) for x in checks]
+            print(f"  {name}: {tally(checks, pt)}")
+        if args.json:  # per return: the shift, the margin F4 needed, the drift of F5
+            with open(args.json, "w", encoding="utf-8") as fh:
+                json.dump({"point": asdict(pt), "returns": kept}, fh, indent=1)
         return 0
     if args.choose:
         with open(args.choose, encoding="utf-8") as fh:
