@@ -24,6 +24,12 @@ rate and the fraction of shifted returns caught.
 
 ``python -m icenav.eval.force_study --condition in-vivo --seed 100-104 --patient 0-4``
 (``--json PATH`` writes the per-return records). Seeds: ``docs/view-recovery.md``.
+
+Session 7: ``--raw DIR`` records every control cycle of the same protocol
+(:func:`record_pair`, what the product can read), and ``--score DIR/*.npz`` checks the
+recorded returns offline with the product's code (:func:`check_returns`: Eqs. F1, F2, F4,
+F5 at :class:`CheckPoint`, the product's operating point); ``--sweep`` ranks the points of
+:data:`SWEEP` by the rule of :func:`choose_point`.
 """
 
 from __future__ import annotations

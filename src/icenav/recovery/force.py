@@ -18,6 +18,12 @@ else the return stops, says so (the task fails with the reason) and the robot ho
 Vertices without a recorded force (never driven by the operator with the sensor on) take
 the nearest recorded value along the path; a path with none has no check. Without a force
 channel there is no check at all (documented in ``docs/view-recovery.md``).
+
+With a tracker, the reference is also keyed by the measured tip pose (Eq. F2,
+:class:`TipForceMap`); a return stops only when the force has stayed above its limit for a
+hold time (Eq. F4, :class:`ForceCheck`), and it stops as it starts when the tracked tip has
+moved with the motors still since the operator last moved them (Eq. F5, :func:`tip_drift`,
+:attr:`ForceRecord.rest_tip`): the patient moved and carried the catheter.
 """
 
 from __future__ import annotations
