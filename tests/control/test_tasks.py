@@ -185,3 +185,23 @@ def test_a_return_does_not_start_when_the_tip_moved_with_the_motors_still() -> N
             assert "mm with the motors still" in status.reason and task.progress == 0.0
         else:
             assert isinstance(status, Running), status
+
+
+def test_the_return_holds_at_its_start_while_it_checks_the_tip_drift() -> None:
+    """Eq. (F5) is checked before the path moves: it holds at its first state for
+    DRIFT_WINDOW_S (a tracker sample may be a frame old), then goes on."""
+    from icenav.recovery.force import DRIFT_WINDOW_S
+
+    path = np.zeros((3, 4))
+    path[:, 3] = [0.0, 1.0, 2.0]
+    at = np.eye(4)
+    at[:3, 3] = [1.0, 0.0, 40.0]
+    task = PathTask(path, V_MAX, rest_tip=np.array([0.0, 0.0, 40.0]), drift_limit_mm=5.0,
+                    tip_pose=lambda: at)  # fmt: skip
+    held = 0
+    while isinstance(status := task.step(np.zeros(4), 0.01), Running) and task.progress == 0:
+        assert np.array_equal(status.q, path[0])
+        held += 1
+    n = round(DRIFT_WINDOW_S / 0.01)
+    assert n <= held <= n + 1  # 0.1 s of 0.01 s cycles (one more when the sum rounds below)
+    assert isinstance(_run(task)[0], Done)

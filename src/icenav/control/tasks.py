@@ -167,9 +167,9 @@ class PathTask:
     :attr:`tip_forces`."""
     rest_tip: Array | None = None
     """(3,) where the tracked tip was when the operator last moved the motors (mm,
-    :attr:`icenav.recovery.force.ForceRecord.rest_tip`): in its first
-    :data:`~icenav.recovery.force.DRIFT_WINDOW_S`, the path stops when the tip has since
-    moved more than :attr:`drift_limit_mm` (Eq. F5); None: no such check."""
+    :attr:`icenav.recovery.force.ForceRecord.rest_tip`): the path holds at its first state
+    for :data:`~icenav.recovery.force.DRIFT_WINDOW_S` and stops when the tip has since moved
+    more than :attr:`drift_limit_mm` (Eq. F5); None: no such check (and no hold)."""
     drift_limit_mm: float = DEFAULT_DRIFT_MM
     """Eq. (F5)'s limit (mm)."""
     failure: str | None = field(default=None, init=False)
@@ -178,6 +178,7 @@ class PathTask:
     _cum_time: Array = field(init=False, repr=False)
     _t: float = field(default=0.0, init=False, repr=False)
     _elapsed: float = field(default=0.0, init=False, repr=False)
+    _held_s: float = field(default=0.0, init=False, repr=False)
 
     def __post_init__(self) -> None:
         p = np.asarray(self.path, dtype=np.float64)
@@ -241,11 +242,12 @@ class PathTask:
             if self.tip_index.exception() is None:
                 self.tip_forces = self.tip_index.result()
             self.tip_index = None
-        starting = self._elapsed < DRIFT_WINDOW_S
-        if starting and self.rest_tip is not None and self.tip_pose is not None:
-            stop = self._drift_check()
+        if self._held_s < DRIFT_WINDOW_S and self.rest_tip is not None and self.tip_pose:
+            stop = self._drift_check()  # Eq. (F5), holding at the start
             if stop is not None:
                 return stop
+            self._held_s += dt
+            return Running(self.path[0].copy())
         if self.force_sensor is not None and (
             self.force_profile is not None or self.force_path is not None
         ):
@@ -265,8 +267,8 @@ class PathTask:
         return Running(np.asarray(self.path[i] + s * (self.path[i + 1] - self.path[i])))
 
     def _drift_check(self) -> Failed | None:
-        """Eq. (F5) as the path starts: Failed when the tracked tip has moved more than the
-        limit since the operator last moved the motors."""
+        """Eq. (F5) before the path moves: Failed when the tracked tip has moved more than
+        the limit since the operator last moved the motors."""
         tip = self.tip_pose() if self.tip_pose is not None else None
         drift = tip_drift(self.rest_tip, tip)
         if drift is None or drift <= self.drift_limit_mm:

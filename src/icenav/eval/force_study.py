@@ -58,7 +58,6 @@ from icenav.recovery.force import (
     DEFAULT_DRIFT_MM,
     DEFAULT_HOLD_S,
     DEFAULT_RADIUS_MM,
-    DRIFT_WINDOW_S,
     ForceMap,
     PathForces,
     TipForceMap,
@@ -428,11 +427,9 @@ def check_returns(raw: dict[str, Array], point: CheckPoint) -> list[ReturnCheck]
             sustained = np.lib.stride_tricks.sliding_window_view(excess, w).min(axis=1)
         else:
             sustained = np.full(1, -np.inf)
-        drift = math.nan  # Eq. (F5) over the return's first DRIFT_WINDOW_S
-        first = ret[: int(round(DRIFT_WINDOW_S / DT))]
-        first = first[np.isfinite(first[:, 6])]
-        if len(em) and len(first):
-            drift = max(tip_drift(em[-1, 6:9], _pose(r)) or 0.0 for r in first)
+        drift = math.nan  # Eq. (F5) at the return's first cycle (its set-point ~ at rest)
+        if len(em) and len(ret) and np.isfinite(ret[0, 6]):
+            drift = tip_drift(em[-1, 6:9], _pose(ret[0])) or 0.0
         out.append(ReturnCheck(float(np.max(np.abs(shift))), float(sustained.max()), drift))
     return out
 
