@@ -637,9 +637,9 @@ tip jump with it (up to 16 mm in 40 ms on the twin)."""
 DEFAULT_HOLD_S = 0.5
 """Time the force must stay above the limit before a return stops, Eq. (F4) (s): chosen
 on the development pairs among 0, 0.25 and 0.5 s (``docs/view-recovery.md``)."""
-CHECK_MARGIN_N = 0.05
-"""The product's absolute margin with the hold of Eq. (F4) (N): the smallest considered
-(about a force channel's resolution), chosen on the development pairs."""
+CHECK_MARGIN_N = 0.1
+"""The product's absolute margin with the hold of Eq. (F4) (N), chosen on the development
+pairs from 0.05 N up (about a force channel's resolution)."""
 CHECK_MARGIN_FRACTION = 0.5
 """The product's relative margin with the hold of Eq. (F4), chosen on the development
 pairs (0.5 and 1.0 considered)."""
