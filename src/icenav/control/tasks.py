@@ -33,7 +33,6 @@ from icenav.control.modes import Mode
 from icenav.errors import IcenavError, InvalidValueError
 from icenav.recovery.force import (
     DEFAULT_DRIFT_MM,
-    DEFAULT_HOLD_S,
     DEFAULT_MARGIN_FRACTION,
     DEFAULT_MARGIN_N,
     DRIFT_WINDOW_S,
@@ -148,8 +147,11 @@ class PathTask:
     """Absolute margin of the force check, Eq. (F1) of :mod:`icenav.recovery.force` (N)."""
     force_margin_fraction: float = DEFAULT_MARGIN_FRACTION
     """Relative margin of the force check (fraction of the recorded force)."""
-    force_hold_s: float = DEFAULT_HOLD_S
-    """Time the force must stay above its limit before the path stops, Eq. (F4) (s)."""
+    force_hold_s: float = 0.0
+    """Time the force must stay above its limit before the path stops, Eq. (F4) (s); 0: the
+    first cycle above stops (Eq. F1 alone, as the evaluations' bench checks); the controller
+    passes ``ControllerConfig.force_hold_s``
+    (:data:`~icenav.recovery.force.DEFAULT_HOLD_S`)."""
     force_path: PathForces | None = None
     """The recorded forces along the path found as the task goes (the controller's way:
     no whole-path lookup on the control thread), instead of :attr:`force_profile`."""
