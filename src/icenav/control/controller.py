@@ -395,7 +395,8 @@ class Controller(CommandCalls):
                     self.handlers.send(q_next, dt)
             if self.machine.mode is not Mode.CALIBRATING:  # the roadmap: what was driven
                 self.roadmap.add(self._q, check=False)
-            if not np.array_equal(self._q, self._q_last):
+            moved = not np.array_equal(self._q, self._q_last)
+            if moved:
                 self._still_since, self._q_last = self._clock(), self._q.copy()
             mode = self.machine.mode
             operator = self.force_sensor is not None and mode in _OPERATOR_MODES
@@ -403,6 +404,8 @@ class Controller(CommandCalls):
             tip = self.tip_pose_now() if operator or buffered else None
             if buffered:
                 self.pose_buffer.push(self._clock(), tip)  # type: ignore[union-attr]
+            if moved:  # where the operator left the tip (Eq. F5 of recovery.force)
+                self.forces.note_motion(tip, operator)
             if operator:
                 self._record_force(tip)
             self.record("state", {"q": self._q, "t": self._time})
