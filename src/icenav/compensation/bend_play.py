@@ -40,7 +40,7 @@ from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import ArrayLike
-from scipy.optimize import nnls
+from scipy.optimize import isotonic_regression, nnls
 
 from icenav._typing import Array
 from icenav.errors import ConfigurationError
@@ -149,17 +149,10 @@ class BendPlay:
 
 
 def _monotone(e: Array) -> Array:
-    """The non-decreasing, non-negative sequence nearest ``e`` in least squares (the
-    pool-adjacent-violators algorithm, with the knot (0, 0) in front)."""
-    blocks: list[list[float]] = [[0.0, 1.0]]  # (mean, weight) of pooled blocks
-    for v in e:
-        blocks.append([float(v), 1.0])
-        while len(blocks) > 1 and blocks[-2][0] > blocks[-1][0]:
-            m2, w2 = blocks.pop()
-            m1, w1 = blocks.pop()
-            blocks.append([(m1 * w1 + m2 * w2) / (w1 + w2), w1 + w2])
-    out = np.concatenate([np.full(int(w), m) for m, w in blocks])
-    return np.maximum(out[1:], 0.0)
+    """The non-decreasing, non-negative sequence nearest ``e`` in least squares (isotonic
+    regression, pool-adjacent-violators, with the knot (0, 0) in front)."""
+    fit = isotonic_regression(np.concatenate([[0.0], e]), increasing=True)
+    return np.maximum(np.asarray(fit.x, dtype=np.float64)[1:], 0.0)
 
 
 def _table(b: Array, e: Array, x: Array) -> Array:
