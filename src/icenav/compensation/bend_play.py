@@ -187,7 +187,7 @@ def _fit(form: str, b: Array, e: Array) -> BendPlay:
 
 
 def select_bend_play(bends: ArrayLike, extra: ArrayLike) -> BendPlay:
-    """The form of (B1)-(B3) with the smallest leave-one-out residual on the points.
+    """The form of (B1)-(B4) with the smallest leave-one-out residual on the points.
 
     ``bends`` (rad, > 0, any order) and ``extra`` (rad) are the measured points. Each point
     is predicted by each form fitted to the other points (a form that cannot be fitted to
