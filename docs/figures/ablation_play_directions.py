@@ -8,7 +8,11 @@ bend's direction (a periodic interpolation over 0 / 45 / 90 / 135 deg); nothing 
 changes. It reports the true pose's RMS errors of the paper's spin at 20 / 40 / 60 deg.
 Development catheters only (210-229):
 
-    python docs/figures/ablation_play_directions.py nonlinear-play 210
+    python docs/figures/ablation_play_directions.py nonlinear-play 210 [one-bend]
+
+With ``one-bend`` each extra direction is swept at one bend only (the AP knob's 50 deg,
+turned to that direction: 87 moves a direction) and its law is the AP law scaled by the
+ratio of that sweep's play per rad of bend to the AP one's (``*_per_bend``).
 """
 
 from __future__ import annotations
@@ -29,14 +33,19 @@ from icenav.geometry.kinematics import forward
 from icenav.geometry.trajectories import spin_trajectory
 
 fam, seed = sys.argv[1], int(sys.argv[2])
+one_bend = len(sys.argv) > 3 and sys.argv[3] == "one-bend"
 if not 210 <= seed <= 229:
     raise SystemExit("development catheters only (210-229)")
 cal = S.calibrate(seed, fam)
 base = cal.catheter.hysteresis.compensator
-laws = {0.0: (base.roll_play, base.twist_play)}
+laws: dict[float, tuple[Any, Any]] = {0.0: (base.roll_play, base.twist_play)}
 for psi_deg in (45.0, 90.0, 135.0):
     psi = math.radians(psi_deg)
-    hp = hysteresis_plan(joints=(2,))
+    hp = (
+        hysteresis_plan(joints=(2,), more_roll_bends=())
+        if one_bend
+        else hysteresis_plan(joints=(2,))
+    )
     q = hp.plan.q_motor.copy()
     k = q[:, 0].copy()
     q[:, 0], q[:, 1] = k * math.cos(psi), k * math.sin(psi)
@@ -44,6 +53,17 @@ for psi_deg in (45.0, 90.0, 135.0):
     rig, tr = S.make_rig(seed, "straight", fam)
     rig.reset()
     comp = fit_hysteresis(hp2, run_visits(plan_visits(hp2.plan), rig.move, tr)).compensator
+    if one_bend:
+        kr = comp.roll_play_per_bend / max(base.roll_play_per_bend, 1e-9)
+        kt = comp.twist_play_per_bend / max(base.twist_play_per_bend, 1e-9)
+        ap_roll, ap_twist = base.roll_play, base.twist_play
+
+        def scaled(law: Any, k: float) -> Any:
+            return lambda b, law=law, k=k: k * law(b)
+
+        laws[psi_deg] = (scaled(ap_roll, kr), scaled(ap_twist, kt))
+        print(psi_deg, f"roll x{kr:.2f}, twist x{kt:.2f} of the AP laws", flush=True)
+        continue
     laws[psi_deg] = (comp.roll_play, comp.twist_play)
     print(
         psi_deg,
