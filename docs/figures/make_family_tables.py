@@ -1,22 +1,25 @@
 """Markdown tables of docs/results.md (plant families) from the records of ``icenav eval spin``.
 
-The held-out records are made by ONE run each. Catheters 305-309 (methods frozen at commit
-899b631; started 10:54 UTC on the busy 2-core machine shared by five engineers):
+The held-out records are made by ONE run each. Catheters 310-314 (round 3; the freeze
+commit is in docs/results.md; on the busy 2-core machine shared by five engineers):
 
-    nice icenav eval spin --plant-family all --seeds 305-309 --jobs 2 \\
-        --conditions none,dense,dense+hysteresis \\
-        --json docs/figures/families_seeds305-309.json
+    nice -n 10 icenav eval spin --plant-family all --seeds 310-314 --jobs 2 \\
+        --conditions none,dense,dense+hysteresis,short+rings \\
+        --json docs/figures/families_seeds310-314.json
 
-and, the round before (methods frozen at commit b41cbd4; now spent),
-``--seeds 300-304 --json docs/figures/families_seeds300-304.json``.
+and, the rounds before (now spent): ``--seeds 305-309`` (methods frozen at 899b631,
+without ``short+rings``) and ``--seeds 300-304`` (at b41cbd4), their records in
+``docs/figures/families_seeds305-309.json`` and ``..._seeds300-304.json``.
 
 This script only reads them and prints the tables and the issue's targets
 (run: python docs/figures/make_family_tables.py [records.json]); with ``--compare
 BEFORE.json AFTER.json`` it prints ours (``dense+hysteresis``, EM) before -> after per family
 and bend, e.g. on the development catheters 210-212
 (``docs/figures/families_dev210-212_before.json``, ``..._after.json``: the same command
-with ``--seeds 210-212 --conditions dense+hysteresis`` at bcf97b2 and at 899b631); with
-``--short FULL.json SHORT.json`` the short calibrations against ours on the same catheters.
+with ``--seeds 210-212 --conditions dense+hysteresis`` at bcf97b2 and at 899b631; round 3:
+``families_dev210-214_before.json`` / ``..._after.json`` on 210-214); with
+``--short FULL.json SHORT.json`` the short calibrations against ours on the same catheters
+(and how many family x bend cells are within 25 % of ours).
 """
 
 from __future__ import annotations
@@ -107,6 +110,7 @@ def short_ratios(full: list[SpinRecord], short: list[SpinRecord]) -> None:
     """Each short condition against ours (mean EM over the same catheters): position and
     rotation, and their ratio to ours (the issue: within 25 %, i.e. <= 1.25)."""
     f_cells, s_cells = summarize_plants(full), summarize_plants(short)
+    within: dict[str, list[int]] = {}
     print("| family | condition | 20 deg | 40 deg | 60 deg |\n|---|---|---|---|---|")
     for plant in dict.fromkeys(r.plant for r in short):
         for cond in dict.fromkeys(r.condition for r in short):
@@ -117,12 +121,22 @@ def short_ratios(full: list[SpinRecord], short: list[SpinRecord]) -> None:
                 if f is None or c is None:
                     row.append("-")
                     continue
+                n = within.setdefault(cond, [0, 0, 0])
+                n[0] += c.position_mm <= 1.25 * f.position_mm
+                n[1] += c.rotation_deg <= 1.25 * f.rotation_deg
+                n[2] += 1
                 row.append(
                     f"{c.position_mm:.1f} mm, {c.rotation_deg:.1f} deg "
                     f"({c.position_mm / f.position_mm:.1f}x, "
                     f"{c.rotation_deg / f.rotation_deg:.1f}x)"
                 )
             print(f"| `{plant}` | {cond} | " + " | ".join(row) + " |")
+    for cond, (pos, rot, cells) in within.items():
+        if cond != OURS:
+            print(
+                f"\n{cond}: within 25 % of ours in {pos} of {cells} cells in position, "
+                f"{rot} in rotation"
+            )
 
 
 def main() -> None:
@@ -139,7 +153,7 @@ def main() -> None:
             print(f"ours (EM mean over catheters {seeds}), before -> after\n")
             compare(before, after)
         return
-    path = Path(sys.argv[1]) if len(sys.argv) > 1 else HERE / "families_seeds305-309.json"
+    path = Path(sys.argv[1]) if len(sys.argv) > 1 else HERE / "families_seeds310-314.json"
     records = load(path)
     if records:
         seeds = sorted({r.seed for r in records})

@@ -48,6 +48,65 @@ def test_a_saturating_law_is_better_predicted_than_by_a_line() -> None:
     assert np.max(np.abs(fit(mid) - law(mid))) < 0.5 * np.max(np.abs(line(mid) - law(mid)))
 
 
+def test_a_law_steeper_than_the_square_is_followed_by_the_power_form() -> None:
+    """A play growing as b^2.5 (bend x tension x wrap) through three bends: a quadratic with
+    non-negative coefficients cannot bend that much (it misfits the largest point by over a
+    degree, why bounding the quadratic alone broke the nonlinear-play test's criterion);
+    the power form follows it, and predicts held-out bends below, between and beyond."""
+
+    def law(b: np.ndarray) -> np.ndarray:
+        return 0.11 * np.power(b, 2.5)
+
+    fit = select_bend_play(BENDS, law(BENDS))
+    assert fit.form == "power" and fit.coef[1] == pytest.approx(2.5, abs=0.03)
+    np.testing.assert_allclose(fit(HELD_OUT), law(HELD_OUT), atol=math.radians(0.2))
+    from icenav.compensation.bend_play import _fit  # the bounded quadratic, for contrast
+
+    quad = _fit("quadratic", BENDS, law(BENDS))
+    assert min(quad.coef) >= 0.0
+    assert np.max(np.abs(quad(BENDS) - law(BENDS))) > math.radians(1.0)
+
+
+def test_below_the_smallest_bend_every_law_goes_down_to_zero_monotonically() -> None:
+    """Points read at 47 / 78 / 116 deg of bend (the twist of nonlinear-play catheter 210):
+    an unconstrained quadratic through them has a negative linear term and gives no play
+    below about 40 deg, where the spins are; every form now is non-negative, non-decreasing
+    in the bend and non-zero at 20 deg."""
+    bends = np.radians([47.0, 78.0, 116.0])
+    extra = np.radians([4.1, 13.0, 33.5])
+    a = np.stack([bends, bends * bends], axis=-1)
+    free, *_ = np.linalg.lstsq(a, extra, rcond=None)
+    assert free[0] < 0.0  # the unbounded fit's dip: zero at 20 deg once clipped
+    grid = np.radians(np.linspace(0.0, 180.0, 361))
+    chosen = select_bend_play(bends, extra)
+    from icenav.compensation.bend_play import BEND_PLAY_FORMS, _fit
+
+    for form in (*BEND_PLAY_FORMS, chosen.form):
+        law = chosen if form == chosen.form else _fit(form, bends, extra)
+        e = law(grid)
+        assert np.all(e >= 0.0) and np.all(np.diff(e) >= -1e-12), form
+        assert law.at(math.radians(20.0)) > 0.0, form
+        assert law.at(math.radians(40.0)) <= law.at(bends[0]) + 1e-12, form
+    assert chosen.at(math.radians(40.0)) > math.radians(1.5)  # the family's own: about 3
+
+
+def test_a_table_through_noisy_points_is_made_monotone() -> None:
+    """A table whose middle reading came out above the last: pooled, never decreasing, and
+    the slope beyond the last point is never negative."""
+    law = BendPlay("table", (), tuple(BENDS), tuple(np.radians([3.0, 7.0, 6.0])))
+    e = law(np.radians(np.linspace(0.0, 180.0, 181)))
+    assert np.all(np.diff(e) >= -1e-12)
+    np.testing.assert_allclose(law(BENDS[1:]), np.radians([6.5, 6.5]))
+
+
+def test_a_file_s_unbounded_quadratic_still_loads_and_is_clipped_at_zero() -> None:
+    """Calibration files written before the bounds hold quadratics with a negative term."""
+    law = BendPlay("quadratic", (-0.05, 0.1), tuple(BENDS), (0.01, 0.02, 0.05))
+    assert law.at(math.radians(20.0)) == 0.0 and law.at(2.0) == pytest.approx(0.3)
+    with pytest.raises(ConfigurationError, match="exponent must be in"):
+        BendPlay("power", (0.1, 9.0))
+
+
 def test_the_play_is_never_negative_nor_unbounded() -> None:
     fit = select_bend_play(BENDS, [-0.01, 0.02, 0.4])
     assert np.all(fit(np.radians(np.linspace(0.0, 180.0, 50))) >= 0.0)

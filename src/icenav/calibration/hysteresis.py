@@ -449,7 +449,8 @@ def fit_hysteresis(
     bent gives ``knob_play_per_bend``. With ``hplan.more_bends``, the roll's and the twist's
     play are measured at every bent sweep and their law against the bend is chosen by
     held-out residual (:func:`icenav.compensation.bend_play.select_bend_play`: linear,
-    quadratic or a table); ``*_per_bend`` keep the slope of the ``roll_bend`` sweep."""
+    quadratic, power or a monotone table, each non-negative and non-decreasing in the bend);
+    ``*_per_bend`` keep the slope of the ``roll_bend`` sweep."""
     if recording.plan is not hplan.plan and recording.plan.segments != hplan.plan.segments:
         raise ConfigurationError("the recording is not of this hysteresis plan")
     models: list[Any] = [None, None, None, None]

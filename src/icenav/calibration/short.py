@@ -15,11 +15,20 @@ over the five points and the ring stops (:class:`~icenav.compensation.elasticity
 
 A ring stop is reached by turning the knobs one way, so its sample holds the knobs' lag in
 that sense (the play, the tendons' stick): F built on it inverts the lag *for motions that
-turn the same way*, e.g. the spins of :func:`icenav.geometry.trajectories.spin_trajectory`
-with ``direction = -1`` (the paper's), whose knobs turn counter-clockwise. What it assumes:
-the procedure turns the knobs the way the rings did, between the rings' radii; a motion the
-other way meets the lag twice (measured in docs/calibration.md, section 7). It identifies
-no play model and no tracker bias.
+turn the same way*; a motion the other way meets the lag twice. So each ring is turned both
+ways (``both_ways``, the default): one F per sense, ``F+`` over the five points and the
+stops turned counter-clockwise, ``F-`` over the five points and those turned clockwise, and
+a path of model knobs ``m_k`` is commanded through their blend by the sense it turns in::
+
+    s_k = (m_k x (m_{k+1} - m_{k-1})) / (|m_k| |m_{k+1} - m_{k-1}|)    in [-1, 1]
+    x_k = (1 + s_k) / 2  F+(m_k)  +  (1 - s_k) / 2  F-(m_k)              (S1)
+
+(a counter-clockwise circle ``s = 1``, a clockwise one ``s = -1``, a radial move ``s = 0``:
+the mean of the two). What it assumes: the knobs' lag on a knob path depends on the sense
+the path turns about the knob origin (true of a circle, a spin; a radial move gets the mean
+of the two senses' lag, which is no lag at all); between the rings' radii F interpolates.
+It identifies no knob play model and no tracker bias. With ``both_ways=False`` (the first
+development version) the rings turn one way only and F is ``F+``.
 """
 
 from __future__ import annotations
@@ -27,8 +36,10 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from icenav._typing import Array
 from icenav.calibration.hysteresis import HysteresisPlan, fit_hysteresis, hysteresis_plan
@@ -39,6 +50,7 @@ from icenav.errors import ConfigurationError
 from icenav.geometry.kinematics import DEFAULT_GEOMETRY, CatheterGeometry
 
 __all__ = [
+    "BOTH_WAYS_STOPS",
     "KNOB_RINGS",
     "RING_RADII",
     "ShortRingCalibration",
@@ -46,6 +58,7 @@ __all__ = [
     "fit_short_rings",
     "ring_path",
     "short_ring_plan",
+    "turn_sense",
 ]
 
 KNOB_RINGS = "knob rings"
@@ -53,12 +66,22 @@ KNOB_RINGS = "knob rings"
 RING_RADII = tuple(math.radians(a) for a in (25.0, 50.0, 75.0))
 """Knob radii of the rings (rad): those of the full calibration's knob circles, spanning the
 spins' 20-60 deg."""
+BOTH_WAYS_STOPS = 7
+"""Stops per turn and sense of the rings turned both ways: 3 rings x (1 + 2 x 7) = 45 moves,
+which with the roll sweeps (54) and the return to rest keeps the plan within 100 moves."""
 
 
-def ring_path(radii: Sequence[float] = RING_RADII, n_stops: int = 12, direction: int = 1) -> Array:
+def ring_path(
+    radii: Sequence[float] = RING_RADII,
+    n_stops: int = 12,
+    direction: int = 1,
+    both_ways: bool = False,
+) -> Array:
     """Ring stops, motor joint states (m, 4) (rad): for each radius r, a move to (r, 0), then
     ``n_stops`` stops one turn around at equal angles, counter-clockwise in (phi1, phi2)
-    (``direction`` +1; -1 clockwise); the last stop is (r, 0) again. Roll and translation 0."""
+    (``direction`` +1; -1 clockwise); the last stop is (r, 0) again. With ``both_ways`` the
+    same stops follow turned the other way (``1 + 2 n_stops`` rows a ring). Roll and
+    translation 0."""
     rr = [float(r) for r in radii]
     if not rr or any(not (0.0 < r <= DEFAULT_GEOMETRY.knob_limit) for r in rr):
         raise ConfigurationError(
@@ -69,11 +92,13 @@ def ring_path(radii: Sequence[float] = RING_RADII, n_stops: int = 12, direction:
             f"need 4 <= n_stops <= 72 and direction +-1, got {n_stops}, {direction}"
         )
     rows: list[tuple[float, float]] = []
+    senses = (direction, -direction) if both_ways else (direction,)
     for r in rr:
         rows.append((r, 0.0))
-        for k in range(1, int(n_stops) + 1):
-            a = direction * 2.0 * math.pi * k / int(n_stops)
-            rows.append((r * math.cos(a), r * math.sin(a)))
+        for sense in senses:
+            for k in range(1, int(n_stops) + 1):
+                a = sense * 2.0 * math.pi * k / int(n_stops)
+                rows.append((r * math.cos(a), r * math.sin(a)))
     out = np.zeros((len(rows), 4))
     out[:, :2] = rows
     return out
@@ -87,14 +112,25 @@ class ShortRingPlan:
     """The roll sweeps' plan, then the rings (segment :data:`KNOB_RINGS`), back to rest."""
     sweeps: HysteresisPlan
     """The roll sweeps (the first part of ``plan``)."""
+    rings: Array
+    """(m, 4) the ring stops (:func:`ring_path`)."""
+    n_stops: int
+    """Stops per turn and sense."""
+    both_ways: bool
+    """Each ring turned both ways."""
 
 
 def short_ring_plan(
-    radii: Sequence[float] = RING_RADII, n_stops: int = 12, direction: int = 1
+    radii: Sequence[float] = RING_RADII,
+    n_stops: int | None = None,
+    direction: int = 1,
+    both_ways: bool = True,
 ) -> ShortRingPlan:
     """Roll sweeps straight (+-30 deg) and with the AP knob at 50 deg (+-50 deg), 10 deg
-    steps, then :func:`ring_path`: 94 moves with the defaults (the 5-point search's 11
-    before them)."""
+    steps, then :func:`ring_path`: 100 moves with the defaults (both ways,
+    :data:`BOTH_WAYS_STOPS` stops; one way: 12 stops, 94 moves), the 5-point search's 11
+    before them."""
+    stops = (BOTH_WAYS_STOPS if both_ways else 12) if n_stops is None else int(n_stops)
     sweeps = hysteresis_plan(
         joints=(2,),
         roll_amplitude=math.radians(30.0),
@@ -102,9 +138,35 @@ def short_ring_plan(
         roll_widening=0.4,
         more_roll_bends=(),
     )
-    rings = MotionPlan.make(ring_path(radii, n_stops, direction), KNOB_RINGS, 1, retries=0)
+    path = ring_path(radii, stops, direction, both_ways)
+    rings = MotionPlan.make(path, KNOB_RINGS, 1, retries=0)
     rest = MotionPlan.make(np.zeros((1, 4)), "to zero", n_average=0, retries=0)
-    return ShortRingPlan(plan=MotionPlan.concat([sweeps.plan, rings, rest]), sweeps=sweeps)
+    return ShortRingPlan(
+        plan=MotionPlan.concat([sweeps.plan, rings, rest]),
+        sweeps=sweeps,
+        rings=path,
+        n_stops=stops,
+        both_ways=bool(both_ways),
+    )
+
+
+def turn_sense(knobs: ArrayLike) -> Array:
+    """(S1)'s ``s_k`` (n,) of a path of knob pairs (n, 2) (rad): the sine of the angle
+    between the position about the knob origin and the path's direction (central
+    differences; one-sided at the ends), +1 counter-clockwise, -1 clockwise, 0 radial or
+    still (a step under 1e-9 rad, or a position within 1e-6 rad of the origin)."""
+    m = np.asarray(knobs, dtype=np.float64)
+    if m.ndim != 2 or m.shape[1] != 2:
+        raise ConfigurationError(f"knobs must have shape (n, 2), got {m.shape}")
+    if m.shape[0] < 2:
+        return np.zeros(m.shape[0])
+    d = np.gradient(m, axis=0)
+    cross = m[:, 0] * d[:, 1] - m[:, 1] * d[:, 0]
+    norm = np.linalg.norm(m, axis=1) * np.linalg.norm(d, axis=1)
+    ok = (np.linalg.norm(m, axis=1) > 1e-6) & (np.linalg.norm(d, axis=1) > 1e-9)
+    out = np.zeros(m.shape[0])
+    out[ok] = np.clip(cross[ok] / norm[ok], -1.0, 1.0)
+    return out
 
 
 @dataclass(frozen=True, eq=False)
@@ -112,11 +174,28 @@ class ShortRingCalibration:
     """What :func:`fit_short_rings` fits."""
 
     elasticity_map: ElasticityMap
-    """F over the five points and the ring stops."""
+    """F over the five points and the ring stops (``F+``: those turned counter-clockwise,
+    when the rings turned both ways)."""
     hysteresis: HysteresisCompensator
     """The roll's and the twist's play (lines against the bend); no knob models."""
     n_moves: int
     """Moves of the plan (the 5-point search's not counted)."""
+    reverse_map: ElasticityMap | None = None
+    """``F-``: over the five points and the stops turned clockwise (None: one way only)."""
+
+    def model_to_motor_path(self, q_model: ArrayLike) -> Array:
+        """Motor joint states (n, 4) of a path of model joint states (n, 4) in the order
+        driven: (S1) with both maps, ``F+`` alone without ``reverse_map``; phi3 and d4
+        unchanged (the path is not range-checked: clip the knobs after)."""
+        q = np.asarray(q_model, dtype=np.float64)
+        if q.ndim != 2 or q.shape[1] != 4:
+            raise ConfigurationError(f"q_model must have shape (n, 4), got {q.shape}")
+        fwd = np.asarray(self.elasticity_map.model_to_motor(q, check=False), np.float64)
+        if self.reverse_map is None:
+            return fwd
+        rev = np.asarray(self.reverse_map.model_to_motor(q, check=False), np.float64)
+        w = 0.5 * (1.0 + turn_sense(q[:, :2]))[:, None]  # (S1)
+        return w * fwd + (1.0 - w) * rev
 
 
 def fit_short_rings(
@@ -136,15 +215,30 @@ def fit_short_rings(
     roll = fit_hysteresis(splan.sweeps, sweeps, geometry).compensator
     q, poses = recording.part(KNOB_RINGS)
     tracked = np.all(np.isfinite(poses.reshape(len(q), -1)), axis=1)
-    samples = CalibrationSet(
-        q_motor=np.vstack([five_point.q_motor, q[tracked]]),
-        tip2base=np.concatenate([five_point.tip2base, poses[tracked]]),
-        catheter_id=five_point.catheter_id,
-        vessel=five_point.vessel,
-        method="five-point+rings",
-    )
+    # the sense each stop was reached in: the first pass of a ring, then (both ways) the
+    # second; the move onto the ring (a radial one) joins neither
+    per_ring = 1 + (2 if splan.both_ways else 1) * splan.n_stops
+    k = np.arange(len(q)) % per_ring
+    first = (k >= 1) & (k <= splan.n_stops)
+    second = k > splan.n_stops
+    ccw_first = turn_sense(splan.rings[:, :2])[1] > 0.0
+
+    def f_over(stops: Any) -> ElasticityMap:
+        keep = stops & tracked
+        samples = CalibrationSet(
+            q_motor=np.vstack([five_point.q_motor, q[keep]]),
+            tip2base=np.concatenate([five_point.tip2base, poses[keep]]),
+            catheter_id=five_point.catheter_id,
+            vessel=five_point.vessel,
+            method="five-point+rings",
+        )
+        return ElasticityMap.build(samples, geometry)
+
+    if not splan.both_ways:
+        fwd, rev = f_over(first | (k == 0)), None
+    else:
+        fwd = f_over(first if ccw_first else second)
+        rev = f_over(second if ccw_first else first)
     return ShortRingCalibration(
-        elasticity_map=ElasticityMap.build(samples, geometry),
-        hysteresis=roll,
-        n_moves=splan.plan.n,
+        elasticity_map=fwd, hysteresis=roll, n_moves=splan.plan.n, reverse_map=rev
     )

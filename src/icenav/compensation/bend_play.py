@@ -5,41 +5,55 @@ frame turns behind the section) widen as the section bends: a bent section press
 sheath and on its own wires. How they widen is a property of the catheter, not of our
 model, so it is *measured*: the roll is swept at several bends ``b_i`` (rad, the tracked
 bend) and the play's extra half-width over the straight one, ``e_i`` (rad), is read from
-each sweep. Three forms are fitted to those points, every one through ``e(0) = 0``::
+each sweep. Four forms are fitted to those points, every one through ``e(0) = 0``, never
+negative and never decreasing with the bend (a bent section never rubs less than a
+straighter one), so that below the smallest bend swept (the spins' 20-40 deg lie below
+it) a law goes down to zero instead of extrapolating a fitted curve's dip::
 
-    linear       e(b) = k b                                           (B1)
-    quadratic    e(b) = k1 b + k2 b^2                                 (B2)
-    table        e(b) = piecewise linear through (0, 0), (b_i, e_i),
-                 continued past the last point with the last slope    (B3)
+    linear       e(b) = k b,                k >= 0                    (B1)
+    quadratic    e(b) = k1 b + k2 b^2,      k1, k2 >= 0               (B2)
+    power        e(b) = a b^p,              a >= 0, 1/2 <= p <= 4     (B4)
+    table        e(b) = piecewise linear through (0, 0) and the points
+                 made monotone (pool-adjacent-violators), continued past
+                 the last point with the last (non-negative) slope    (B3)
 
 and the form kept is the one with the smallest leave-one-out residual (each measured
 point predicted by the form fitted to the others; :func:`select_bend_play`), the simpler
 form on a tie. Every form is clipped to ``0 <= e <= MAX_EXTRA``. What each assumes:
 (B1) the play grows in proportion to the bend (a friction that grows with the normal force
-of a uniformly curved section, the default twin's law); (B2) a smooth growth of any
-curvature (e.g. a play growing with bend and with the tendon tension that holds it, both
-proportional to the bend); (B3) only that the play is continuous in the bend and that it
-keeps its last measured slope beyond the largest bend measured.
+of a uniformly curved section, the default twin's law); (B2) a growth between linear and
+quadratic (e.g. a play growing with bend and with the tendon tension that holds it, both
+proportional to the bend); (B4) a growth of one power of the bend, from saturating
+(p < 1) to steeper than the square (p > 2: a friction that grows with bend, tension and
+wrap together), which (B2) with non-negative coefficients cannot follow; (B3) only that
+the play is continuous and monotone in the bend and that it keeps its last measured slope
+beyond the largest bend measured. The coefficients of (B1), (B2) and (B4) are fitted with
+their bounds (non-negative least squares; a grid over p) rather than clipped afterwards:
+an unconstrained quadratic through three points at 45-120 deg of bend can take a negative
+linear term and give no play at all below about 40 deg.
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import ArrayLike
+from scipy.optimize import isotonic_regression, nnls
 
 from icenav._typing import Array
 from icenav.errors import ConfigurationError
 
-__all__ = ["BEND_PLAY_FORMS", "BendPlay", "MAX_EXTRA", "select_bend_play"]
+__all__ = ["BEND_PLAY_FORMS", "BendPlay", "MAX_EXTRA", "P_RANGE", "select_bend_play"]
 
-BEND_PLAY_FORMS = ("linear", "quadratic", "table")
+BEND_PLAY_FORMS = ("linear", "quadratic", "power", "table")
 """The forms, simplest first (the order that breaks a tie of residuals)."""
 MAX_EXTRA = math.radians(60.0)
 """Largest extra play half-width any form returns (rad)."""
+P_RANGE = (0.5, 4.0)
+"""Exponents of the power form (B4) searched."""
+_P_GRID = np.linspace(P_RANGE[0], P_RANGE[1], 141)
 
 
 @dataclass(frozen=True)
@@ -47,13 +61,16 @@ class BendPlay:
     """The extra play half-width as a function of the bend, :math:`e(b)` (rad of rad).
 
     ``form`` is one of :data:`BEND_PLAY_FORMS`; ``coef`` holds ``(k,)`` for (B1), ``(k1,
-    k2)`` for (B2); ``bends`` / ``extra`` are the measured points (rad), the knots of (B3).
+    k2)`` for (B2), ``(a, p)`` for (B4); ``bends`` / ``extra`` are the measured points (rad),
+    made monotone the knots of (B3). (Files written before the bounds may hold a (B2) with
+    a negative coefficient: it still loads and is clipped at zero as it was.)
     """
 
     form: str
-    """``linear``, ``quadratic`` or ``table``."""
+    """``linear``, ``quadratic``, ``power`` or ``table``."""
     coef: tuple[float, ...] = ()
-    """Coefficients of (B1) (rad/rad) or (B2) (rad/rad, rad/rad^2)."""
+    """Coefficients of (B1) (rad/rad), (B2) (rad/rad, rad/rad^2) or (B4) (``a`` in rad/rad^p,
+    the exponent ``p``)."""
     bends: tuple[float, ...] = ()
     """Measured bends (rad), ascending, > 0."""
     extra: tuple[float, ...] = ()
@@ -67,7 +84,7 @@ class BendPlay:
             raise ConfigurationError(
                 f"bend-play form must be one of {BEND_PLAY_FORMS}, got {self.form!r}"
             )
-        need = {"linear": 1, "quadratic": 2, "table": 0}[self.form]
+        need = {"linear": 1, "quadratic": 2, "power": 2, "table": 0}[self.form]
         if len(self.coef) != need:
             raise ConfigurationError(
                 f"a {self.form} bend play needs {need} coefficient(s), got {self.coef!r}"
@@ -81,6 +98,11 @@ class BendPlay:
             )
         if b.size and (np.any(b <= 0.0) or np.any(np.diff(b) <= 0.0)):
             raise ConfigurationError(f"bends must be ascending and > 0 rad, got {self.bends!r}")
+        if self.form == "power" and not (P_RANGE[0] <= self.coef[1] <= P_RANGE[1]):
+            raise ConfigurationError(
+                f"a power bend play's exponent must be in [{P_RANGE[0]}, {P_RANGE[1]}], got "
+                f"{self.coef[1]!r}"
+            )
         if self.form == "table" and b.size == 0:
             raise ConfigurationError("a table bend play needs at least one measured point")
 
@@ -96,6 +118,8 @@ class BendPlay:
             e = self.coef[0] * b  # (B1)
         elif self.form == "quadratic":
             e = self.coef[0] * b + self.coef[1] * b * b  # (B2)
+        elif self.form == "power":
+            e = self.coef[0] * np.power(b, self.coef[1])  # (B4)
         else:
             e = _table(np.asarray(self.bends), np.asarray(self.extra), b)  # (B3)
         return np.clip(e, 0.0, MAX_EXTRA)
@@ -124,10 +148,18 @@ class BendPlay:
         return f"{self.form} ({pts} deg{loo})" if pts else f"{self.form} k={self.slope:.3f}"
 
 
+def _monotone(e: Array) -> Array:
+    """The non-decreasing, non-negative sequence nearest ``e`` in least squares (isotonic
+    regression, pool-adjacent-violators, with the knot (0, 0) in front)."""
+    fit = isotonic_regression(np.concatenate([[0.0], e]), increasing=True)
+    return np.maximum(np.asarray(fit.x, dtype=np.float64)[1:], 0.0)
+
+
 def _table(b: Array, e: Array, x: Array) -> Array:
-    """(B3): piecewise linear through (0, 0) and (b, e), the last slope beyond."""
+    """(B3): piecewise linear through (0, 0) and (b, e) made monotone, the last slope
+    beyond."""
     kb = np.concatenate([[0.0], b])
-    ke = np.concatenate([[0.0], e])
+    ke = np.concatenate([[0.0], _monotone(e)])
     inside = np.interp(x, kb, ke)
     last = (ke[-1] - ke[-2]) / (kb[-1] - kb[-2])
     return np.where(x > kb[-1], ke[-1] + last * (x - kb[-1]), inside)
@@ -136,19 +168,26 @@ def _table(b: Array, e: Array, x: Array) -> Array:
 def _fit(form: str, b: Array, e: Array) -> BendPlay:
     """One form fitted to points (b, e) by least squares (B1, B2) or as knots (B3)."""
     if form == "linear":
-        k = float(b @ e / (b @ b)) if b.size else 0.0
+        k = max(float(b @ e / (b @ b)), 0.0) if b.size else 0.0  # (B1), k >= 0
         return BendPlay("linear", (k,), tuple(b), tuple(e))
     if form == "quadratic":
         if b.size < 2:
             raise ConfigurationError("a quadratic bend play needs two points or more")
-        a = np.stack([b, b * b], axis=-1)
-        coef, *_ = np.linalg.lstsq(a, e, rcond=None)
+        coef, _ = nnls(np.stack([b, b * b], axis=-1), e)  # (B2), k1, k2 >= 0
         return BendPlay("quadratic", (float(coef[0]), float(coef[1])), tuple(b), tuple(e))
+    if form == "power":
+        if b.size < 2:
+            raise ConfigurationError("a power bend play needs two points or more")
+        basis = np.power(b[None, :], _P_GRID[:, None])  # (np, n): b^p for each p
+        a = np.maximum((basis @ e) / np.einsum("pn,pn->p", basis, basis), 0.0)  # (B4)
+        rss = np.sum((a[:, None] * basis - e[None, :]) ** 2, axis=1)
+        k = int(np.argmin(rss))
+        return BendPlay("power", (float(a[k]), float(_P_GRID[k])), tuple(b), tuple(e))
     return BendPlay("table", (), tuple(b), tuple(e))
 
 
-def select_bend_play(bends: Sequence[float], extra: Sequence[float]) -> BendPlay:
-    """The form of (B1)-(B3) with the smallest leave-one-out residual on the points.
+def select_bend_play(bends: ArrayLike, extra: ArrayLike) -> BendPlay:
+    """The form of (B1)-(B4) with the smallest leave-one-out residual on the points.
 
     ``bends`` (rad, > 0, any order) and ``extra`` (rad) are the measured points. Each point
     is predicted by each form fitted to the other points (a form that cannot be fitted to
@@ -172,7 +211,7 @@ def select_bend_play(bends: Sequence[float], extra: Sequence[float]) -> BendPlay
         return _fit("linear", b, e)
     best: BendPlay | None = None
     for form in BEND_PLAY_FORMS:
-        minimum = {"linear": 1, "quadratic": 2, "table": 1}[form]
+        minimum = {"linear": 1, "quadratic": 2, "power": 2, "table": 1}[form]
         if b.size - 1 < minimum:
             continue
         errors = []

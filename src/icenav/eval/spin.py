@@ -414,20 +414,27 @@ def _effective_path(q_model: Array, cal: Calibrations) -> tuple[Array, Array]:
 def _short_commands(q_model: Array, cal: Calibrations, rings: bool = False) -> Array:
     """The short calibration's commands (APPROACH_STEPS + n, 4): the twist pre-shaped, the
     5-point F (with ``rings``: F over the five points and the ring stops), the roll's play
-    inverse at the intended bend (knobs without play model)."""
+    inverse at the intended bend (knobs without play model). The rings turned both ways
+    command through F+ / F- by the sense the path turns (icenav.calibration.short, S1)."""
+    to_motor: Callable[[ArrayLike], Array]
     if rings:
         if cal.short_rings is None:
             raise InvalidValueError(f"condition {SHORT_RINGS!r} needs its calibration")
-        comp, fmap = cal.short_rings.hysteresis, cal.short_rings.elasticity_map
+        comp = cal.short_rings.hysteresis
+        to_motor = cal.short_rings.model_to_motor_path  # F+ / F- by the sense turned
     elif cal.short is None:
         raise InvalidValueError(f"condition {SHORT!r} needs the short calibration")
     else:
         comp, fmap = cal.short, cal.simplified.knob_map
+
+        def to_motor(model: ArrayLike) -> Array:
+            return np.asarray(fmap.model_to_motor(model, check=False), np.float64)
+
     path = _approach_path(q_model)
     lim = DEFAULT_GEOMETRY.knob_limit
     model = comp.preshape_model(path)
     model[:, :2] = np.clip(model[:, :2], -lim, lim)
-    eff = np.asarray(fmap.model_to_motor(model, check=False), np.float64)
+    eff = to_motor(model)
     bends = DEFAULT_GEOMETRY.knob_ratio * np.hypot(path[:, 0], path[:, 1])
     comp.reset(np.zeros(4))
     cmd = comp.command_path(eff, bends=bends)
