@@ -53,3 +53,16 @@ def test_a_held_set_point_is_no_new_move_of_the_catheter() -> None:
     assert not np.allclose(past[:3, 3], plant.pose_at(bench.clock.now())[:3, 3], atol=1e-6)
     bench.robot.command_position(q + np.array([0.0, 0.0, 0.0, 0.5]))
     assert plant.last_move_s == bench.clock.now()
+
+
+def test_returns_are_checked_as_the_products_go_to_view() -> None:
+    """The bench keeps the operator's forces as the controller does (per vertex and per
+    measured tip pose) and checks returns with the controller's margins."""
+    from icenav.control.config import ControllerConfig
+
+    bench = Bench(RecoveryConfig(seed=100, patient=0, condition="in-vivo", image_size=32))
+    product = ControllerConfig()
+    assert bench.force_margin_n == product.force_margin_n
+    assert bench.force_margin_fraction == product.force_margin_fraction
+    bench.drive(bench.operator.dwell(0.1))
+    assert bench.forces.n_recorded > 0 and bench.force_record.tips.n_samples > 0

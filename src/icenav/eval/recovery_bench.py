@@ -15,7 +15,7 @@ from icenav.devices.robot import RobotStatus
 from icenav.devices.sim_robot import SimulatedRobot
 from icenav.geometry.se3 import pose_mean
 from icenav.recovery.beats import BeatClip
-from icenav.recovery.force import DEFAULT_MARGIN_N, ForceMap, force_limit
+from icenav.recovery.force import ForceRecord, PathForces
 from icenav.recovery.roadmap import Roadmap
 from icenav.recovery.views import View
 from icenav.refinement.cycle_pose import CycleAveragedPose, complete_cycles
@@ -30,16 +30,16 @@ from icenav.sim.plugins import make_plant
 from icenav.sim.tracker import EMTracker
 from icenav.sim.ultrasound import ProbeConfig, UltrasoundRenderer
 
-__all__ = ["Bench", "DT", "FORCE_MARGIN_N", "HoldingRobot", "TwinBeatImager"]
+__all__ = ["Bench", "DT", "EM_EVERY", "HoldingRobot", "TwinBeatImager"]
 
 DT = 0.01
 """Control period of the simulated controller (s)."""
 
-FORCE_MARGIN_N = {"phantom": DEFAULT_MARGIN_N, "in-vivo": 0.25}
-"""Absolute margin of the force check per condition (N), at the relative margin of 100 %:
-set on the development catheters and patients (100-104 / 0-4), where no return stopped
-without a patient shift (the phantom needed up to 0.05 N, in vivo up to 0.10 N); too narrow
-for the held-out pairs (``docs/results.md``, Table II)."""
+EM_EVERY = 4
+"""Control cycles per EM reading of the tip pose kept with the operator's forces (Eq. F2):
+25 Hz, the rate at which the twin solves its contact while commands stream in (the
+controller reads the tracker's newest sample every cycle; readings within 0.5 mm of the last
+kept one are dropped by :class:`icenav.recovery.force.TipForceMap` either way)."""
 
 
 class HoldingRobot(SimulatedRobot):
@@ -178,18 +178,27 @@ class Bench:
                 window_s=cfg.refine_window_s,
                 rate_hz=cfg.cycle_rate_hz,
             )
-        self.forces = ForceMap()
+        self.force_record = ForceRecord()
+        """The operator's contact forces, per roadmap vertex (Eq. F1) and per measured tip
+        pose (Eq. F2), as the controller keeps them (:attr:`Controller.forces`)."""
+        self.forces = self.force_record.forces
         """Per roadmap vertex, the contact force of the operator's trace (N)."""
         self.force_sensor: TwinForceSensor | None = None
         """The robot's contact-force channel (None on today's twin, or switched off)."""
         if self.twin is not None and cfg.force_check and self.twin.plant.contact is not None:
             self.force_sensor = TwinForceSensor(self.twin.plant)
+        product = ControllerConfig()
         self.force_margin_n = float(
-            cfg.force_margin_n
-            if cfg.force_margin_n is not None
-            else FORCE_MARGIN_N.get(cfg.condition, DEFAULT_MARGIN_N)
+            cfg.force_margin_n if cfg.force_margin_n is not None else product.force_margin_n
         )
-        """Absolute margin of the force check (N)."""
+        """Absolute margin of the force check (N): the product's by default."""
+        self.force_margin_fraction = float(
+            cfg.force_margin_fraction
+            if cfg.force_margin_fraction is not None
+            else product.force_margin_fraction
+        )
+        """Relative margin of the force check: the product's by default."""
+        self._cycle = 0
         self.last_force_margin_use = 0.0
         """Largest fraction of the force margin the last return used (> 1: stopped)."""
         self.last_force_margin_needed_n = 0.0
@@ -220,13 +229,24 @@ class Bench:
 
     def drive(self, trace: Array) -> None:
         """Command an operator trace at the control rate; the contact force read at each
-        recorded state is the operator's (:class:`icenav.recovery.force.ForceMap`)."""
+        recorded state is the operator's, kept per vertex and (every :data:`EM_EVERY`
+        cycles) at the EM-measured tip pose, as the controller records it
+        (:class:`icenav.recovery.force.ForceRecord`)."""
         for q in trace:
             self.robot.command_position(q)
             self.record(q)
             if self.force_sensor is not None:
-                self.forces.record(self.roadmap.current_vertex, self.force_sensor.contact_force_n())
+                self._cycle += 1
+                tip = self.tip_pose_now() if self._cycle % EM_EVERY == 0 else None
+                self.force_record.record(
+                    self.roadmap.current_vertex, self.force_sensor.contact_force_n(), tip
+                )
             self.clock.advance(DT)
+
+    def tip_pose_now(self) -> Array | None:
+        """(4, 4) the EM-measured tip pose now (one sample, mm; None if it dropped out)."""
+        tip = self.tracker.measure_tip2base(1)
+        return None if tip is None else np.asarray(tip, np.float64)
 
     def acquire(self) -> BeatClip:
         """One ECG-gated beat (the catheter held still for a beat)."""
@@ -242,8 +262,9 @@ class Bench:
         return gated.acquire_beat()
 
     def go(self, view: View) -> None:
-        """Return to ``view`` along the roadmap (with the approach), as the controller does,
-        with the force check when the twin has contact (Eq. F1); a return the check stops
+        """Return to ``view`` along the roadmap (with the approach), as the controller's "go
+        to view" does, with its force check when the twin has contact (Eqs. F1, F2 and the
+        margins of :class:`icenav.control.config.ControllerConfig`); a return the check stops
         is noted (:attr:`last_stop`) and then finished without the check, as an operator
         who looked would, so the experiment goes on."""
         check = self.cfg.force_check and self.force_sensor is not None
@@ -255,34 +276,47 @@ class Bench:
         self.clock.advance(0.2)  # settle
 
     def _follow(self, view: View, *, check: bool) -> float:
-        """Plan from here to ``view`` and follow the path; the largest fraction of the force
-        margin used (excess over the trace's force / margin; > 1 stops a checked path)."""
+        """Plan from here to ``view`` and follow the path (the product's
+        :class:`icenav.control.tasks.PathTask`, its force references looked up as it goes:
+        :class:`icenav.recovery.force.PathForces` and the tip readings' index); the largest
+        fraction of the force margin used (excess over the reference / margin; > 1 stops a
+        checked path)."""
         q0 = np.asarray(self.robot.read_state().q, np.float64)
         path = self.roadmap.plan(q0, view, approach=True)
-        profile = None
-        if self.force_sensor is not None:
-            profile = self.forces.profile(self.roadmap, path)
-        cfg = self.cfg
-        margin = self.force_margin_n
+        margin, fraction = self.force_margin_n, self.force_margin_fraction
+        sensor = self.force_sensor
+        recorded = self.forces.n_recorded > 0
+        along = PathForces(self.forces, self.roadmap, path) if sensor and recorded else None
+        tips = self.force_record.tips
+        index = tips.index() if along is not None and tips.n_samples else None
         task = PathTask(
             path,
             np.array(ControllerConfig().max_velocity),
-            force_sensor=self.force_sensor if check else None,
-            force_profile=profile if check else None,
+            force_sensor=sensor if check and along is not None else None,
+            force_path=along if check else None,
             force_margin_n=margin,
-            force_margin_fraction=float(cfg.force_margin_fraction),
+            force_margin_fraction=fraction,
+            tip_forces=index,
+            tip_pose=self.tip_pose_now,
         )
         use = 0.0
         while True:
-            if self.force_sensor is not None and profile is not None:
-                f = float(self.force_sensor.contact_force_n() or 0.0)
-                rec, limit = force_limit(
-                    profile, task.path_index, margin, cfg.force_margin_fraction
-                )
-                use = max(use, (f - rec) / (limit - rec) if limit > rec else 0.0)
-                self.last_force_margin_needed_n = max(
-                    self.last_force_margin_needed_n, f - rec * (1.0 + cfg.force_margin_fraction)
-                )
+            if sensor is not None and along is not None:
+                f = float(sensor.contact_force_n() or 0.0)
+                ref = along.recorded(task.path_index)
+                if ref is not None and f > ref and index is not None:
+                    at_tip = index.reference(self.tip_pose_now())  # Eq. (F2)
+                    ref = ref if at_tip is None else max(ref, at_tip)
+                if ref is not None:
+                    use = max(
+                        use,
+                        (f - ref) / (margin + fraction * ref)
+                        if margin + fraction * ref > 0
+                        else 0.0,
+                    )
+                    self.last_force_margin_needed_n = max(
+                        self.last_force_margin_needed_n, f - ref * (1.0 + fraction)
+                    )
             q = task.next_command(np.asarray(self.robot.read_state().q), DT)
             if q is None:
                 break
