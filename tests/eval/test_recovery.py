@@ -227,11 +227,8 @@ def test_the_pose_stage_settings_follow_the_condition() -> None:
     assert math.degrees(ph.tolerance_rad) < 0.5
     assert iv.tolerance_mm == CYCLE_POSE_STAGE.tolerance_mm < 1.0
     assert math.degrees(iv.tolerance_rad) < 1.5
-    # "best" and "worse" rank the states as the targets weigh them: the rotation target
-    # counts as much as the position target
-    assert iv.rotation_weight_mm_per_rad * math.radians(1.5) == pytest.approx(1.0)
-    assert ph.rotation_weight_mm_per_rad * math.radians(0.5) == pytest.approx(0.5)
-    assert iv.end_at_best and iv.verify and ph.end_at_best and ph.verify
+    # both end at their best measured state, the start included
+    assert iv.end_at_best and ph.end_at_best
     assert ph.hold_s == pytest.approx(3.0 + ph.settle_s)
     assert iv.hold_s == pytest.approx(9.0 + iv.settle_s)
     own = cycle_stage_config(
