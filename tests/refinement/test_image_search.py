@@ -25,7 +25,7 @@ from icenav.sim.anatomy import EXAMPLE_VIEWS, default_phantom
 from icenav.sim.beat_imager import SimClock, SimulatedBeatImager
 from icenav.sim.plant import CatheterPlant
 from icenav.sim.ultrasound import ProbeConfig, UltrasoundRenderer
-from tests.support.refinement import BlobImager, TrackedPlant, reference
+from tests.support.refinement import BlobImager, JitterBlobImager, TrackedPlant, reference
 
 Array = NDArray[np.float64]
 DEG = math.pi / 180
@@ -298,3 +298,34 @@ def test_ecg_gated_beats_lie_in_the_last_beat_at_exact_phases(
         assert np.all(d < 1e-9)
         clip = imager.acquire_beat()
         assert len(clip.frames) == 4 and clip.images.shape[0] == 4
+
+
+def test_thresholds_follow_the_noise_of_the_saved_beats() -> None:
+    """min_improvement and stop_within are at least noise_factor times the standard
+    deviation of the saved beats' scores against each other (fixed with noise_factor 0 or
+    fewer than three saved beats); started at the optimum on beats that decorrelate, the
+    noise-aware search wanders off less than the fixed threshold lets it."""
+    robot, _, q_view = _blob_setup()
+    imager = JitterBlobImager(robot, q_view.copy(), noise=0.0, seed=1)
+    refs = imager.saved_beats(4)
+    task = RefinementTask(q_view, refs, imager)
+    assert math.isfinite(task.noise) and task.noise > 0.0
+    assert task.min_improvement == pytest.approx(max(0.003, 1.5 * task.noise))
+    assert task.min_improvement > 0.003
+    assert task.stop_within == pytest.approx(max(0.01, 1.5 * task.noise))
+    fixed = RefinementTask(q_view, refs, imager, config=RefinementConfig(noise_factor=0.0))
+    assert (fixed.min_improvement, fixed.stop_within) == (0.003, 0.01)
+    two = RefinementTask(q_view, refs[:2], imager)
+    assert math.isnan(two.noise) and two.min_improvement == 0.003
+    scale = np.array([DEG, DEG, DEG, 1.0])
+    drift = {}
+    for factor in (0.0, 1.5):
+        d = []
+        for seed in range(6):
+            robot, _, q_view = _blob_setup(seed)
+            imager = JitterBlobImager(robot, q_view.copy(), noise=0.0, seed=seed)
+            cfg = RefinementConfig(noise_factor=factor, stop_within=0.0, max_evaluations=16)
+            res = refine(robot, q_view, imager.saved_beats(4), imager, config=cfg)
+            d.append(float(np.linalg.norm((res.q_final - q_view) / scale)))
+        drift[factor] = float(np.mean(d))
+    assert drift[1.5] < 0.5 * drift[0.0]

@@ -4,6 +4,9 @@ and the conditions that build it."""
 
 from __future__ import annotations
 
+from types import SimpleNamespace
+from typing import Any
+
 import numpy as np
 import pytest
 
@@ -50,6 +53,57 @@ def test_the_robot_drives_a_twin_and_the_catheter_moves_with_the_heart() -> None
     np.testing.assert_array_equal(st.plant_tip2base, twin.plant.state.plant_tip2base)
     np.testing.assert_array_equal(twin.plant.pose_at(t0 + 3.0), st.tip2base)
     assert st.contact_force_n >= 0.0 and st.t == t0 + 3.0
+
+
+class _Resolving:
+    """An inner plant whose reported tip moves along x by ``offset(calls)`` mm: float
+    round-off of a re-solve (alternating 1e-13 mm) or a plant that still creeps."""
+
+    def __init__(self, plant: CatheterPlant, offset: Any) -> None:
+        self._plant = plant
+        self._offset = offset
+        self.calls = 0
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self._plant, name)
+
+    def move(self, q: np.ndarray) -> np.ndarray:
+        self.calls += 1
+        self._plant.move(q)
+        return np.asarray(self.state.tip2base)
+
+    @property
+    def state(self) -> Any:
+        st = self._plant.state
+        pose = np.array(st.tip2base)
+        pose[0, 3] += self._offset(self.calls)
+        return SimpleNamespace(tip2base=pose, inner=st)
+
+
+def test_a_held_set_point_is_no_new_move_but_a_settling_plant_is() -> None:
+    """The robot re-sends its set-point every cycle: a hold keeps the time of the last move
+    (the shaft settles, the contact history goes on) although the inner plant re-solves to a
+    pose that differs in the last bits; an inner plant that still moves by more than the
+    tolerance starts a new motor state."""
+    clock = SimClock()
+    twin = build_twin("in-vivo", 100, 0, clock.now)
+    plant = twin.plant
+    robot = SimulatedRobot(plant, clock=clock.now)
+    robot.enable()
+    view = np.asarray(twin.views["aortic_valve"])
+    for q in np.linspace(np.zeros(4), view, 100):
+        robot.command_position(q)
+        clock.advance(0.01)
+    arrived = plant.last_move_s
+    inner = plant.inner
+    plant.inner = _Resolving(inner, lambda k: 1e-13 * (k % 2))
+    for _ in range(50):
+        robot.command_position(view)
+        clock.advance(0.01)
+    assert plant.last_move_s == arrived
+    plant.inner = _Resolving(inner, lambda k: 1e-4 * k)
+    robot.command_position(view)
+    assert plant.last_move_s == clock.now() > arrived
 
 
 def test_the_tracker_averages_over_its_window() -> None:

@@ -3,6 +3,8 @@ Lujan's breathing curve, Shechter's displacement, and a phantom that follows bot
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -86,11 +88,53 @@ def test_the_physiological_heart_follows_rhythm_and_breathing() -> None:
     np.testing.assert_allclose(plain.displacement(pts, 1.1), no_resp.displacement(pts, 1.1))
 
 
+def test_the_beat_to_beat_shape_varies_as_drawn_and_is_continuous() -> None:
+    """(P6): at the R wave of beat k the shape displacement is the beat's own affine draw
+    (translation sd ``sigma_d`` per axis, gradient sd ``sigma_d / L``); it moves smoothly
+    within a beat to the next beat's draw (no jump at the R wave); the RR and amplitude
+    sequences are those of the same seed without it."""
+    p = RhythmParams(rr_sd=0.03, amplitude_sd=0.05, shape_sd_mm=1.2, shape_length_mm=30.0)
+    rhythm = CardiacRhythm(p, seed=4)
+    c = np.asarray(p.shape_centre_mm)
+    pts = c + np.array([[0.0, 0.0, 0.0], [30.0, 0.0, 0.0], [0.0, 30.0, 0.0], [0.0, 0.0, 30.0]])
+    d, g = [], []
+    for k in range(100, 1600):
+        u = rhythm.shape_displacement(pts, rhythm.beat_start(k))
+        d.append(u[0])
+        g.append((u[1:] - u[0]) / 30.0)
+    assert np.std(d) == pytest.approx(1.2, rel=0.06)
+    assert np.std(g) == pytest.approx(1.2 / 30.0, rel=0.06)
+    # consecutive beats at the same phase differ: their difference has sd sigma_d sqrt(2)
+    assert np.std(np.diff(np.asarray(d), axis=0)) == pytest.approx(1.2 * np.sqrt(2.0), rel=0.08)
+    k = 300
+    t1 = rhythm.beat_start(k + 1)
+    before = rhythm.shape_displacement(pts, t1 - 1e-6)
+    after = rhythm.shape_displacement(pts, t1 + 1e-6)
+    np.testing.assert_allclose(before, after, atol=1e-4)
+    plain = CardiacRhythm(replace(p, shape_sd_mm=0.0), seed=4)
+    for t in (3.1, 50.7, 400.2):
+        assert plain.phase(t) == rhythm.phase(t)
+        assert plain.amplitude(t) == rhythm.amplitude(t)
+        np.testing.assert_array_equal(plain.shape_displacement(pts, t), 0.0)
+    base = default_phantom()
+    heart = PhysiologicalHeart(base, rhythm, None)
+    without = PhysiologicalHeart(base, plain, None)
+    np.testing.assert_allclose(
+        heart.displacement(pts, 50.7) - without.displacement(pts, 50.7),
+        rhythm.shape_displacement(pts, 50.7),
+        atol=1e-12,
+    )
+
+
 def test_bad_parameters_are_refused() -> None:
     with pytest.raises(ConfigurationError, match="rr_sd"):
         RhythmParams(rr_sd=0.5)
     with pytest.raises(ConfigurationError, match="heart_rate_bpm"):
         RhythmParams(heart_rate_bpm=10.0)
+    with pytest.raises(ConfigurationError, match="shape_sd_mm"):
+        RhythmParams(shape_sd_mm=-0.1)
+    with pytest.raises(ConfigurationError, match="shape_length_mm"):
+        RhythmParams(shape_length_mm=0.0)
     with pytest.raises(ConfigurationError, match="shape_n"):
         BreathingParams(shape_n=5)
     with pytest.raises(ConfigurationError, match="rotation_axis"):

@@ -24,7 +24,7 @@ from icenav.sim.anatomy import (
     default_phantom,
     tip2anatomy,
 )
-from icenav.sim.ultrasound import Frame, ProbeConfig, UltrasoundRenderer
+from icenav.sim.ultrasound import SPECKLE_REDUCTION_MM, Frame, ProbeConfig, UltrasoundRenderer
 
 STILL = CardiacMotion(
     ventricular_contraction=0.0,
@@ -337,3 +337,16 @@ def test_bad_settings_are_rejected() -> None:
         ProbeConfig(frequency_mhz=40.0)
     with pytest.raises(ConfigurationError, match=r"unknown probe settings \['brightness'\]"):
         r.with_settings(brightness=3.0)
+
+
+def test_the_speckle_reduction_is_a_physical_width_whatever_the_picture_size() -> None:
+    """The display's smoothing is SPECKLE_REDUCTION_MM at every picture size (1.5 pixels of
+    the default 256-pixel picture, so those pictures are unchanged); an explicit width in
+    pixels is kept; a negative one is refused."""
+    assert ProbeConfig().speckle_reduction_sigma_px == pytest.approx(1.5)
+    for n in (64, 128, 512):
+        cfg = ProbeConfig(image_size=n)
+        assert cfg.speckle_reduction_sigma_px * cfg.pixel_mm == pytest.approx(SPECKLE_REDUCTION_MM)
+    assert ProbeConfig(image_size=64, speckle_reduction_px=2.0).speckle_reduction_sigma_px == 2.0
+    with pytest.raises(ConfigurationError, match="speckle_reduction_px"):
+        ProbeConfig(speckle_reduction_px=-1.0)

@@ -96,3 +96,30 @@ def true_error(plant: CatheterPlant, saved: Array) -> tuple[float, float]:
 
 
 __all__ = ["BlobImager", "TrackedPlant", "em_bench", "reference", "true_error"]
+
+
+class JitterBlobImager(BlobImager):
+    """A :class:`BlobImager` whose every beat sees the blob at the motor state plus a
+    random offset (sd ``jitter`` deg per knob / roll, mm of translation): beats that
+    decorrelate as the heart's beat-to-beat position does on the twin."""
+
+    jitter: float = 0.6
+
+    def _jittered(self, q: Array) -> Array:
+        scale = np.array([DEG, DEG, DEG, 1.0])
+        out: Array = q + self.rng.normal(0.0, self.jitter, 4) * scale
+        return out
+
+    def acquire_beat(self) -> BeatClip:
+        self.calls += 1
+        q = np.asarray(self.robot.read_state().q, np.float64)
+        return BeatClip(np.stack([self.image_at(self._jittered(q))] * 3), np.array([0, 1, 2]) / 3)
+
+    def saved_beats(self, n: int) -> list[BeatClip]:
+        """``n`` saved beats at the optimum, each with its own offset."""
+        return [
+            BeatClip(
+                np.stack([self.image_at(self._jittered(self.q_best))] * 3), np.array([0, 1, 2]) / 3
+            )  # fmt: skip
+            for _ in range(n)
+        ]

@@ -16,7 +16,9 @@ A compass (pattern) search with halving steps over (phi1, phi2, phi3, d4):
    and every trial move would shift the transmission's play for nothing.
 2. Poll the trial states ``q* +- step_j e_j`` (the last successful direction first). A
    trial is accepted when it beats ``s*`` by at least ``min_improvement`` (the similarity
-   is noisy: respiration and the heart beat change between beats).
+   is noisy: respiration and the heart beat change between beats). Both thresholds are at
+   least ``noise_factor`` times the score's beat-to-beat noise, measured on the saved beats
+   (the standard deviation of each against the others).
 3. When no trial is accepted the steps halve and ``q*`` is measured again (its score is the
    running mean of its measurements, so a lucky beat does not hold the search).
 4. Stop when every step is below ``min_step``, after ``max_evaluations`` beats, after
@@ -124,6 +126,12 @@ class RefinementConfig:
     consecutive-beat score (the ceiling, measured on the saved beats; needs >= 2 of them):
     the view is already recovered as well as the images can tell, and every trial move
     would shift the transmission's play (hysteresis) for nothing. NCC units; 0 disables."""
+    noise_factor: float = 1.5
+    """``min_improvement`` and ``stop_within`` are at least this many times the score's
+    beat-to-beat noise measured on the reference beats (the standard deviation of each
+    reference beat's score against the others; needs >= 3 of them): on images that
+    decorrelate from beat to beat a fixed threshold below that noise accepts lucky beats.
+    0: the fixed values only."""
     confirm: bool = True
     """Measure a trial that looks better a second time and accept it only if the mean of
     both beats still beats the incumbent by ``min_improvement`` (fewer false accepts)."""
@@ -168,6 +176,10 @@ class RefinementConfig:
         if not (math.isfinite(self.stop_within) and self.stop_within >= 0):
             raise ConfigurationError(
                 f"stop_within must be finite and >= 0 (NCC), got {self.stop_within}"
+            )
+        if not (math.isfinite(self.noise_factor) and self.noise_factor >= 0):
+            raise ConfigurationError(
+                f"noise_factor must be finite and >= 0, got {self.noise_factor}"
             )
         if not (math.isfinite(self.settle_s) and self.settle_s >= 0):
             raise ConfigurationError(f"settle_s must be finite and >= 0 s, got {self.settle_s}")
@@ -371,8 +383,15 @@ class RefinementTask:
         self._ref_blur = [blur_frames(r.images, cfg.blur_sigma_px, cfg.blur_factor) for r in refs]
         m = refs[0].mask
         self._mask = None if m is None else m[:: cfg.blur_factor, :: cfg.blur_factor]
-        self.ceiling = self._ceiling()
-        """Mean score of each reference beat against the others (NaN with one beat)."""
+        self.ceiling, self.noise = self._ceiling()
+        """Mean score of each reference beat against the others (NaN with one beat), and
+        the standard deviation of those scores (NaN with fewer than three beats)."""
+        k = cfg.noise_factor * self.noise if math.isfinite(self.noise) else 0.0
+        self.min_improvement = max(cfg.min_improvement, k)
+        """The improvement a trial must show (NCC units): the config's, or ``noise_factor``
+        times the reference beats' noise if larger."""
+        self.stop_within = max(cfg.stop_within, k) if cfg.stop_within > 0 else 0.0
+        """The start is at the view within this of the ceiling (NCC units; 0: never)."""
         self._hold_s = cfg.settle_s + imager.beat_duration_s
         # execution state
         self._gen = self._search()
@@ -409,14 +428,15 @@ class RefinementTask:
             )
         return max(self._score_one(clip, j) for j in range(len(self.references)))
 
-    def _ceiling(self) -> float:
+    def _ceiling(self) -> tuple[float, float]:
         if len(self.references) < 2:
-            return math.nan
+            return math.nan, math.nan
         values = []
         for i, ref in enumerate(self.references):
             others = [j for j in range(len(self.references)) if j != i]
             values.append(max(self._score_one(ref, j) for j in others))
-        return float(np.mean(values))
+        noise = float(np.std(values, ddof=1)) if len(values) >= 3 else math.nan
+        return float(np.mean(values)), noise
 
     def _score_one(self, clip: BeatClip, j: int) -> float:
         cfg = self.config
@@ -452,15 +472,15 @@ class RefinementTask:
         self._start_score = s
         self._record(best_q, s, True)
         self._best_q, self._best_score = best_q.copy(), best
-        gate = cfg.stop_within > 0 and math.isfinite(self.ceiling)
-        if gate and s < self.ceiling - cfg.stop_within and self._n_eval < cfg.max_evaluations:
+        gate = self.stop_within > 0 and math.isfinite(self.ceiling)
+        if gate and s < self.ceiling - self.stop_within and self._n_eval < cfg.max_evaluations:
             # one beat may be unlucky (respiration): a second beat before moving anything
             s2 = yield _Measure()
             assert s2 is not None
             best, n_best = 0.5 * (s + s2), 2
             self._best_score = best
             self._record(best_q, s2, True)
-        if gate and best >= self.ceiling - cfg.stop_within:
+        if gate and best >= self.ceiling - self.stop_within:
             self._status = RefinementStatus.AT_VIEW
             return
         last_ok: tuple[int, float] | None = None
@@ -485,13 +505,13 @@ class RefinementTask:
                     yield _Move(target)
                 s = yield _Measure()
                 assert s is not None
-                ok = s > best + cfg.min_improvement
+                ok = s > best + self.min_improvement
                 if ok and cfg.confirm and self._n_eval < cfg.max_evaluations:
                     self._record(trial, s, False)
                     s2 = yield _Measure()  # a second beat, same place
                     assert s2 is not None
                     s = 0.5 * (s + s2)
-                    ok = s > best + cfg.min_improvement
+                    ok = s > best + self.min_improvement
                     self._record(trial, s2, ok)
                 elif ok and cfg.confirm:
                     ok = False  # no budget left to confirm it

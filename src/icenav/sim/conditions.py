@@ -101,8 +101,8 @@ PHANTOM = Condition(
     rhythm=RhythmParams(amplitude_sd=0.02),
     breathing=None,
     shaft=ShaftParams(
-        axial_stiffness_n_per_mm=0.25,
-        torsional_stiffness_nmm_per_rad=20.0,
+        axial_stiffness_n_per_mm=0.30,
+        torsional_stiffness_nmm_per_rad=35.0,
         static_friction_n=0.3,
         kinetic_friction_n=0.1,
         static_friction_sd=0.5,
@@ -119,11 +119,16 @@ IN_VIVO = Condition(
     contact=ContactParams(),
     flow=FlowParams(),
     rhythm=RhythmParams(
-        rr_sd=0.03, rr_correlation=0.5, rsa=0.03, amplitude_sd=0.05, stroke_variation=0.10
+        rr_sd=0.03,
+        rr_correlation=0.5,
+        rsa=0.03,
+        amplitude_sd=0.05,
+        stroke_variation=0.10,
+        shape_sd_mm=1.0,
     ),
     breathing=BreathingParams(period_sd=0.05, amplitude_sd=0.10, baseline_sd=0.05),
     shaft=ShaftParams(
-        axial_stiffness_n_per_mm=0.15,
+        axial_stiffness_n_per_mm=0.10,
         torsional_stiffness_nmm_per_rad=15.0,
         static_friction_n=1.0,
         kinetic_friction_n=0.6,

@@ -40,6 +40,8 @@ __all__ = [
     "DisturbedPlant",
     "DisturbedState",
     "DisturbedTracker",
+    "HELD_POSE_TOL_MM",
+    "HELD_POSE_TOL_RAD",
     "TwinForceSensor",
     "mean_pose",
 ]
@@ -81,6 +83,22 @@ def _rigid_z(translation_mm: float, roll_rad: float) -> Array:
     c, s = math.cos(roll_rad), math.sin(roll_rad)
     return np.array(
         [[c, -s, 0.0, 0.0], [s, c, 0.0, 0.0], [0.0, 0.0, 1.0, translation_mm], [0, 0, 0, 1.0]]
+    )
+
+
+HELD_POSE_TOL_MM = 1e-6
+"""A held command whose inner plant re-solves to a tip within this distance (mm) ..."""
+HELD_POSE_TOL_RAD = 1e-9
+"""... and this rotation (rad, largest entry of the rotation matrices' difference) is no new
+motor state: the re-solve of an unchanged plant differs by about 1e-15 mm, a settling one
+moves by far more."""
+
+
+def _moved(pose: Array, before: Array) -> bool:
+    """Whether the inner plant's tip (4, 4) moved beyond the held-pose tolerances."""
+    return bool(
+        np.max(np.abs(pose[:3, 3] - before[:3, 3])) > HELD_POSE_TOL_MM
+        or np.max(np.abs(pose[:3, :3] - before[:3, :3])) > HELD_POSE_TOL_RAD
     )
 
 
@@ -154,8 +172,12 @@ class DisturbedPlant:
         if q.shape == (4,) and np.array_equal(q, self._q):
             # a held command: the motors stay, time goes on (the plant may still settle)
             pose = np.asarray(self.inner.state.tip2base, np.float64)
-            if not np.array_equal(pose, self._plant_pose):
+            if _moved(pose, self._pose_at_move):
                 self._new_motor_state(q, t)
+            elif not np.array_equal(pose, self._plant_pose):
+                # round-off of the re-solve: the plant's latest pose, the same motor state
+                self._set_inner_state(self.inner.state)
+                self._cache = None
             return self._pose_for_move(t)
         if self.shaft is not None:
             self.shaft.drive(float(q[3]), float(q[2]), t)
@@ -202,11 +224,14 @@ class DisturbedPlant:
         self._q.setflags(write=False)
         self._t_move = t
         self._moves += 1
-        inner_state = self.inner.state
+        self._set_inner_state(self.inner.state)
+        self._pose_at_move = self._plant_pose
+        self._shape: Any = None
+
+    def _set_inner_state(self, inner_state: Any) -> None:
         self._inner_state = inner_state
         self._plant_pose = np.array(inner_state.tip2base, np.float64)
         self._plant_pose.setflags(write=False)
-        self._shape: Any = None
 
     def _pose_for_move(self, t: float) -> Array:
         """The pose :meth:`move` returns: solved at most every ``solve_period_s``."""

@@ -17,6 +17,11 @@ Equations (numbered as in ``docs/digital-twin.md``, section 9):
 * (P5) The heart moves rigidly with the level:
   ``u_resp(x, t) = r(t) (d + theta (axis x (x - c)))``: a translation ``d`` (mm) and a small
   rotation ``theta`` (rad) about ``axis`` through ``c``, per unit level (a nominal breath).
+* (P6) The heart's position and shape at a given phase vary from beat to beat:
+  ``u_beat(x, t) = (1 - s) D_k(x) + s D_k+1(x)``, ``s = (1 - cos(pi phi)) / 2``, with the
+  affine field ``D_k(x) = d_k + G_k (x - c)`` drawn per beat (``d_k`` ~ N(0, sigma_d^2) per
+  axis, ``G_k`` entries ~ N(0, (sigma_d / L)^2)): beat-to-beat variation of the filling and
+  of the contraction's geometry, continuous across the R wave.
 
 All draws come from ``numpy.random.default_rng`` seeded with the patient's seed; beats and
 breaths are generated in order, so a value depends only on the seed and the time asked.
@@ -73,6 +78,14 @@ class RhythmParams:
     stroke_variation: float = 0.0
     """Respiratory variation of the contraction amplitude: reduced by this fraction at a
     nominal breath's peak (P3)."""
+    shape_sd_mm: float = 0.0
+    """Beat-to-beat standard deviation of the heart's position at a fixed phase, per axis
+    (mm, ``sigma_d`` of P6); 0: every beat the same."""
+    shape_length_mm: float = 40.0
+    """Length ``L`` (mm) over which the beat-to-beat shape field varies by ``sigma_d`` (P6):
+    about the right atrium's long axis (4.2 cm, Bommer et al. 1979, cited by the paper)."""
+    shape_centre_mm: tuple[float, float, float] = (30.0, -10.0, 10.0)
+    """Centre ``c`` of the beat-to-beat shape field (anatomy frame, mm): mid-heart (P6)."""
 
     def __post_init__(self) -> None:
         hr = check_positive(self.heart_rate_bpm, "heart_rate_bpm", "beats/min")
@@ -83,6 +96,11 @@ class RhythmParams:
         _fraction(self.rsa, "rsa", 0.3)
         _fraction(self.amplitude_sd, "amplitude_sd", 0.3)
         _fraction(self.stroke_variation, "stroke_variation", 0.5)
+        sd = float(check_finite(self.shape_sd_mm, "shape_sd_mm", "mm"))
+        if not 0.0 <= sd <= 5.0:
+            raise ConfigurationError(f"shape_sd_mm must be in [0, 5] mm, got {sd} mm")
+        check_positive(self.shape_length_mm, "shape_length_mm", "mm")
+        check_finite(self.shape_centre_mm, "shape_centre_mm", "mm")
 
     @property
     def period_s(self) -> float:
@@ -232,6 +250,10 @@ class CardiacRhythm:
         self._starts = [_T_START]
         self._rr: list[float] = []
         self._amp: list[float] = []
+        # P6 draws come from their own stream: the RR and amplitude sequences of a seed are
+        # the same with or without the shape variation
+        self._shape_rng = np.random.default_rng([int(seed), 0xC6])
+        self._shape: list[Array] = []
         self._e = 0.0
         self._starts_arr = np.asarray(self._starts)
 
@@ -255,6 +277,7 @@ class CardiacRhythm:
             amp = max(0.0, 1.0 + p.amplitude_sd * g[1]) * (1.0 - p.stroke_variation * r)
             self._rr.append(rr)
             self._amp.append(amp)
+            self._shape.append(self._shape_rng.standard_normal(12))
             self._starts.append(start + rr)
             grew = True
         if grew:
@@ -283,6 +306,21 @@ class CardiacRhythm:
     def amplitude(self, t: float) -> float:
         """Contraction amplitude a_k (P3) of the beat at ``t`` (1 = the phantom's nominal)."""
         return self._amp[self.beat_index(t)]
+
+    def shape_displacement(self, points: Array, t: float) -> Array:
+        """Eq. (P6): the beat-to-beat shape displacement (mm) of ``points`` (N, 3) at ``t``
+        (s), anatomy frame; zeros when ``shape_sd_mm`` is 0."""
+        p = self.params
+        if p.shape_sd_mm == 0.0:
+            return np.zeros_like(points)
+        k = self.beat_index(t)
+        self.beat_start(k + 1)  # draws beat k + 1
+        s = 0.5 * (1.0 - math.cos(math.pi * self.phase(t)))
+        g = (1.0 - s) * self._shape[k] + s * self._shape[k + 1]
+        d = p.shape_sd_mm * g[:3]
+        grad = (p.shape_sd_mm / p.shape_length_mm) * g[3:].reshape(3, 3)
+        out: Array = d + (points - np.asarray(p.shape_centre_mm)) @ grad.T
+        return out
 
     def time_at_phase(self, k: int, phase: float) -> float:
         """Time (s) of cardiac phase ``phase`` in beat ``k``."""
@@ -334,8 +372,11 @@ class PhysiologicalHeart(HeartPhantom):
         return self.rhythm.phase(float(t))
 
     def displacement(self, points: Array, t: float) -> Array:
-        """Cardiac displacement scaled by the beat's amplitude (P3) plus breathing (P5)."""
+        """Cardiac displacement scaled by the beat's amplitude (P3), the beat's shape
+        variation (P6) and breathing (P5)."""
         u = self.rhythm.amplitude(float(t)) * super().displacement(points, t)
+        if self.rhythm.params.shape_sd_mm > 0.0:
+            u = u + self.rhythm.shape_displacement(points, float(t))
         if self.breathing is not None:
             u = u + self.breathing.displacement(points, float(t))
         out: Array = u

@@ -52,6 +52,7 @@ __all__ = [
     "Frame",
     "ProbeConfig",
     "RoiObservation",
+    "SPECKLE_REDUCTION_MM",
     "UltrasoundRenderer",
 ]
 
@@ -124,9 +125,11 @@ class ProbeConfig:
     """Cells of the (periodic) scatterer texture along x, y, z (co-prime periods)."""
     seed: int = 0
     """Seed of the scatterer texture, the clutter and the electronic noise."""
-    speckle_reduction_px: float = 1.5
+    speckle_reduction_px: float | None = None
     """Sigma (pixels) of the display's speckle-reduction smoothing of the log image (as
-    scanners' speckle-reduction filters); 0: off."""
+    scanners' speckle-reduction filters); 0: off; None: :data:`SPECKLE_REDUCTION_MM` at this
+    picture's pixel size (the filter acts on the scanner's image, whose grain does not depend
+    on the picture size we render)."""
 
     def __post_init__(self) -> None:
         ang = check_positive(self.sector_angle, "sector_angle", "rad")
@@ -155,6 +158,15 @@ class ProbeConfig:
             check_positive(getattr(self, name), name, unit)
         if self.noise_level < 0:
             raise ConfigurationError(f"noise_level must be >= 0, got {self.noise_level}")
+        if self.speckle_reduction_px is not None:
+            _check_range(self.speckle_reduction_px, "speckle_reduction_px", "px", 0.0, 20.0)
+
+    @property
+    def speckle_reduction_sigma_px(self) -> float:
+        """Sigma (pixels) of the speckle-reduction smoothing at this picture size."""
+        if self.speckle_reduction_px is not None:
+            return float(self.speckle_reduction_px)
+        return SPECKLE_REDUCTION_MM / self.pixel_mm
 
     @property
     def pixel_mm(self) -> float:
@@ -186,6 +198,10 @@ class ProbeConfig:
 
 
 _TGC_REFERENCE_DB_CM_MHZ = 0.35
+SPECKLE_REDUCTION_MM = 1.5 * 2.0 * 140.0 * math.sin(math.pi / 4.0) / 256.0
+"""Sigma (mm, about 1.16) of the display's speckle-reduction smoothing: 1.5 pixels of the
+default 256-pixel picture of the 90-deg, 140-mm sector (its pictures are unchanged); smaller
+or larger pictures keep the same physical filter, as the gym's pictures already did."""
 _BANK_SIZE = 8
 _FWHM_PER_SIGMA = 2.0 * math.sqrt(2.0 * math.log(2.0))
 
@@ -584,8 +600,9 @@ class UltrasoundRenderer:
         n = cfg.image_size
         img = np.zeros(n * n, dtype=np.float32)
         img[self._pix_inside] = np.einsum("ki,ki->i", self._sc_w, flat[self._sc_idx])
-        if cfg.speckle_reduction_px > 0.0:
-            img = ndi.gaussian_filter(img.reshape(n, n), cfg.speckle_reduction_px).ravel()
+        sigma_px = cfg.speckle_reduction_sigma_px
+        if sigma_px > 0.0:
+            img = ndi.gaussian_filter(img.reshape(n, n), sigma_px).ravel()
             img[self._outside] = 0.0
         lab_flat = np.full(n * n, -1, dtype=np.int8)
         lab_flat[self._pix_inside] = labels[self._sc_nearest]
