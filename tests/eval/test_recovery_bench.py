@@ -37,8 +37,9 @@ def test_a_plugin_without_a_clock_is_refused(tmp_path: Path) -> None:
 
 
 def test_a_held_set_point_is_no_new_move_of_the_catheter() -> None:
-    """The controller re-sends its set-point every cycle; the disturbed twin must keep the
-    catheter's time history over a hold (the refinement's 9-s window of complete breaths)."""
+    """The controller re-sends its set-point every cycle; the bench's disturbed twin must keep
+    the catheter's time history over a hold (the refinement's 9-s window of complete
+    breaths): before the twin's fix every re-sent set-point restarted it."""
     bench = Bench(RecoveryConfig(seed=100, patient=0, condition="in-vivo", image_size=32))
     plant = bench.twin.plant  # type: ignore[union-attr]
     q = np.array([0.05, -0.1, 0.2, 1.0])

@@ -11,7 +11,6 @@ from numpy.typing import NDArray
 
 from icenav._typing import Array
 from icenav.control.controller import ControllerConfig, PathTask
-from icenav.devices.robot import RobotStatus
 from icenav.devices.sim_robot import SimulatedRobot
 from icenav.geometry.se3 import pose_mean
 from icenav.recovery.beats import BeatClip
@@ -30,7 +29,7 @@ from icenav.sim.plugins import make_plant
 from icenav.sim.tracker import EMTracker
 from icenav.sim.ultrasound import ProbeConfig, UltrasoundRenderer
 
-__all__ = ["Bench", "DT", "EM_EVERY", "HoldingRobot", "TwinBeatImager"]
+__all__ = ["Bench", "DT", "EM_EVERY", "TwinBeatImager"]
 
 DT = 0.01
 """Control period of the simulated controller (s)."""
@@ -40,31 +39,6 @@ EM_EVERY = 4
 25 Hz, the rate at which the twin solves its contact while commands stream in (the
 controller reads the tracker's newest sample every cycle; readings within 0.5 mm of the last
 kept one are dropped by :class:`icenav.recovery.force.TipForceMap` either way)."""
-
-
-class HoldingRobot(SimulatedRobot):
-    """A :class:`SimulatedRobot` whose servos hold a repeated set-point without moving the
-    plant again: a controller sends its set-point every cycle, and the same set-point is no
-    move of the catheter.
-
-    The disturbed twin keeps the catheter's time history (breathing, beats, the shaft's
-    stick-slip) from its last move on; a re-sent equal set-point whose plant pose differs by
-    a rounding (1e-15 mm) counted as a new move there, so every hold of the refinement
-    (the 9-s window of the cycle-averaged estimate, Eq. R1) read the instantaneous pose at
-    the end of the hold instead of its complete breaths (``docs/results.md``, Table II)."""
-
-    def command_position(self, q_motor: Any) -> None:
-        """As :meth:`SimulatedRobot.command_position`; a set-point equal to the last accepted
-        one while enabled is a hold (the plant is not moved again)."""
-        state = self.read_state()
-        q = np.asarray(q_motor, np.float64)
-        if (
-            state.status is RobotStatus.ENABLED
-            and q.shape == (4,)
-            and np.array_equal(q, np.asarray(state.q, np.float64))
-        ):
-            return
-        super().command_position(q_motor)
 
 
 class TwinBeatImager(SimulatedBeatImager):
@@ -205,7 +179,7 @@ class Bench:
         """The absolute margin (N) the last return needed not to stop, at the relative one."""
         self.last_stop: str | None = None
         """Why the last return stopped (the force check), None if it arrived."""
-        self.robot = HoldingRobot(self.plant, clock=self.clock.now)
+        self.robot = SimulatedRobot(self.plant, clock=self.clock.now)
         self.robot.enable()
         self.roadmap = Roadmap(epsilon=1.0)
         self.operator = ScriptedOperator(seed=cfg.seed)
