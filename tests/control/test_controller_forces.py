@@ -1,6 +1,6 @@
 """The product's force check end to end on the twin: the controller records the operator's
 contact forces, the session stores them, a restarted session checks its returns against them
-(Eqs. F1, F2 of icenav.recovery.force)."""
+(Eqs. F1, F2, F4, F5 of icenav.recovery.force)."""
 
 from __future__ import annotations
 
@@ -77,10 +77,12 @@ def test_a_restarted_session_keeps_the_forces_and_stops_a_return_into_a_moved_pa
     _jog_to(ctrl, clock, np.zeros(4), 2.4)
     recorded = ctrl.forces.forces.n_recorded
     assert recorded > 50 and ctrl.forces.tips.n_samples > 20  # with the tracked tip
+    assert ctrl.forces.rest_tip is not None  # where the operator left the tip (Eq. F5)
     assert f"{recorded} states" in ctrl.snapshot().force_check
     assert "done" in _go(ctrl, clock, "mitral")  # the patient where it was: it arrives
     np.testing.assert_allclose(robot.read_state().q, ctrl.views.get("mitral").q, atol=1e-9)
     assert ctrl.forces.forces.n_recorded == recorded  # a return is not the operator's trace
+    assert ctrl.forces.rest_tip is None  # the return moved the motors: no rest pose
     recorder.flush()  # committed; then the process dies: the connection drops mid-batch
     ids = np.arange(ctrl.roadmap.n_vertices)
     before, tips_before = ctrl.forces.forces.at(ids), ctrl.forces.tips.samples()
@@ -100,6 +102,41 @@ def test_a_restarted_session_keeps_the_forces_and_stops_a_return_into_a_moved_pa
     message = _go(restarted, clock, "mitral")
     assert "contact force" in message and "patient" in message, message
     assert not np.allclose(robot.read_state().q, views.get("mitral").q)  # held on the way
+
+
+def test_a_return_does_not_start_after_the_patient_carried_the_tip_away() -> None:
+    """Eq. (F5) in the controller: the operator drives to a view and half way back with
+    the tracker (the twin's disturbed pose); the patient moves 10 mm and carries the
+    catheter; "go to view" stops as it starts and says why. Without the shift the return
+    goes on."""
+    for shift in (False, True):
+        clock = Clock()
+        twin = build_twin("phantom", 100, 0, clock)
+        robot = SimulatedRobot(twin.plant, clock=clock)
+        tracker = DisturbedTracker(exact_tracker(twin.plant.inner, clock), twin.plant)
+        tracker.start()
+        ctrl = Controller(robot, ControllerConfig(), clock=clock,
+                          force_sensor=TwinForceSensor(twin.plant), tracker=tracker)  # fmt: skip
+        q_view = np.asarray(twin.views["mitral_valve"], np.float64)
+        ctrl.request_mode(Mode.KNOB)
+        _jog_to(ctrl, clock, q_view, 1.2)
+        ctrl.save_view("mitral")
+        _jog_to(ctrl, clock, 0.5 * q_view, 0.6)
+        for _ in range(20):
+            _cycle(ctrl, clock)
+        q_left = np.asarray(robot.read_state().q).copy()
+        if shift:
+            twin.shift_patient([-10.0, 0.0, 0.0])
+        ctrl.goto_view("mitral")
+        for _ in range(50):
+            _cycle(ctrl, clock)
+        step = np.abs(np.asarray(robot.read_state().q) - q_left)
+        message = ctrl.snapshot().message
+        if shift:  # stopped in the path's first 0.2 s, still where the operator left it
+            assert "as it started" in message and "motors still" in message, message
+            assert ctrl.task is None and np.all(step < [0.05, 0.05, 0.05, 0.5])
+        else:
+            assert step.max() > 0.05 and "as it started" not in message, message
 
 
 def test_without_a_force_channel_there_is_no_check_and_the_operator_is_told() -> None:

@@ -1,4 +1,4 @@
-"""Go-to-view paths: the force check of a return, Eq. (F1) of icenav.recovery.force."""
+"""Go-to-view paths: the force check of a return, Eqs. (F1, F4) of icenav.recovery.force."""
 
 from __future__ import annotations
 
@@ -42,9 +42,19 @@ def test_a_path_stops_when_the_force_exceeds_the_trace_plus_the_margin() -> None
     assert isinstance(_run(ok)[0], Done)
     over = PathTask(path, V_MAX, force_sensor=_Sensor([0.1] * 20 + [0.2]),
                     force_profile=np.full(3, 0.05), force_margin_n=0.04,
-                    force_margin_fraction=0.4)  # fmt: skip
+                    force_margin_fraction=0.4, force_hold_s=0.0)  # fmt: skip
     status, k = _run(over)
     assert isinstance(status, Failed) and k == 20
+    held = PathTask(path, V_MAX, force_sensor=_Sensor([0.1] * 20 + [0.2]),
+                    force_profile=np.full(3, 0.05), force_margin_n=0.04,
+                    force_margin_fraction=0.4, force_hold_s=0.25)  # fmt: skip
+    status_held, k_held = _run(held)  # Eq. (F4): above the limit for 0.25 s, then stops
+    assert isinstance(status_held, Failed) and k_held == 20 + 25
+    assert "for 0.25 s" in status_held.reason
+    spike = PathTask(path, V_MAX, force_sensor=_Sensor([0.1] * 20 + [0.2] * 24 + [0.1]),
+                     force_profile=np.full(3, 0.05), force_margin_n=0.04,
+                     force_margin_fraction=0.4, force_hold_s=0.25)  # fmt: skip
+    assert isinstance(_run(spike)[0], Done)  # above the limit 0.23 s: a slip, not a shift
     assert "0.20 N" in status.reason and "0.05 N" in status.reason and "margin" in status.reason
     assert over.failure == status.reason
     assert isinstance(over.step(np.zeros(4), 0.01), Failed)  # stays stopped: the robot holds
@@ -143,3 +153,55 @@ def test_the_return_holds_at_its_start_until_the_tip_index_is_built() -> None:
     assert task.progress == 0.0
     index.set_result(tips.index())
     assert isinstance(_run(task)[0], Done)  # 1.5 N <= 1.0 + 0.1 + 50 %: the tip's reference
+
+
+def test_a_return_does_not_start_when_the_tip_moved_with_the_motors_still() -> None:
+    """Eq. (F5) on the twin: the operator drives to a view and stops; the patient moves
+    10 mm on the table and the vessel and walls carry the catheter: the tracked tip is no
+    longer where the operator left it, and the return does not start. Without the shift it
+    starts (and arrives)."""
+    for shift in (False, True):
+        clock = SimClock()
+        twin = build_twin("phantom", 100, 0, clock.now)
+        robot = SimulatedRobot(twin.plant, clock=clock.now)
+        robot.enable()
+        roadmap = Roadmap(epsilon=1.0)
+        q_view = np.asarray(twin.views["mitral_valve"])
+        for q in np.linspace(np.zeros(4), q_view, 120):  # the operator's trace
+            robot.command_position(q)
+            roadmap.add(q)
+            clock.advance(0.02)
+        rest = twin.tracker.measure_tip2base(1)[:3, 3]
+        if shift:
+            twin.shift_patient([-10.0, 0.0, 0.0])
+        clock.advance(1.0)
+        path = roadmap.plan(q_view, np.zeros(4))
+        tracker = twin.tracker
+        task = PathTask(path, V_MAX, rest_tip=rest, drift_limit_mm=5.0,
+                        tip_pose=lambda tracker=tracker: tracker.measure_tip2base(1))  # fmt: skip
+        status = task.step(np.asarray(robot.read_state().q), 0.02)
+        if shift:
+            assert isinstance(status, Failed) and "as it started" in status.reason, status
+            assert "mm with the motors still" in status.reason and task.progress == 0.0
+        else:
+            assert isinstance(status, Running), status
+
+
+def test_the_return_holds_at_its_start_while_it_checks_the_tip_drift() -> None:
+    """Eq. (F5) is checked before the path moves: it holds at its first state for
+    DRIFT_WINDOW_S (a tracker sample may be a frame old), then goes on."""
+    from icenav.recovery.force import DRIFT_WINDOW_S
+
+    path = np.zeros((3, 4))
+    path[:, 3] = [0.0, 1.0, 2.0]
+    at = np.eye(4)
+    at[:3, 3] = [1.0, 0.0, 40.0]
+    task = PathTask(path, V_MAX, rest_tip=np.array([0.0, 0.0, 40.0]), drift_limit_mm=5.0,
+                    tip_pose=lambda: at)  # fmt: skip
+    held = 0
+    while isinstance(status := task.step(np.zeros(4), 0.01), Running) and task.progress == 0:
+        assert np.array_equal(status.q, path[0])
+        held += 1
+    n = round(DRIFT_WINDOW_S / 0.01)
+    assert n <= held <= n + 1  # 0.1 s of 0.01 s cycles (one more when the sum rounds below)
+    assert isinstance(_run(task)[0], Done)

@@ -1,10 +1,22 @@
-"""The force study's operating point: chosen on one set of records, applied to another."""
+"""The force study: the operating point chosen on one set of records, applied to another;
+recorded returns scored as the product checks them."""
 
 from __future__ import annotations
 
+import math
 from typing import Any
 
-from icenav.eval.force_study import operating_point, score
+import numpy as np
+import pytest
+
+from icenav.eval.force_study import (
+    RAW_COLUMNS,
+    CheckPoint,
+    check_returns,
+    operating_point,
+    score,
+    tally,
+)
 
 
 def _rec(shift: float, needed: dict[str, float]) -> dict[str, Any]:
@@ -27,3 +39,35 @@ def test_the_point_keeps_false_alarms_under_the_bound_and_stops_the_most_shifts(
     assert (fa, n) == (0, 20) and caught == {20.0: (5, 10)}
     (fa_loose, _), _ = score(records, "motor", "1", 0.5)
     assert fa_loose == 1
+
+
+def _raw_return(forces: list[float], tips: list[float], f1_ref: float) -> np.ndarray:
+    """Rows of RAW_COLUMNS for a return: forces (N), tip x (mm), the motor reference."""
+    rows = np.full((len(forces), len(RAW_COLUMNS)), np.nan)
+    rows[:, 5] = forces
+    rows[:, 6], rows[:, 7], rows[:, 8] = tips, 0.0, 40.0
+    rows[:, 9:12] = [0.0, 0.0, 1.0]
+    rows[:, 14] = f1_ref
+    return rows
+
+
+def test_the_study_scores_a_recorded_return_as_the_product_checks_it() -> None:
+    """check_returns on raw rows: the operator pushed 1.0 N with the tip at x = 0; a return
+    over 1.5 N at x = 0 for 0.5 s stops only where the tip reference does not cover it, and
+    a return that starts 8 mm from where the operator left the tip stops by Eq. (F5)."""
+    op = _raw_return([1.0] * 10, [0.0] * 10, math.nan)
+    ok = _raw_return([1.5] * 80, [0.0] * 80, 0.2)  # within 50 % + 0.05 N of the tip's 1.0
+    far = _raw_return([1.5] * 80, [5.0] * 80, 0.2)  # tip 5 mm off: the motor's 0.2 N only
+    short = _raw_return([0.2] * 10 + [1.5] * 40 + [0.2] * 30, [5.0] * 80, 0.2)  # 0.39 s
+    drifted = _raw_return([0.0] * 80, [8.0] * 80, 0.2)
+    rows = np.vstack([op, ok, far, short, drifted])
+    spans = [(10 + 80 * k, 90 + 80 * k, 10) for k in range(4)]
+    raw = {"rows": rows, "returns": np.array(spans), "shifts": np.zeros((4, 3)),
+           "targets": np.zeros(4)}  # fmt: skip
+    pt = CheckPoint(radius_mm=4.0, margin_fraction=0.5, margin_n=0.05, hold_s=0.5, drift_mm=5.0)
+    checks = check_returns(raw, pt)
+    assert [c.stopped(pt) for c in checks] == [False, True, False, True]
+    assert checks[0].needed_n == pytest.approx(0.0)
+    assert checks[1].needed_n == pytest.approx(1.5 - 1.5 * 0.2)
+    assert checks[3].drift_mm == pytest.approx(8.0) and checks[3].needed_n < 0
+    assert "false alarms 2/4" in tally(checks, pt)

@@ -1,4 +1,4 @@
-"""The operator's contact forces per roadmap vertex and the limit of a return, Eq. (F1)."""
+"""The operator's contact forces per roadmap vertex and the limit of a return, Eqs. (F1)-(F5)."""
 
 from __future__ import annotations
 
@@ -7,6 +7,7 @@ import pytest
 
 from icenav.errors import ConfigurationError, ShapeError
 from icenav.recovery.force import (
+    ForceCheck,
     ForceMap,
     ForceRecord,
     PathForces,
@@ -16,6 +17,7 @@ from icenav.recovery.force import (
     force_excess,
     force_limit,
     shape_reference,
+    tip_drift,
 )
 from icenav.recovery.roadmap import Roadmap
 
@@ -141,3 +143,48 @@ def test_a_still_catheter_adds_no_tip_rows_unless_the_force_rises() -> None:
     tips.record(_pose([1.0, 0, 0]), 0.1)  # moved: kept
     assert tips.n_samples == 3
     assert tips.reference(_pose([0, 0, 0])) == pytest.approx(0.9)
+
+
+def test_the_hold_stops_exactly_where_the_window_minimum_first_exceeds_the_margin() -> None:
+    """Eq. (F4) streamed (ForceCheck) against its batch form (the study's sliding-window
+    minimum of F - (1 + c) F_ref): the same first stop on random series."""
+    rng = np.random.default_rng(7)
+    dt, hold, c, m = 0.01, 0.05, 0.5, 0.05
+    w = round(hold / dt) + 1
+    for _ in range(200):
+        ref = rng.uniform(0.0, 1.0, 60)
+        f = (1 + c) * ref + m + rng.normal(0.02, 0.05, 60)
+        check = ForceCheck(margin_n=m, margin_fraction=c, hold_s=hold)
+        streamed = next((k for k in range(60) if check.update(f[k], ref[k], dt)), None)
+        ex = f - (1 + c) * ref
+        windows = np.lib.stride_tricks.sliding_window_view(ex, w).min(axis=1)
+        batch = next((k + w - 1 for k in range(len(windows)) if windows[k] > m), None)
+        assert streamed == batch
+    check = ForceCheck(margin_n=0.1, margin_fraction=0.0, hold_s=0.0)
+    stop = check.update(0.5, 0.2, dt)  # hold 0: the first cycle above stops (F1 as it was)
+    assert stop is not None and stop.limit_n == pytest.approx(0.3) and stop.held_s == 0.0
+    assert ForceCheck(hold_s=0.0).update(5.0, None, dt) is None  # no reference: no check
+    with pytest.raises(ConfigurationError):
+        ForceCheck(hold_s=-1.0)
+
+
+def test_the_rest_tip_is_where_the_operator_last_moved_and_anything_else_forgets_it() -> None:
+    """Eq. (F5): the tip where the operator's last motion left it; a return or refinement
+    moving the motors (operator False) or a motion without a pose forgets it."""
+    rec = ForceRecord()
+    assert rec.rest_tip is None
+    pose = np.eye(4)
+    pose[:3, 3] = [1.0, 2.0, 40.0]
+    rec.note_motion(pose, operator=True)
+    np.testing.assert_array_equal(rec.rest_tip, [1.0, 2.0, 40.0])
+    moved = pose.copy()
+    moved[1, 3] += 6.0
+    assert tip_drift(rec.rest_tip, moved) == pytest.approx(6.0)
+    assert tip_drift(rec.rest_tip, None) is None
+    rec.note_motion(pose, operator=False)
+    assert rec.rest_tip is None and tip_drift(rec.rest_tip, moved) is None
+    rec.note_motion(pose, operator=True)
+    rec.note_motion(None, operator=True)
+    assert rec.rest_tip is None
+    with pytest.raises(ShapeError):
+        rec.note_motion(np.eye(3), operator=True)

@@ -10,7 +10,12 @@ import numpy as np
 from icenav._validation import check_finite, check_positive
 from icenav.errors import ConfigurationError
 from icenav.geometry.kinematics import DEFAULT_GEOMETRY, CatheterGeometry
-from icenav.recovery.force import DEFAULT_MARGIN_FRACTION, DEFAULT_MARGIN_N
+from icenav.recovery.force import (
+    CHECK_MARGIN_FRACTION,
+    CHECK_MARGIN_N,
+    DEFAULT_DRIFT_MM,
+    DEFAULT_HOLD_S,
+)
 
 __all__ = ["ControllerConfig"]
 
@@ -63,11 +68,15 @@ class ControllerConfig:
     for this long (s)."""
     geometry: CatheterGeometry = DEFAULT_GEOMETRY
     """Catheter geometry and joint limits (the motor limits equal the model limits)."""
-    force_margin_n: float = DEFAULT_MARGIN_N
+    force_margin_n: float = CHECK_MARGIN_N
     """Absolute margin of a return's force check (N), Eqs. (F1, F2) of
     :mod:`icenav.recovery.force` (with a force channel only)."""
-    force_margin_fraction: float = DEFAULT_MARGIN_FRACTION
+    force_margin_fraction: float = CHECK_MARGIN_FRACTION
     """Relative margin of a return's force check (fraction of the recorded force)."""
+    force_hold_s: float = DEFAULT_HOLD_S
+    """Time the force must stay above its limit before a return stops (s), Eq. (F4)."""
+    force_drift_mm: float = DEFAULT_DRIFT_MM
+    """Largest tip motion with the motors still before a return starts (mm), Eq. (F5)."""
     refine_window_s: float = 9.0
     """Window of the cycle-averaged EM pose of "refine view" and of the pose saved with a
     view (s): about 2.5 breaths gives 2 complete ones (``icenav.refinement.cycle_pose``)."""
@@ -92,10 +101,12 @@ class ControllerConfig:
             )
         check_positive(self.calibration_ramp_s, "calibration_ramp_s", "s")
         check_positive(self.refine_window_s, "refine_window_s", "s")
-        for name in ("force_margin_n", "force_margin_fraction"):
+        for name in ("force_margin_n", "force_margin_fraction", "force_hold_s", "force_drift_mm"):
             value = getattr(self, name)
             if not (math.isfinite(value) and 0.0 <= value <= 100.0):
-                raise ConfigurationError(f"{name} must be in [0, 100] (N or fraction), got {value}")
+                raise ConfigurationError(
+                    f"{name} must be in [0, 100] (N, fraction, s or mm), got {value}"
+                )
         if not (math.isfinite(self.stall_estop_s) and 0.05 <= self.stall_estop_s <= 60.0):
             raise ConfigurationError(
                 f"stall_estop_s must be in [0.05, 60] s, got {self.stall_estop_s} s"

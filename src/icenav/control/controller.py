@@ -36,31 +36,20 @@ from collections.abc import Callable
 from typing import Any, Literal
 
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import NDArray
 
 from icenav._typing import Array
 from icenav.control.calibration_runner import CalibrationPreview, preview
+from icenav.control.calls import CommandCalls
 from icenav.control.commands import (
-    Calibrate,
     Command,
     CommandResult,
-    DeleteView,
     Disconnect,
     EStop,
-    Export,
-    GoToView,
     Jog,
     Outcome,
-    RefineView,
     ReleaseControl,
-    RenameView,
-    Reset,
-    SaveView,
-    SetCompensation,
-    SetMode,
     Source,
-    Spin,
-    Stop,
     TakeControl,
     Ticket,
 )
@@ -100,7 +89,7 @@ _UNBUFFERED_MODES = (Mode.CALIBRATING, Mode.SPINNING)
 """Modes whose tracker samples no refinement averages (the loop skips the sample buffer)."""
 
 
-class Controller:
+class Controller(CommandCalls):
     """The control loop on a robot backend (simulated or real); see the module docstring.
 
     Parameters
@@ -316,62 +305,6 @@ class Controller:
             )
         )
 
-    # --- the thin calls (contract: console, scripts, external checks) ------------------
-
-    def request_mode(self, mode: Mode, client: str | Source = "script") -> Ticket:
-        return self.submit(SetMode(mode, source=Source.of(client)))
-
-    def jog(
-        self, velocity: ArrayLike, frame: Literal["knob", "tip"], client: str | Source = "script"
-    ) -> Ticket:
-        return self.submit(Jog(velocity, frame, source=Source.of(client)))  # type: ignore[arg-type]
-
-    def save_view(self, name: str, client: str | Source = "script") -> Ticket:
-        return self.submit(SaveView(name, source=Source.of(client)))
-
-    def goto_view(self, name: str, client: str | Source = "script") -> Ticket:
-        return self.submit(GoToView(name, source=Source.of(client)))
-
-    def refine_view(self, name: str, client: str | Source = "script") -> Ticket:
-        return self.submit(RefineView(name, source=Source.of(client)))
-
-    def rename_view(self, name: str, new_name: str, client: str | Source = "script") -> Ticket:
-        return self.submit(RenameView(name, new_name, source=Source.of(client)))
-
-    def delete_view(self, name: str, client: str | Source = "script") -> Ticket:
-        return self.submit(DeleteView(name, source=Source.of(client)))
-
-    def start_spin(self, client: str | Source = "script") -> Ticket:
-        return self.submit(Spin(source=Source.of(client)))
-
-    def start_calibration(self, kind: CalibrationKind, client: str | Source = "script") -> Ticket:
-        return self.submit(Calibrate(kind, source=Source.of(client)))
-
-    def set_compensation(self, enabled: bool, client: str | Source = "script") -> Ticket:
-        return self.submit(SetCompensation(bool(enabled), source=Source.of(client)))
-
-    def export(self, name: str, client: str | Source = "script") -> Ticket:
-        return self.submit(Export(name, source=Source.of(client)))
-
-    def stop(self, client: str | Source = "script") -> Ticket:
-        return self.submit(Stop(source=Source.of(client)))
-
-    def estop(self, client: str | Source = "script") -> Ticket:
-        """Emergency stop: acts at once from the caller's thread, whatever the loop is doing."""
-        return self.submit(EStop(source=Source.of(client)))
-
-    def reset_fault(self, client: str | Source = "script") -> Ticket:
-        return self.submit(Reset(source=Source.of(client)))
-
-    def acquire_control(self, client: str | Source) -> bool:
-        return self.submit(TakeControl(source=Source.of(client))).result().ok
-
-    def release_control(self, client: str | Source) -> None:
-        self.submit(ReleaseControl(source=Source.of(client)))
-
-    def disconnect(self, client: str | Source) -> None:
-        self.submit(Disconnect(source=Source.of(client)))
-
     def set_view_only(self, client: str, view_only: bool) -> None:
         self.authorization.set_view_only(client, view_only)
 
@@ -462,7 +395,8 @@ class Controller:
                     self.handlers.send(q_next, dt)
             if self.machine.mode is not Mode.CALIBRATING:  # the roadmap: what was driven
                 self.roadmap.add(self._q, check=False)
-            if not np.array_equal(self._q, self._q_last):
+            moved = not np.array_equal(self._q, self._q_last)
+            if moved:
                 self._still_since, self._q_last = self._clock(), self._q.copy()
             mode = self.machine.mode
             operator = self.force_sensor is not None and mode in _OPERATOR_MODES
@@ -470,6 +404,8 @@ class Controller:
             tip = self.tip_pose_now() if operator or buffered else None
             if buffered:
                 self.pose_buffer.push(self._clock(), tip)  # type: ignore[union-attr]
+            if moved:  # where the operator left the tip (Eq. F5 of recovery.force)
+                self.forces.note_motion(tip, operator)
             if operator:
                 self._record_force(tip)
             self.record("state", {"q": self._q, "t": self._time})

@@ -292,7 +292,7 @@ class Handlers:
         ctrl = self._ctrl
         cfg = ctrl.config
         sensor = ctrl.force_sensor
-        # the force check (Eqs. F1, F2 of icenav.recovery.force): with a force channel, the
+        # the force check (Eqs. F1, F2, F4, F5 of icenav.recovery.force): with a force channel, the
         # forces the operator's trace produced along the path, looked up as the task goes
         checked = sensor is not None and ctrl.forces.forces.n_recorded > 0
         return PathTask(
@@ -306,6 +306,9 @@ class Handlers:
             force_margin_fraction=cfg.force_margin_fraction,
             tip_index=self._tip_index() if checked else None,
             tip_pose=ctrl.tip_pose_now,
+            force_hold_s=cfg.force_hold_s,
+            rest_tip=ctrl.forces.rest_tip if checked else None,
+            drift_limit_mm=cfg.force_drift_mm,
         )
 
     def _refine(self, ticket: Ticket, at: float) -> None:

@@ -32,13 +32,17 @@ from icenav._typing import Array
 from icenav.control.modes import Mode
 from icenav.errors import IcenavError, InvalidValueError
 from icenav.recovery.force import (
+    DEFAULT_DRIFT_MM,
     DEFAULT_MARGIN_FRACTION,
     DEFAULT_MARGIN_N,
+    DRIFT_WINDOW_S,
+    ForceCheck,
     ForceSensor,
     PathForces,
     TipForceMap,
     TipIndex,
     force_limit,
+    tip_drift,
 )
 from icenav.recovery.roadmap import Roadmap
 from icenav.recovery.views import View
@@ -143,6 +147,11 @@ class PathTask:
     """Absolute margin of the force check, Eq. (F1) of :mod:`icenav.recovery.force` (N)."""
     force_margin_fraction: float = DEFAULT_MARGIN_FRACTION
     """Relative margin of the force check (fraction of the recorded force)."""
+    force_hold_s: float = 0.0
+    """Time the force must stay above its limit before the path stops, Eq. (F4) (s); 0: the
+    first cycle above stops (Eq. F1 alone, as the evaluations' bench checks); the controller
+    passes ``ControllerConfig.force_hold_s``
+    (:data:`~icenav.recovery.force.DEFAULT_HOLD_S`)."""
     force_path: PathForces | None = None
     """The recorded forces along the path found as the task goes (the controller's way:
     no whole-path lookup on the control thread), instead of :attr:`force_profile`."""
@@ -158,11 +167,20 @@ class PathTask:
     tip_pose: Callable[[], Array | None] | None = None
     """The measured tip pose now ((4, 4) mm, base frame; None when unknown), for
     :attr:`tip_forces`."""
+    rest_tip: Array | None = None
+    """(3,) where the tracked tip was when the operator last moved the motors (mm,
+    :attr:`icenav.recovery.force.ForceRecord.rest_tip`): the path holds at its first state
+    for :data:`~icenav.recovery.force.DRIFT_WINDOW_S` and stops when the tip has since moved
+    more than :attr:`drift_limit_mm` (Eq. F5); None: no such check (and no hold)."""
+    drift_limit_mm: float = DEFAULT_DRIFT_MM
+    """Eq. (F5)'s limit (mm)."""
     failure: str | None = field(default=None, init=False)
     """Why the task stopped early (the force check), None while it has not."""
+    _check: ForceCheck = field(init=False, repr=False)
     _cum_time: Array = field(init=False, repr=False)
     _t: float = field(default=0.0, init=False, repr=False)
     _elapsed: float = field(default=0.0, init=False, repr=False)
+    _held_s: float = field(default=0.0, init=False, repr=False)
 
     def __post_init__(self) -> None:
         p = np.asarray(self.path, dtype=np.float64)
@@ -183,10 +201,18 @@ class PathTask:
                     f"force_profile must be {len(p)} finite forces (N), got shape {fp.shape}"
                 )
             self.force_profile = fp
-        for name in ("force_margin_n", "force_margin_fraction"):
+        names = ("force_margin_n", "force_margin_fraction", "force_hold_s", "drift_limit_mm")
+        for name in names:
             value = getattr(self, name)
             if not (math.isfinite(value) and value >= 0):
                 raise InvalidValueError(f"{name} must be finite and >= 0, got {value}")
+        if self.rest_tip is not None:
+            rest = np.asarray(self.rest_tip, dtype=np.float64).reshape(-1)
+            if rest.shape != (3,) or not np.all(np.isfinite(rest)):
+                raise InvalidValueError(f"rest_tip must be 3 finite mm, got {self.rest_tip}")
+            self.rest_tip = rest
+        self._check = ForceCheck(self.force_margin_n, self.force_margin_fraction,
+                                 self.force_hold_s)  # fmt: skip
         seg = np.abs(np.diff(p, axis=0)) / v if len(p) > 1 else np.zeros((0, 4))
         durations = seg.max(axis=1) if len(seg) else np.zeros(0)
         self._cum_time = np.concatenate([[0.0], np.cumsum(durations)])
@@ -218,10 +244,16 @@ class PathTask:
             if self.tip_index.exception() is None:
                 self.tip_forces = self.tip_index.result()
             self.tip_index = None
+        if self._held_s < DRIFT_WINDOW_S and self.rest_tip is not None and self.tip_pose:
+            stop = self._drift_check()  # Eq. (F5), holding at the start
+            if stop is not None:
+                return stop
+            self._held_s += dt
+            return Running(self.path[0].copy())
         if self.force_sensor is not None and (
             self.force_profile is not None or self.force_path is not None
         ):
-            stop = self._force_check()
+            stop = self._force_check(dt)
             if stop is not None:
                 return stop
         # path-time rate r in (0, 1]: ramps up over ramp_s, and down to stop at the end
@@ -236,9 +268,26 @@ class PathTask:
         s = 1.0 if t1 <= t0 else (self._t - t0) / (t1 - t0)
         return Running(np.asarray(self.path[i] + s * (self.path[i + 1] - self.path[i])))
 
-    def _force_check(self) -> Failed | None:
-        """Eq. (F1) at the state last commanded: Failed (and the path stops) when the force
-        read exceeds what the operator's trace produced there plus the margin."""
+    def _drift_check(self) -> Failed | None:
+        """Eq. (F5) before the path moves: Failed when the tracked tip has moved more than
+        the limit since the operator last moved the motors."""
+        tip = self.tip_pose() if self.tip_pose is not None else None
+        drift = tip_drift(self.rest_tip, tip)
+        if drift is None or drift <= self.drift_limit_mm:
+            return None
+        self.failure = (
+            f"{self.label}: stopped as it started: the tracked tip moved {drift:.1f} mm with "
+            f"the motors still since the operator last moved them (limit "
+            f"{self.drift_limit_mm:.1f} mm; "
+            "has the patient moved? the roadmap's states may no longer give the views); "
+            "the robot holds"
+        )
+        return Failed(self.failure)
+
+    def _force_check(self, dt: float) -> Failed | None:
+        """Eqs. (F1, F2, F4) at the state last commanded: Failed (and the path stops) when
+        the force read has stayed above what the operator's trace produced there plus the
+        margin for the hold time."""
         sensor, profile = self.force_sensor, self.force_profile
         if sensor is None or (profile is None and self.force_path is None):
             return None
@@ -247,28 +296,30 @@ class PathTask:
             return None
         i = self.path_index
         if profile is not None:
-            recorded, limit = force_limit(
+            recorded: float | None = force_limit(
                 profile, i, self.force_margin_n, self.force_margin_fraction
-            )
+            )[0]
         else:
-            found = self.force_path.recorded(i)  # type: ignore[union-attr]
-            if found is None:
-                return None  # no force recorded near the path yet: no check
-            recorded = found
-            limit = found + self.force_margin_n + self.force_margin_fraction * found
-        if f <= limit:
-            return None
-        if self.tip_forces is not None and self.tip_pose is not None:  # Eq. (F2)
+            recorded = self.force_path.recorded(i)  # type: ignore[union-attr]
+        if (
+            recorded is not None
+            and f > self._check.limit(recorded)
+            and (self.tip_forces is not None and self.tip_pose is not None)
+        ):  # Eq. (F2): the larger reference where the tip is near the operator's
             at_tip = self.tip_forces.reference(self.tip_pose())
             if at_tip is not None and at_tip > recorded:
                 recorded = at_tip
-                limit = at_tip + self.force_margin_n + self.force_margin_fraction * at_tip
-                if f <= limit:
-                    return None
+        stop = self._check.update(f, recorded, dt)  # Eq. (F4); None: no force recorded near
+        if stop is None:
+            return None
+        tip = self.tip_pose() if self.tip_pose is not None else None
+        where = "" if tip is None else " (tip at {:.1f}, {:.1f}, {:.1f} mm)".format(*tip[:3, 3])
         self.failure = (
-            f"{self.label}: stopped at path state {i} of {len(self.path) - 1}: contact force "
-            f"{f:.2f} N exceeds the {recorded:.2f} N the operator's trace produced there by "
-            f"more than the margin (limit {limit:.2f} N: + {self.force_margin_n:.2f} N "
+            f"{self.label}: stopped at path state {i} of {len(self.path) - 1}{where}: "
+            f"contact force {stop.force_n:.2f} N exceeds the {stop.recorded_n:.2f} N the "
+            f"operator's trace produced there by more than the margin for {stop.held_s:.2f} s "
+            f"(limit "
+            f"{stop.limit_n:.2f} N: + {self.force_margin_n:.2f} N "
             f"+ {100 * self.force_margin_fraction:.0f} %; has the patient moved?); "
             "the robot holds"
         )

@@ -9,9 +9,9 @@ is what a reading means, mapped like ROS's ``joy`` / ``teleop_twist_joy``:
   mode) or a tip-frame twist (tip mode). Motion needs the enable (dead-man) button held.
 - :class:`GamepadReader` reads the pad once per cycle: a reading older than the watchdog, or
   with a non-finite axis, counts as released; button *edges* become commands (E-STOP, Stop,
-  mode toggle, save view, go to view), the dead-man button takes and releases control, and
-  the sticks become :class:`~icenav.control.commands.Jog` commands. The gamepad defines no
-  command of its own: it sends the ones every adapter sends.
+  mode toggle, save view, go to view, refine view), the dead-man button takes and releases
+  control, and the sticks become :class:`~icenav.control.commands.Jog` commands. The gamepad
+  defines no command of its own: it sends the ones every adapter sends.
 - :class:`JogHold` is the jog being applied (from the gamepad or the console): it lasts one
   watchdog period unless repeated; :func:`jog_setpoint` turns it into the next set-point.
 """
@@ -36,6 +36,7 @@ from icenav.control.commands import (
     EStop,
     GoToView,
     Jog,
+    RefineView,
     ReleaseControl,
     SaveView,
     SetMode,
@@ -139,6 +140,8 @@ class JoystickMapping:
     """Save the current view (A)."""
     goto_view_button: int = 1
     """Go to the selected view (B)."""
+    refine_view_button: int = 5
+    """Refine the selected view on the EM sensor (right shoulder); after a Go to view."""
     stop_button: int = 2
     """Stop the current automatic motion (X)."""
     mode_button: int = 3
@@ -327,6 +330,8 @@ class GamepadReader:
             out.append(SaveView(f"view {n_views + 1}", source=GAMEPAD))
         if pressed(m.goto_view_button) and selected_view is not None:
             out.append(GoToView(selected_view, source=GAMEPAD))
+        if pressed(m.refine_view_button) and selected_view is not None:
+            out.append(RefineView(selected_view, source=GAMEPAD))
         if not all(math.isfinite(a) for a in sample.axes):  # reliability: never half-apply
             if mine:
                 out.append(ReleaseControl(source=GAMEPAD))

@@ -24,6 +24,12 @@ rate and the fraction of shifted returns caught.
 
 ``python -m icenav.eval.force_study --condition in-vivo --seed 100-104 --patient 0-4``
 (``--json PATH`` writes the per-return records). Seeds: ``docs/view-recovery.md``.
+
+Session 7: ``--raw DIR`` records every control cycle of the same protocol
+(:func:`record_pair`, what the product can read), and ``--score DIR/*.npz`` checks the
+recorded returns offline with the product's code (:func:`check_returns`: Eqs. F1, F2, F4,
+F5 at :class:`CheckPoint`, the product's operating point); ``--sweep`` ranks the points of
+:data:`SWEEP` by the rule of :func:`choose_point`.
 """
 
 from __future__ import annotations
@@ -31,6 +37,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import os
 import sys
 import time
 from collections.abc import Sequence
@@ -44,18 +51,40 @@ from icenav.control.controller import ControllerConfig, PathTask
 from icenav.errors import ConfigurationError
 from icenav.eval.recovery import TARGETS, RecoveryConfig
 from icenav.eval.recovery_bench import DT, Bench
-from icenav.recovery.force import ForceMap, TipForceMap, TipTrace, shape_reference
+from icenav.recovery.force import (
+    CHECK_MARGIN_FRACTION,
+    CHECK_MARGIN_N,
+    DEFAULT_ANGLE_DEG,
+    DEFAULT_DRIFT_MM,
+    DEFAULT_HOLD_S,
+    DEFAULT_RADIUS_MM,
+    ForceMap,
+    PathForces,
+    TipForceMap,
+    TipIndex,
+    TipTrace,
+    shape_reference,
+    tip_drift,
+)
 
 __all__ = [
+    "CheckPoint",
     "FRACTIONS",
     "ForceStudyConfig",
     "MARGINS_N",
+    "RAW_COLUMNS",
+    "ReturnCheck",
     "ReturnForces",
+    "SWEEP",
+    "check_returns",
+    "choose_point",
     "main",
     "operating_point",
+    "record_pair",
     "run_force_study",
     "score",
     "summarize",
+    "tally",
 ]
 
 MARGINS_N = (0.05, 0.1, 0.15, 0.2, 0.25, 0.3, 0.4, 0.5, 0.75, 1.0, 1.5, 2.0, 3.0, 4.0)
@@ -252,6 +281,169 @@ def _follow(
     )
 
 
+RAW_COLUMNS = ("t", "q0", "q1", "q2", "q3", "force", "px", "py", "pz", "zx", "zy", "zz",
+               "ecg_phase", "resp", "f1_ref", "path_index")  # fmt: skip
+"""Columns of the raw rows of :func:`record_pair`: time (s), motor state, force (N), EM tip
+position (mm) and axis (NaN between readings), ECG phase, respiration signal, the motor-state
+reference of Eq. (F1) (N; NaN on the operator's rows) and the path index (-1: operator)."""
+
+
+def record_pair(cfg: ForceStudyConfig) -> dict[str, Any]:
+    """The protocol of the module docstring for one pair, kept raw: every control cycle of
+    the operator and of the returns as rows of :data:`RAW_COLUMNS`, what a check can read
+    (never the twin's hidden state). Returns arrays ``rows`` (n, 16), ``returns`` (k, 3) row
+    ranges [start, stop) and the operator's row count before each return, ``shifts``
+    (k, 3) mm, ``targets`` (k,) indices into ``TARGETS``."""
+    b = Bench(RecoveryConfig(condition=cfg.condition, seed=cfg.seed, patient=cfg.patient,
+                             wander_moves=cfg.wander_moves, force_check=True))  # fmt: skip
+    if b.twin is None or b.force_sensor is None:
+        raise ConfigurationError(f"condition {cfg.condition!r} has no contact (phantom or in-vivo)")
+    twin, sensor = b.twin, b.force_sensor
+    rows: list[list[float]] = []
+    nan3 = [math.nan] * 3
+    motor = ForceMap()
+
+    def row(k: int, q: Array, f: float, ref: float, index: int) -> None:
+        t = b.clock.now()
+        tip = b.tracker.measure_tip2base(1) if k % cfg.em_every == 0 else None
+        pose = nan3 * 2 if tip is None else [*tip[:3, 3], *tip[:3, 2]]
+        resp = float(np.asarray(twin.monitor.signal(t)).reshape(-1)[0])
+        rows.append([t, *q, f, *pose, twin.rhythm.phase(t), resp, ref, float(index)])
+
+    def drive(trace: Array) -> None:
+        for k, q in enumerate(trace):
+            b.robot.command_position(q)
+            b.record(q)
+            f = float(sensor.contact_force_n() or 0.0)
+            motor.record(b.roadmap.current_vertex, f)
+            row(k, q, f, math.nan, -1)
+            b.clock.advance(DT)
+
+    views = {}
+    for name in TARGETS:
+        drive(b.operator.move_to(b.views[name]))
+        drive(b.operator.dwell(0.5))
+        views[name] = b.roadmap.make_view(name, created_s=b.clock.now())
+    drive(b.operator.explore(cfg.wander_moves))
+    plan: list[tuple[float, float, float]] = [(0.0, 0.0, 0.0)] * (cfg.rounds * len(TARGETS))
+    for s in cfg.shifts_mm:
+        for axis in range(3):
+            for sign in (1.0, -1.0):
+                v = [0.0, 0.0, 0.0]
+                v[axis] = sign * s
+                plan.append((v[0], v[1], v[2]))
+    spans: list[tuple[int, int, int]] = []
+    for k, shift in enumerate(plan):
+        drive(b.operator.explore(cfg.moves_between))
+        n_op = len(rows)
+        if any(shift):
+            twin.shift_patient(shift)
+        q0 = np.asarray(b.robot.read_state().q, np.float64)
+        path = b.roadmap.plan(q0, views[TARGETS[k % len(TARGETS)]], approach=True)
+        forces = PathForces(motor, b.roadmap, path)
+        task = PathTask(path, np.array(ControllerConfig().max_velocity))
+        j = 0
+        while (q := task.next_command(np.asarray(b.robot.read_state().q), DT)) is not None:
+            b.robot.command_position(q)
+            b.record(q)
+            b.clock.advance(DT)
+            f = float(sensor.contact_force_n() or 0.0)
+            ref = forces.recorded(task.path_index)
+            row(j, q, f, math.nan if ref is None else ref, task.path_index)
+            j += 1
+        spans.append((n_op, len(rows), n_op))
+        b.clock.advance(0.2)
+        if any(shift):
+            twin.shift_patient([-x for x in shift])
+    return {
+        "rows": np.asarray(rows, np.float64).reshape(-1, len(RAW_COLUMNS)),
+        "returns": np.asarray(spans, np.int64).reshape(-1, 3),
+        "shifts": np.asarray(plan, np.float64).reshape(-1, 3),
+        "targets": np.arange(len(plan)) % len(TARGETS),
+    }
+
+
+@dataclass(frozen=True)
+class CheckPoint:
+    """An operating point of the product's check (Eqs. F1, F2, F4, F5 of
+    :mod:`icenav.recovery.force`); the defaults are the product's."""
+
+    radius_mm: float = DEFAULT_RADIUS_MM
+    """Radius of the tip reference, Eq. (F2) (mm; 0: the motor state's reference alone)."""
+    margin_fraction: float = CHECK_MARGIN_FRACTION
+    margin_n: float = CHECK_MARGIN_N
+    hold_s: float = DEFAULT_HOLD_S
+    drift_mm: float = DEFAULT_DRIFT_MM
+    """Eq. (F5)'s limit (mm; inf: no such check)."""
+
+
+@dataclass(frozen=True)
+class ReturnCheck:
+    """What the check of a :class:`CheckPoint` saw on one recorded return."""
+
+    shift_mm: float
+    """Largest component of the patient's shift (mm; 0: undisturbed)."""
+    needed_n: float
+    """The absolute margin the force rule (F4) needed not to stop it (N)."""
+    drift_mm: float
+    """The tip's motion with the motors still at the start, Eq. (F5) (mm; NaN: unknown)."""
+
+    def stopped(self, point: CheckPoint) -> bool:
+        """Whether the check stops this return at ``point``."""
+        return self.needed_n > point.margin_n or self.drift_mm > point.drift_mm
+
+
+def _pose(row: Array) -> Array:
+    """(4, 4) a pose with the row's tip position and axis (only those two are read)."""
+    t = np.eye(4)
+    t[:3, 3], t[:3, 2] = row[6:9], row[9:12]
+    return t
+
+
+def check_returns(raw: dict[str, Array], point: CheckPoint) -> list[ReturnCheck]:
+    """The product's check (:class:`icenav.recovery.force.TipIndex` for Eq. F2 over the
+    operator's readings before each return, :func:`icenav.recovery.force.tip_drift`) on
+    the returns of one pair recorded by :func:`record_pair`."""
+    rows, spans, shifts = raw["rows"], raw["returns"], raw["shifts"]
+    w = int(round(point.hold_s / DT)) + 1  # Eq. (F4): cycles above the limit in a row
+    out: list[ReturnCheck] = []
+    for (a, b, n_op), shift in zip(spans, shifts, strict=True):
+        op, ret = rows[:n_op], rows[a:b]
+        em = op[np.isfinite(op[:, 6])]
+        index = None
+        if point.radius_mm > 0 and len(em):
+            samples = np.column_stack([em[:, 6:12], em[:, 5]])
+            index = TipIndex(samples, point.radius_mm, DEFAULT_ANGLE_DEG)
+        ref = ret[:, 14].copy()
+        tip_ref = math.nan
+        for k, r in enumerate(ret):
+            if index is not None and np.isfinite(r[6]):
+                found = index.reference(_pose(r))
+                tip_ref = math.nan if found is None else found
+            ref[k] = np.fmax(ref[k], tip_ref)
+        excess = ret[:, 5] - (1.0 + point.margin_fraction) * ref
+        excess = np.where(np.isfinite(excess), excess, -np.inf)
+        if len(excess) >= w:
+            sustained = np.lib.stride_tricks.sliding_window_view(excess, w).min(axis=1)
+        else:
+            sustained = np.full(1, -np.inf)
+        drift = math.nan  # Eq. (F5) at the return's first cycle (its set-point ~ at rest)
+        if len(em) and len(ret) and np.isfinite(ret[0, 6]):
+            drift = tip_drift(em[-1, 6:9], _pose(ret[0])) or 0.0
+        out.append(ReturnCheck(float(np.max(np.abs(shift))), float(sustained.max()), drift))
+    return out
+
+
+def tally(checks: Sequence[ReturnCheck], point: CheckPoint) -> str:
+    """False alarms and shifted returns stopped per shift (mm), as a line."""
+    still = [c for c in checks if c.shift_mm == 0]
+    parts = [f"false alarms {sum(c.stopped(point) for c in still)}/{len(still)}"]
+    for s in sorted({c.shift_mm for c in checks if c.shift_mm > 0}):
+        moved = [c for c in checks if c.shift_mm == s]
+        parts.append(f"{s:g} mm stopped {sum(c.stopped(point) for c in moved)}/{len(moved)}")
+    return ", ".join(parts)
+
+
 def summarize(
     records: Sequence[ReturnForces], fraction: float = 1.0, margins_n: Sequence[float] = ()
 ) -> str:
@@ -318,6 +510,56 @@ def operating_point(
     return best[0][1], best[0][2], best[0][3]
 
 
+SWEEP = {"radius_mm": (0.0, 4.0, 8.0), "margin_fraction": (0.5, 1.0), "hold_s": (0.0, 0.25, 0.5)}
+"""The operating points :func:`choose_point` considers, with the absolute margins of
+:data:`MARGINS_N` from 0.05 N (a force channel's resolution) and Eq. (F5) at
+:data:`icenav.recovery.force.DEFAULT_DRIFT_MM`."""
+
+
+def choose_point(
+    raws: dict[str, list[dict[str, Array]]], max_false_alarms: float = 0.05
+) -> list[tuple[CheckPoint, str]]:
+    """The rule fixed before the held-out pairs of session 7 were run: one point for both
+    conditions (the product does not know which it is in); per point of :data:`SWEEP`, the
+    smallest absolute margin (>= 0.05 N) with at most ``max_false_alarms`` of the
+    undisturbed returns stopped in each condition; of those, the most 20 mm (then 10, then
+    5 mm) shifted returns stopped, then the fewest false alarms. Returns the points, best
+    first, each with its tally per condition."""
+    ranked: list[tuple[tuple[int, ...], CheckPoint, str]] = []
+    for r in SWEEP["radius_mm"]:
+        for c in SWEEP["margin_fraction"]:
+            for h in SWEEP["hold_s"]:
+                base = CheckPoint(radius_mm=r, margin_fraction=c, hold_s=h)
+                checks = {k: [x for raw in v for x in check_returns(raw, base)]
+                          for k, v in raws.items()}  # fmt: skip
+                for m in (x for x in MARGINS_N if x >= 0.05):
+                    pt = CheckPoint(r, c, m, h, DEFAULT_DRIFT_MM)
+                    fa = {k: sum(x.stopped(pt) for x in v if x.shift_mm == 0)
+                          for k, v in checks.items()}  # fmt: skip
+                    n = {k: sum(x.shift_mm == 0 for x in v) for k, v in checks.items()}
+                    if all(fa[k] <= max_false_alarms * n[k] for k in checks):
+                        caught = tuple(
+                            sum(x.stopped(pt) for v in checks.values() for x in v
+                                if x.shift_mm == s)
+                            for s in (20.0, 10.0, 5.0)
+                        )  # fmt: skip
+                        text = "; ".join(f"{k}: {tally(v, pt)}" for k, v in checks.items())
+                        ranked.append(((*caught, -sum(fa.values())), pt, text))
+                        break
+    ranked.sort(key=lambda x: x[0], reverse=True)
+    return [(pt, text) for _, pt, text in ranked]
+
+
+def _load_raws(paths: Sequence[str]) -> dict[str, list[dict[str, Array]]]:
+    """Raw records (``CONDITION_SEED_PATIENT.npz``) grouped by condition."""
+    out: dict[str, list[dict[str, Array]]] = {}
+    for path in paths:
+        name = path.rsplit("/", 1)[-1].split("_", 1)[0]
+        with np.load(path) as z:
+            out.setdefault(name, []).append({k: z[k] for k in z.files})
+    return out
+
+
 def _seeds(text: str) -> list[int]:
     out: list[int] = []
     for part in text.split(","):
@@ -337,7 +579,27 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--json", default=None, help="write the per-return records here")
     ap.add_argument("--choose", default=None, help="records (JSON) to choose the point on")
     ap.add_argument("--apply", default=None, help="records (JSON) to apply the point to")
+    ap.add_argument("--raw", default=None, help="record each pair's cycles into this folder")
+    ap.add_argument("--score", nargs="+", default=None, help="raw records to score")
+    ap.add_argument("--sweep", action="store_true", help="with --score: choose the point")
     args = ap.parse_args(argv)
+    if args.score:
+        raws = _load_raws(args.score)
+        if args.sweep:
+            for pt, text in choose_point(raws)[:8]:
+                print(f"{pt}\n    {text}")
+            return 0
+        pt = CheckPoint()
+        print(f"the product's check: {pt}")
+        kept: dict[str, list[dict[str, float]]] = {}
+        for name, rs in raws.items():
+            checks = [x for r in rs for x in check_returns(r, pt)]
+            kept[name] = [asdict(x) for x in checks]
+            print(f"  {name}: {tally(checks, pt)}")
+        if args.json:  # per return: the shift, the margin F4 needed, the drift of F5
+            with open(args.json, "w", encoding="utf-8") as fh:
+                json.dump({"point": asdict(pt), "returns": kept}, fh, indent=1)
+        return 0
     if args.choose:
         with open(args.choose, encoding="utf-8") as fh:
             dev = json.load(fh)
@@ -357,6 +619,15 @@ def main(argv: Sequence[str] | None = None) -> int:
         patients = patients * len(seeds)
     if len(seeds) != len(patients):
         ap.error("--seed and --patient must pair in order (or one patient for all)")
+    if args.raw:
+        os.makedirs(args.raw, exist_ok=True)
+        for s, p in zip(seeds, patients, strict=True):
+            t0 = time.perf_counter()
+            cfg = ForceStudyConfig(condition=args.condition, seed=s, patient=p, rounds=args.rounds)
+            raw = record_pair(cfg)
+            np.savez_compressed(f"{args.raw}/{args.condition}_{s}_{p}.npz", **raw)
+            print(f"catheter {s} / patient {p}: {time.perf_counter() - t0:.0f} s", flush=True)
+        return 0
     records: list[ReturnForces] = []
     for s, p in zip(seeds, patients, strict=True):
         t0 = time.perf_counter()

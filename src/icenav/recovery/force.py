@@ -18,12 +18,19 @@ else the return stops, says so (the task fails with the reason) and the robot ho
 Vertices without a recorded force (never driven by the operator with the sensor on) take
 the nearest recorded value along the path; a path with none has no check. Without a force
 channel there is no check at all (documented in ``docs/view-recovery.md``).
+
+With a tracker, the reference is also keyed by the measured tip pose (Eq. F2,
+:class:`TipForceMap`); a return stops only when the force has stayed above its limit for a
+hold time (Eq. F4, :class:`ForceCheck`), and it stops as it starts when the tracked tip has
+moved with the motors still since the operator last moved them (Eq. F5, :func:`tip_drift`,
+:attr:`ForceRecord.rest_tip`): the patient moved and carried the catheter.
 """
 
 from __future__ import annotations
 
 import math
 import threading
+from dataclasses import dataclass
 from typing import Protocol
 
 import numpy as np
@@ -34,12 +41,19 @@ from icenav.errors import ConfigurationError, ShapeError
 from icenav.recovery.roadmap import IntArray, Roadmap
 
 __all__ = [
+    "CHECK_MARGIN_FRACTION",
+    "CHECK_MARGIN_N",
     "DEFAULT_ANGLE_DEG",
     "DEFAULT_MARGIN_FRACTION",
     "DEFAULT_MARGIN_N",
+    "DEFAULT_DRIFT_MM",
+    "DEFAULT_HOLD_S",
     "DEFAULT_MIN_SPACING_MM",
     "DEFAULT_RADIUS_MM",
+    "DRIFT_WINDOW_S",
+    "ForceCheck",
     "ForceMap",
+    "ForceStop",
     "ForceSensor",
     "PathForces",
     "TipForceMap",
@@ -49,6 +63,7 @@ __all__ = [
     "force_excess",
     "force_limit",
     "shape_reference",
+    "tip_drift",
 ]
 
 DEFAULT_MARGIN_N = 0.1
@@ -163,10 +178,10 @@ def force_excess(
     return float(force_n) - force_limit(profile, index, margin_n, margin_fraction)[1]
 
 
-DEFAULT_RADIUS_MM = 8.0
+DEFAULT_RADIUS_MM = 4.0
 """Radius of the tip positions whose recorded forces form the reference of Eq. (F2) (mm):
-chosen on the development pairs among 2, 4 and 8 mm (``icenav.eval.force_study``,
-``docs/view-recovery.md``)."""
+chosen on the development pairs among 4 and 8 mm with the hold of Eq. (F4)
+(``icenav.eval.force_study``, ``docs/view-recovery.md``; 8 mm without the hold)."""
 DEFAULT_ANGLE_DEG = 180.0
 """Largest angle between the tip's axis now and a recorded one for Eq. (F2) (deg); 180: the
 position alone (30 deg did no better at 4 mm on the development pairs)."""
@@ -480,6 +495,25 @@ class ForceRecord:
         self.tips = tips if tips is not None else TipForceMap(min_spacing_mm=DEFAULT_MIN_SPACING_MM)
         self._dirty: set[int] = set()
         self._lock = threading.Lock()
+        self._rest_tip: Array | None = None
+
+    @property
+    def rest_tip(self) -> Array | None:
+        """(3,) where the tracked tip was (mm, base frame) when the operator last moved the
+        motors, None when unknown or when anything else moved them since (Eq. F5)."""
+        return None if self._rest_tip is None else self._rest_tip.copy()
+
+    def note_motion(self, tip2base: ArrayLike | None, operator: bool) -> None:
+        """The motors moved this cycle: by the operator with the tip at ``tip2base`` (4, 4)
+        (mm; None: no pose read), or by anything else (a return, a refinement: the rest pose
+        is forgotten)."""
+        if not operator or tip2base is None:
+            self._rest_tip = None
+            return
+        t = np.asarray(tip2base, np.float64)
+        if t.shape != (4, 4) or not np.all(np.isfinite(t[:3, 3])):
+            raise ShapeError(f"tip2base must be a finite (4, 4) pose, got shape {t.shape}")
+        self._rest_tip = t[:3, 3].copy()
 
     def record(self, vertex: int, force_n: float | None, tip2base: ArrayLike | None) -> None:
         """Note a reading of the operator's trace: the force (N) at ``vertex`` and, with a
@@ -587,3 +621,117 @@ class PathForces:
         self._look_up(j + 1 + self._ahead)
         vals = [v for v in (self._at(i), self._at(j)) if v is not None]
         return max(vals) if vals else None
+
+
+DEFAULT_DRIFT_MM = 5.0
+"""Largest distance the tracked tip may have moved, with the motors still, between the
+operator's last motion and the start of a return, Eq. (F5) (mm): chosen on the development
+pairs (``docs/view-recovery.md``)."""
+
+DRIFT_WINDOW_S = 0.1
+"""A return holds at its first state this long, checking Eq. (F5) at every control cycle,
+before it moves (s): a tracker's newest sample may be a frame old when the return starts
+(an NDI Aurora gives one every 25 ms), and once the motors move the shaft may slip and the
+tip jump with it (up to 16 mm in 40 ms on the twin)."""
+
+DEFAULT_HOLD_S = 0.5
+"""Time the force must stay above the limit before a return stops, Eq. (F4) (s): chosen
+on the development pairs among 0, 0.25 and 0.5 s (``docs/view-recovery.md``)."""
+CHECK_MARGIN_N = 0.1
+"""The product's absolute margin with the hold of Eq. (F4) (N), chosen on the development
+pairs from 0.05 N up (about a force channel's resolution)."""
+CHECK_MARGIN_FRACTION = 0.5
+"""The product's relative margin with the hold of Eq. (F4), chosen on the development
+pairs (0.5 and 1.0 considered)."""
+
+
+@dataclass(frozen=True)
+class ForceStop:
+    """Why a return stops: the force above its limit for the hold time (Eq. F4)."""
+
+    force_n: float
+    """Contact force read when it stopped (N)."""
+    recorded_n: float
+    """The operator's reference there (N), Eq. (F1) or (F2)."""
+    limit_n: float
+    """The limit (N): reference + absolute margin + relative margin * reference."""
+    held_s: float
+    """How long the force had been above its limit (s)."""
+
+
+class ForceCheck:
+    """The stop rule of a return, Eq. (F4): the force read at each control cycle ``k`` is
+    held against the limit of Eq. (F1) or (F2) there, and the return stops when it has been
+    above it at every cycle of the last ``hold_s`` seconds::
+
+        L_k = F_ref,k + margin_n + margin_fraction * F_ref,k
+        stop at k  when  F_j > L_j  for every cycle j with  t_k - t_j < hold_s     (F4)
+
+    A catheter slipping over a wall or the heart pushing it for a moment exceeds the
+    reference briefly; a moved patient pushes it for as long as the return presses on.
+    ``hold_s = 0`` stops at the first cycle above the limit (Eq. F1 as it was). Equivalent
+    on a recorded series: the return stops iff the ``hold_s``-window minimum of
+    ``F_k - (1 + margin_fraction) F_ref,k`` exceeds ``margin_n`` (what
+    :mod:`icenav.eval.force_study` computes).
+
+    Parameters
+    ----------
+    margin_n : float
+        Absolute margin (N).
+    margin_fraction : float
+        Relative margin (fraction of the reference).
+    hold_s : float
+        Time above the limit before a stop (s).
+    """
+
+    def __init__(
+        self,
+        margin_n: float = DEFAULT_MARGIN_N,
+        margin_fraction: float = DEFAULT_MARGIN_FRACTION,
+        hold_s: float = DEFAULT_HOLD_S,
+    ) -> None:
+        for name, value in (("margin_n", margin_n), ("margin_fraction", margin_fraction),
+                            ("hold_s", hold_s)):  # fmt: skip
+            if not (math.isfinite(value) and value >= 0):
+                raise ConfigurationError(f"{name} must be finite and >= 0, got {value}")
+        self.margin_n = float(margin_n)
+        self.margin_fraction = float(margin_fraction)
+        self.hold_s = float(hold_s)
+        self._over_s = -1.0  # time above the limit so far (s); < 0: below it
+
+    def limit(self, recorded_n: float) -> float:
+        """The limit (N) over a reference ``recorded_n`` (N), Eq. (F1)."""
+        return recorded_n + self.margin_n + self.margin_fraction * recorded_n
+
+    def update(self, force_n: float, recorded_n: float | None, dt: float) -> ForceStop | None:
+        """One control cycle ``dt`` (s) after the last: the force read (N) and the reference
+        there (N; None: no reference, the cycle counts as below the limit). A ForceStop
+        when the return must stop (Eq. F4), else None."""
+        if recorded_n is None:
+            self._over_s = -1.0
+            return None
+        limit = self.limit(float(recorded_n))
+        if not float(force_n) > limit:
+            self._over_s = -1.0
+            return None
+        self._over_s = 0.0 if self._over_s < 0 else self._over_s + max(float(dt), 0.0)
+        if self._over_s + 1e-9 < self.hold_s:
+            return None
+        return ForceStop(float(force_n), float(recorded_n), limit, self._over_s)
+
+
+def tip_drift(rest_tip: ArrayLike | None, tip2base: ArrayLike | None) -> float | None:
+    """How far the tracked tip has moved (mm) since the operator last moved the motors,
+    Eq. (F5)::
+
+        D = | p_now - p_rest |                                                    (F5)
+
+    with the motors still since (``rest_tip`` (3,) from :attr:`ForceRecord.rest_tip`,
+    ``tip2base`` (4, 4) now, mm, base frame). The anatomy holds the catheter (the vessel
+    and the walls it lies against): when the patient moves, the tip moves with the motors
+    still; the heart beat, breathing and the shaft's settling move it a few millimetres.
+    None when either is unknown (no check)."""
+    if rest_tip is None or tip2base is None:
+        return None
+    p = np.asarray(tip2base, np.float64)[:3, 3]
+    return float(np.linalg.norm(p - np.asarray(rest_tip, np.float64).reshape(3)))
