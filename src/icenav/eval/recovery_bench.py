@@ -4,13 +4,15 @@ roadmap and operator, on today's twin or on a disturbed twin (a condition and a 
 
 from __future__ import annotations
 
+from dataclasses import replace
 from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
 from icenav._typing import Array
-from icenav.control.controller import ControllerConfig, PathTask
+from icenav.control.config import ControllerConfig
+from icenav.control.tasks import goto_view_task
 from icenav.devices.sim_robot import SimulatedRobot
 from icenav.geometry.se3 import pose_mean
 from icenav.recovery.beats import BeatClip
@@ -162,16 +164,23 @@ class Bench:
         if self.twin is not None and cfg.force_check and self.twin.plant.contact is not None:
             self.force_sensor = TwinForceSensor(self.twin.plant)
         product = ControllerConfig()
-        self.force_margin_n = float(
-            cfg.force_margin_n if cfg.force_margin_n is not None else product.force_margin_n
+        self.controller_config = replace(
+            product,
+            force_margin_n=float(
+                cfg.force_margin_n if cfg.force_margin_n is not None else product.force_margin_n
+            ),
+            force_margin_fraction=float(
+                cfg.force_margin_fraction
+                if cfg.force_margin_fraction is not None
+                else product.force_margin_fraction
+            ),
         )
-        """Absolute margin of the force check (N): the product's by default."""
-        self.force_margin_fraction = float(
-            cfg.force_margin_fraction
-            if cfg.force_margin_fraction is not None
-            else product.force_margin_fraction
-        )
-        """Relative margin of the force check: the product's by default."""
+        """The controller's settings the returns run with (speed, the force check's margins,
+        hold and drift limit): the product's, the margins overridable."""
+        self.force_margin_n = self.controller_config.force_margin_n
+        """Absolute margin of the force check (N)."""
+        self.force_margin_fraction = self.controller_config.force_margin_fraction
+        """Relative margin of the force check."""
         self._cycle = 0
         self.last_force_margin_use = 0.0
         """Largest fraction of the force margin the last return used (> 1: stopped)."""
@@ -206,12 +215,16 @@ class Bench:
         recorded state is the operator's, kept per vertex and (every :data:`EM_EVERY`
         cycles) at the EM-measured tip pose, as the controller records it
         (:class:`icenav.recovery.force.ForceRecord`)."""
-        for q in trace:
+        n = len(trace)
+        for k, q in enumerate(trace):
             self.robot.command_position(q)
             self.record(q)
             if self.force_sensor is not None:
                 self._cycle += 1
-                tip = self.tip_pose_now() if self._cycle % EM_EVERY == 0 else None
+                last = k == n - 1
+                tip = self.tip_pose_now() if self._cycle % EM_EVERY == 0 or last else None
+                if tip is not None:  # where the operator left the tip (Eq. F5)
+                    self.force_record.note_motion(tip, operator=True)
                 self.force_record.record(
                     self.roadmap.current_vertex, self.force_sensor.contact_force_n(), tip
                 )
@@ -250,44 +263,38 @@ class Bench:
         self.clock.advance(0.2)  # settle
 
     def _follow(self, view: View, *, check: bool) -> float:
-        """Plan from here to ``view`` and follow the path (the product's
-        :class:`icenav.control.tasks.PathTask`, its force references looked up as it goes:
-        :class:`icenav.recovery.force.PathForces` and the tip readings' index); the largest
-        fraction of the force margin used (excess over the reference / margin; > 1 stops a
-        checked path)."""
+        """Plan from here to ``view`` and follow the path: the product's "go to view" task
+        (:func:`icenav.control.tasks.goto_view_task`: Eqs. F1, F2, F4, F5 with the
+        controller's margins, hold and drift limit) when ``check``, else the same path
+        unchecked; the largest fraction of the force margin used (the force read against the
+        larger of the path's and the tip's reference; > 1: over the limit at that cycle)."""
         q0 = np.asarray(self.robot.read_state().q, np.float64)
         path = self.roadmap.plan(q0, view, approach=True)
         margin, fraction = self.force_margin_n, self.force_margin_fraction
         sensor = self.force_sensor
-        recorded = self.forces.n_recorded > 0
-        along = PathForces(self.forces, self.roadmap, path) if sensor and recorded else None
-        tips = self.force_record.tips
-        index = tips.index() if along is not None and tips.n_samples else None
-        task = PathTask(
+        task = goto_view_task(
             path,
-            np.array(ControllerConfig().max_velocity),
-            force_sensor=sensor if check and along is not None else None,
-            force_path=along if check else None,
-            force_margin_n=margin,
-            force_margin_fraction=fraction,
-            tip_forces=index,
+            self.controller_config,
+            label=f"go to view {view.name!r}",
+            force_sensor=sensor if check else None,
+            forces=self.force_record,
+            roadmap=self.roadmap,
             tip_pose=self.tip_pose_now,
         )
+        along = None
+        if sensor is not None and self.forces.n_recorded > 0:
+            along = PathForces(self.forces, self.roadmap, path)
+        tips = self.force_record.tips
         use = 0.0
         while True:
             if sensor is not None and along is not None:
                 f = float(sensor.contact_force_n() or 0.0)
                 ref = along.recorded(task.path_index)
-                if ref is not None and f > ref and index is not None:
-                    at_tip = index.reference(self.tip_pose_now())  # Eq. (F2)
+                if ref is not None and f > ref and tips.n_samples:
+                    at_tip = tips.reference(self.tip_pose_now())  # Eq. (F2)
                     ref = ref if at_tip is None else max(ref, at_tip)
-                if ref is not None:
-                    use = max(
-                        use,
-                        (f - ref) / (margin + fraction * ref)
-                        if margin + fraction * ref > 0
-                        else 0.0,
-                    )
+                if ref is not None and margin + fraction * ref > 0:
+                    use = max(use, (f - ref) / (margin + fraction * ref))
                     self.last_force_margin_needed_n = max(
                         self.last_force_margin_needed_n, f - ref * (1.0 + fraction)
                     )
@@ -297,6 +304,8 @@ class Bench:
             self.robot.command_position(q)
             self.record(q)  # every visited state is recorded (Alg. 1)
             self.clock.advance(DT)
+        # the motors moved, not by the operator: the rest tip is forgotten (Eq. F5)
+        self.force_record.note_motion(None, operator=False)
         if task.failure is not None:
             self.last_stop = task.failure
         return use
