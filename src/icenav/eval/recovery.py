@@ -25,7 +25,7 @@ Protocol (the phantom study of Section IV, with the in-vivo metrics of Table II)
    centred where the pose stage ended, scoring respiratory-gated beats); without the pose
    stage (``--no-em``) the image stage alone. Every set-point of both is recorded.
    Returns check the contact force against the operator's trace as the product's "go to
-   view" does (Eqs. F1, F2 of :mod:`icenav.recovery.force`, the controller's margins) on a
+   view" does (:func:`icenav.control.tasks.goto_view_task`: Eqs. F1, F2, F4, F5) on a
    twin with contact; a stopped return is counted and finished without the check.
 4. After every return (and refinement) the catheter is held still for the cycle window and
    the twin's true pose averaged over its complete breaths (beats) is recorded
@@ -184,7 +184,7 @@ class RecoveryConfig:
     """Settings of the ``retry`` strategy."""
     force_check: bool = True
     """Returns read the twin's contact force and stop above the operator's + the margin,
-    as the product's "go to view" does (Eqs. F1, F2 of :mod:`icenav.recovery.force`; a
+    as the product's "go to view" does (:func:`icenav.control.tasks.goto_view_task`; a
     disturbed twin with contact only)."""
     force_margin_n: float | None = None
     """Absolute margin of the force check (N); None: the product's

@@ -250,8 +250,8 @@ class Bench:
 
     def go(self, view: View) -> None:
         """Return to ``view`` along the roadmap (with the approach), as the controller's "go
-        to view" does, with its force check when the twin has contact (Eqs. F1, F2 and the
-        margins of :class:`icenav.control.config.ControllerConfig`); a return the check stops
+        to view" does, with its force check when the twin has contact (Eqs. F1, F2, F4, F5 and
+        the settings of :class:`icenav.control.config.ControllerConfig`); a return the check stops
         is noted (:attr:`last_stop`) and then finished without the check, as an operator
         who looked would, so the experiment goes on."""
         check = self.cfg.force_check and self.force_sensor is not None
