@@ -9,7 +9,9 @@ Usage::
 
 Per target: the mean over the pairs of each pair's mean, and in how many pairs the target
 holds (in vivo static true tip < 1.0 mm and orientation < 1.5 deg, phantom < 0.5 mm and
-< 0.5 deg; gated similarity within 3 points of the consecutive-beat ceiling).
+< 0.5 deg; gated similarity within 3 points of the consecutive-beat ceiling); then, from
+the records that keep each return's static error (session 7 on), in how many *returns*
+each target holds, the worst return, and the returns the force check stopped.
 """
 
 from __future__ import annotations
@@ -100,6 +102,31 @@ def main(pattern: str) -> None:
         )
 
 
+def per_return(pattern: str) -> None:
+    """Per target and mode: returns meeting each target, both, the worst, force stops."""
+    recs = _load(pattern)
+    cond = str(recs[0]["condition"])
+    mm_lim, deg_lim = LIMITS[cond]
+    print(f"per return ({cond}; < {mm_lim} mm, < {deg_lim} deg):")
+    for mode in ("open_loop", "refined"):
+        for t in (*TARGETS, "all"):
+            sel = TARGETS if t == "all" else (t,)
+            rs = [r for r in recs if r["mode"] == mode and r["target"] in sel]
+            mm = [float(x) for r in rs for x in r.get("true_static_tip_errors_mm") or []]  # type: ignore[attr-defined]
+            deg = [float(x) for r in rs for x in r.get("true_static_orientation_errors_deg") or []]  # type: ignore[attr-defined]
+            stops = sum(int(r.get("returns_stopped") or 0) for r in rs)  # type: ignore[call-overload]
+            if not mm:
+                continue
+            both = sum(a < mm_lim and b < deg_lim for a, b in zip(mm, deg, strict=True))
+            n_mm, n_deg = sum(a < mm_lim for a in mm), sum(b < deg_lim for b in deg)
+            print(
+                f"  {mode:9s} {t.split('_')[0]:9s} n={len(mm):3d}  < mm {n_mm:3d}"
+                f"  < deg {n_deg:3d}  both {both:3d}  worst "
+                f"{max(mm):.2f} mm / {max(deg):.2f} deg  force stops {stops}"
+            )
+
+
 if __name__ == "__main__":
     for arg in sys.argv[1:] or ["docs/figures/recovery_s6_in-vivo_seed11?_patient10?.json"]:
         main(arg)
+        per_return(arg)

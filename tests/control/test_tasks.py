@@ -205,3 +205,42 @@ def test_the_return_holds_at_its_start_while_it_checks_the_tip_drift() -> None:
     n = round(DRIFT_WINDOW_S / 0.01)
     assert n <= held <= n + 1  # 0.1 s of 0.01 s cycles (one more when the sum rounds below)
     assert isinstance(_run(task)[0], Done)
+
+
+class _ConstantForce:
+    def contact_force_n(self) -> float:
+        return 0.2
+
+
+def test_goto_view_task_is_the_products_check_with_the_controllers_settings() -> None:
+    """One definition of the checked "go to view" task (controller and evaluations): the
+    margins, hold and drift limit are the config's; without a channel or a recorded trace
+    the path is not checked."""
+    from dataclasses import replace
+
+    from icenav.control.config import ControllerConfig
+    from icenav.control.tasks import goto_view_task
+    from icenav.recovery.force import ForceRecord
+
+    roadmap = Roadmap(epsilon=1.0)
+    path = np.array([[0.0, 0.0, 0.0, 0.0], [0.01, 0.0, 0.0, 1.0]])
+    for q in path:
+        roadmap.add(q)
+    forces = ForceRecord()
+    cfg = replace(ControllerConfig(), force_margin_n=0.3, force_margin_fraction=0.2,
+                  force_hold_s=0.25, force_drift_mm=4.0)  # fmt: skip
+    unchecked = goto_view_task(path, cfg, label="go", force_sensor=_ConstantForce(),
+                               forces=forces, roadmap=roadmap, tip_pose=None)  # fmt: skip
+    assert unchecked.force_sensor is None and unchecked.force_path is None  # no trace yet
+    tip = np.eye(4)
+    forces.record(roadmap.current_vertex, 0.2, tip)
+    forces.note_motion(tip, operator=True)
+    task = goto_view_task(path, cfg, label="go", force_sensor=_ConstantForce(), forces=forces,
+                          roadmap=roadmap, tip_pose=lambda: tip)  # fmt: skip
+    assert task.force_sensor is not None and task.force_path is not None
+    assert (task.force_margin_n, task.force_margin_fraction) == (0.3, 0.2)
+    assert (task.force_hold_s, task.drift_limit_mm) == (0.25, 4.0)
+    assert task.tip_forces is forces.tips and task.rest_tip is not None
+    none = goto_view_task(path, cfg, label="go", force_sensor=None, forces=forces,
+                          roadmap=roadmap, tip_pose=None)  # fmt: skip
+    assert none.force_sensor is None and none.rest_tip is None

@@ -187,6 +187,15 @@ def test_in_vivo_returns_are_disturbed(in_vivo_run: RecoveryRun) -> None:
         # than the instantaneous one, which carries the breath the return fell on
         assert 0.0 < r.true_static_tip_error_mm_mean < r.true_tip_error_mm_mean + 1.0
         assert r.returns_stopped == 0  # no patient shift: the force check lets them pass
+        # each return's static error is kept (how many meet a target), in line with the mean
+        assert len(r.true_static_tip_errors_mm) == r.n_returns
+        assert len(r.true_static_orientation_errors_deg) == r.n_returns
+        assert np.mean(r.true_static_tip_errors_mm) == pytest.approx(
+            r.true_static_tip_error_mm_mean, abs=1e-3
+        )
+        assert max(r.true_static_orientation_errors_deg) == pytest.approx(
+            r.true_static_orientation_error_deg_max, abs=1e-3
+        )
     for t in TARGETS:
         rs = [s for s in in_vivo_run.returns if s.target == t]
         assert all(np.array_equal(s.q, rs[0].q) for s in rs)
@@ -218,6 +227,8 @@ def test_the_pose_stage_settings_follow_the_condition() -> None:
     assert math.degrees(ph.tolerance_rad) < 0.5
     assert iv.tolerance_mm == CYCLE_POSE_STAGE.tolerance_mm < 1.0
     assert math.degrees(iv.tolerance_rad) < 1.5
+    # both end at their best measured state, the start included
+    assert iv.end_at_best and ph.end_at_best
     assert ph.hold_s == pytest.approx(3.0 + ph.settle_s)
     assert iv.hold_s == pytest.approx(9.0 + iv.settle_s)
     own = cycle_stage_config(

@@ -338,3 +338,51 @@ def test_the_stage_makes_no_move_it_cannot_measure_within_its_time() -> None:
         assert len(res.measurements) == n_meas
         np.testing.assert_allclose(res.q_final, sensor.q[-1], atol=1e-12)
         assert res.duration_s <= 25.0
+
+
+def test_the_stage_ends_at_its_best_measured_state_the_start_included() -> None:
+    """``end_at_best``: when the last measurement is worse than the best by more than the
+    scatter, the best command is re-approached and measured again; when no correction did
+    better than the start, that is the start (the stage undoes itself)."""
+    clock, plant, robot, _ = em_bench(110)
+    q0 = np.array([0.05, -0.05, 0.3, 2.0])
+    cfg = PoseStageConfig(max_iterations=2, reapproach_first=False, hold_s=0.1,
+                          step_from_last=True, end_at_best=True, tolerance_mm=0.5,
+                          min_decrease_mm=0.3)  # fmt: skip
+    for script, best, undone in (([2.0, 3.0, 2.9, 2.1], 0, True),
+                                 ([2.0, 0.8, 3.0, 0.9], 1, False)):  # fmt: skip
+        robot.command_position(q0)
+        clock.advance(0.5)
+        sensor = _Scripted(robot, script)
+        res = pose_stage(robot, q0, np.eye(4), sensor, config=cfg, sleep=clock.advance,
+                         arrival_direction=(1, 1, 1, 1))  # fmt: skip
+        assert [round(m.position_mm, 3) for m in res.measurements] == script
+        assert res.revisits == 1 and res.undone is undone
+        np.testing.assert_allclose(res.q_final[2:], sensor.q[best][2:], atol=1e-12)
+        assert res.final is not None and res.final.position_mm == script[-1]
+
+
+def test_a_state_within_the_dead_band_is_accepted_only_when_a_second_window_agrees() -> None:
+    """``verify``: a first window within the dead band (0.1 mm) is measured again at the
+    same command; the second (0.9 mm: a lucky first estimate, or a slip while held) is not
+    accepted and the corrections go on until a measured state is confirmed (0.2, 0.3)."""
+    clock, plant, robot, _ = em_bench(110)
+    q0 = np.array([0.05, -0.05, 0.3, 2.0])
+    cfg = PoseStageConfig(max_iterations=3, reapproach_first=False, hold_s=0.1,
+                          step_from_last=True, verify=True, tolerance_mm=0.5)  # fmt: skip
+    robot.command_position(q0)
+    clock.advance(0.5)
+    sensor = _Scripted(robot, [0.1, 0.9, 0.2, 0.3])
+    res = pose_stage(robot, q0, np.eye(4), sensor, config=cfg, sleep=clock.advance,
+                     arrival_direction=(1, 1, 1, 1))  # fmt: skip
+    assert res.status is PoseStageStatus.CONVERGED
+    assert [round(m.position_mm, 3) for m in res.measurements] == [0.1, 0.9, 0.2, 0.3]
+    np.testing.assert_array_equal(sensor.q[0], sensor.q[1])  # no move between the windows
+    np.testing.assert_array_equal(sensor.q[2], sensor.q[3])
+    assert not np.array_equal(sensor.q[1], sensor.q[2])
+    # without it the first window is taken at its word
+    robot.command_position(q0)
+    res = pose_stage(robot, q0, np.eye(4), _Scripted(robot, [0.1, 0.9]),
+                     config=replace(cfg, verify=False), sleep=clock.advance,
+                     arrival_direction=(1, 1, 1, 1))  # fmt: skip
+    assert res.status is PoseStageStatus.AT_VIEW and len(res.measurements) == 1

@@ -42,12 +42,18 @@ from icenav.control.commands import (
 )
 from icenav.control.modes import TELEOP, Mode, Via
 from icenav.control.spin import SpinTask, tracked_tip2base
-from icenav.control.tasks import MotionAdapter, PathTask, PlanningTask, Task, refinement_task
+from icenav.control.tasks import (
+    MotionAdapter,
+    PathTask,
+    PlanningTask,
+    Task,
+    goto_view_task,
+    refinement_task,
+)
 from icenav.control.teleop import JogHold
 from icenav.errors import CommandRefusedError, IcenavError
 from icenav.geometry.kinematics import forward
 from icenav.geometry.trajectories import spin_trajectory
-from icenav.recovery.force import PathForces
 from icenav.recovery.views import View
 
 
@@ -290,25 +296,17 @@ class Handlers:
 
     def _goto_path(self, view: View, path: Array) -> PathTask:
         ctrl = self._ctrl
-        cfg = ctrl.config
-        sensor = ctrl.force_sensor
-        # the force check (Eqs. F1, F2, F4, F5 of icenav.recovery.force): with a force channel, the
-        # forces the operator's trace produced along the path, looked up as the task goes
-        checked = sensor is not None and ctrl.forces.forces.n_recorded > 0
-        return PathTask(
+        # the force check (Eqs. F1, F2, F4, F5 of icenav.recovery.force): with a force channel,
+        # the forces the operator's trace produced along the path, looked up as the task goes
+        return goto_view_task(
             path,
-            np.asarray(cfg.max_velocity),
-            mode=Mode.GOTO_VIEW,
+            ctrl.config,
             label=f"go to view {view.name!r}",
-            force_sensor=sensor if checked else None,
-            force_path=PathForces(ctrl.forces.forces, ctrl.roadmap, path) if checked else None,
-            force_margin_n=cfg.force_margin_n,
-            force_margin_fraction=cfg.force_margin_fraction,
-            tip_index=self._tip_index() if checked else None,
+            force_sensor=ctrl.force_sensor,
+            forces=ctrl.forces,
+            roadmap=ctrl.roadmap,
             tip_pose=ctrl.tip_pose_now,
-            force_hold_s=cfg.force_hold_s,
-            rest_tip=ctrl.forces.rest_tip if checked else None,
-            drift_limit_mm=cfg.force_drift_mm,
+            tip_index=self._tip_index,
         )
 
     def _refine(self, ticket: Ticket, at: float) -> None:

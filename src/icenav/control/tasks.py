@@ -37,6 +37,7 @@ from icenav.recovery.force import (
     DEFAULT_MARGIN_N,
     DRIFT_WINDOW_S,
     ForceCheck,
+    ForceRecord,
     ForceSensor,
     PathForces,
     TipForceMap,
@@ -48,6 +49,7 @@ from icenav.recovery.roadmap import Roadmap
 from icenav.recovery.views import View
 
 if TYPE_CHECKING:  # imported on use: the refinement loads scipy.ndimage and the imaging
+    from icenav.control.config import ControllerConfig
     from icenav.refinement.image_search import RefinementTask
     from icenav.refinement.pose_stage import PoseStageTask
     from icenav.refinement.task import ViewRefinementTask
@@ -62,6 +64,7 @@ __all__ = [
     "Running",
     "Task",
     "TaskStatus",
+    "goto_view_task",
     "refinement_task",
 ]
 
@@ -330,6 +333,47 @@ class PathTask:
         next set-point, or None at the end (or when it stopped: see :attr:`failure`)."""
         status = self.step(q_measured, dt)
         return status.q if isinstance(status, Running) else None
+
+
+def goto_view_task(
+    path: Array,
+    config: ControllerConfig,
+    *,
+    label: str,
+    force_sensor: ForceSensor | None,
+    forces: ForceRecord,
+    roadmap: Roadmap,
+    tip_pose: Callable[[], Array | None] | None,
+    tip_index: Callable[[], Future[Any] | None] | None = None,
+) -> PathTask:
+    """The "go to view" path task with the product's force check (Eqs. F1, F2, F4, F5 of
+    :mod:`icenav.recovery.force`, the margins, hold and drift limit of ``config``), checked
+    only with a force channel and a recorded trace: one definition for the controller and
+    the evaluations (``icenav eval recovery``), so Table II measures what the product does.
+
+    ``path`` (n, 4) motor states; ``forces`` the operator's record (per vertex, per tip pose,
+    the rest tip); ``tip_pose`` the tracked tip now ((4, 4) mm or None); ``tip_index`` starts
+    the index of the operator's tip readings (on a worker in the controller) and returns its
+    future, None when there are none (without it the index is built here, on first use)."""
+    checked = force_sensor is not None and forces.forces.n_recorded > 0
+    index = tip_index() if checked and tip_index is not None else None
+    tips = forces.tips if checked and tip_index is None and forces.tips.n_samples else None
+    return PathTask(
+        path,
+        np.asarray(config.max_velocity),
+        mode=Mode.GOTO_VIEW,
+        label=label,
+        force_sensor=force_sensor if checked else None,
+        force_path=PathForces(forces.forces, roadmap, path) if checked else None,
+        force_margin_n=config.force_margin_n,
+        force_margin_fraction=config.force_margin_fraction,
+        tip_index=index,
+        tip_forces=tips,
+        tip_pose=tip_pose,
+        force_hold_s=config.force_hold_s,
+        rest_tip=forces.rest_tip if checked else None,
+        drift_limit_mm=config.force_drift_mm,
+    )
 
 
 class PlanningTask:

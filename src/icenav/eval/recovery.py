@@ -24,9 +24,9 @@ Protocol (the phantom study of Section IV, with the in-vivo metrics of Table II)
    ``image_stage`` is off, the image stage (:func:`icenav.refinement.image_search.refine`,
    centred where the pose stage ended, scoring respiratory-gated beats); without the pose
    stage (``--no-em``) the image stage alone. Every set-point of both is recorded.
-   Returns check the contact force against the operator's trace (Eq. F1 of
-   :mod:`icenav.recovery.force`) on a twin with contact; a stopped return is counted and
-   finished without the check.
+   Returns check the contact force against the operator's trace as the product's "go to
+   view" does (:func:`icenav.control.tasks.goto_view_task`: Eqs. F1, F2, F4, F5) on a
+   twin with contact; a stopped return is counted and finished without the check.
 4. After every return (and refinement) the catheter is held still for the cycle window and
    the twin's true pose averaged over its complete breaths (beats) is recorded
    (``static_tip2base``: the refinement's target is measured on it); then two beats: one
@@ -61,7 +61,7 @@ import numpy as np
 from icenav._typing import Array
 from icenav._validation import check_positive
 from icenav.errors import ConfigurationError, IcenavError
-from icenav.eval.recovery_bench import DT, FORCE_MARGIN_N, Bench
+from icenav.eval.recovery_bench import DT, Bench
 from icenav.eval.recovery_report import (
     RecoveryRecord,
     format_table,
@@ -72,7 +72,6 @@ from icenav.eval.recovery_report import (
     summary_table,
 )
 from icenav.recovery.beats import BeatClip
-from icenav.recovery.force import DEFAULT_MARGIN_FRACTION
 from icenav.recovery.views import View
 from icenav.refinement.gating import GatedBeatImager
 from icenav.refinement.image_search import RefinementConfig, refine
@@ -84,7 +83,6 @@ from icenav.sim.conditions import CONDITIONS, DISTURBANCES
 __all__ = [
     "CYCLE_POSE_STAGE",
     "CYCLE_POSE_STAGE_PHANTOM",
-    "FORCE_MARGIN_N",
     "MODES",
     "RecoveryConfig",
     "RecoveryRecord",
@@ -185,13 +183,15 @@ class RecoveryConfig:
     retry: RetryConfig = field(default_factory=RetryConfig)
     """Settings of the ``retry`` strategy."""
     force_check: bool = True
-    """Returns read the twin's contact force and stop above the operator's + the margin
-    (:mod:`icenav.recovery.force`; a disturbed twin with contact only)."""
+    """Returns read the twin's contact force and stop above the operator's + the margin,
+    as the product's "go to view" does (:func:`icenav.control.tasks.goto_view_task`; a
+    disturbed twin with contact only)."""
     force_margin_n: float | None = None
-    """Absolute margin of the force check (N); None: ``FORCE_MARGIN_N`` of the condition
-    (:mod:`icenav.eval.recovery_bench`)."""
-    force_margin_fraction: float = DEFAULT_MARGIN_FRACTION
-    """Relative margin of the force check (fraction of the operator's force)."""
+    """Absolute margin of the force check (N); None: the product's
+    (:attr:`icenav.control.config.ControllerConfig.force_margin_n`)."""
+    force_margin_fraction: float | None = None
+    """Relative margin of the force check (fraction of the operator's force); None: the
+    product's (:attr:`icenav.control.config.ControllerConfig.force_margin_fraction`)."""
 
 
 @dataclass(frozen=True)

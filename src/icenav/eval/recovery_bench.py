@@ -4,17 +4,19 @@ roadmap and operator, on today's twin or on a disturbed twin (a condition and a 
 
 from __future__ import annotations
 
+from dataclasses import replace
 from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
 from icenav._typing import Array
-from icenav.control.controller import ControllerConfig, PathTask
+from icenav.control.config import ControllerConfig
+from icenav.control.tasks import goto_view_task
 from icenav.devices.sim_robot import SimulatedRobot
 from icenav.geometry.se3 import pose_mean
 from icenav.recovery.beats import BeatClip
-from icenav.recovery.force import DEFAULT_MARGIN_N, ForceMap, force_limit
+from icenav.recovery.force import ForceRecord, PathForces
 from icenav.recovery.roadmap import Roadmap
 from icenav.recovery.views import View
 from icenav.refinement.cycle_pose import CycleAveragedPose, complete_cycles
@@ -29,16 +31,16 @@ from icenav.sim.plugins import make_plant
 from icenav.sim.tracker import EMTracker
 from icenav.sim.ultrasound import ProbeConfig, UltrasoundRenderer
 
-__all__ = ["Bench", "DT", "FORCE_MARGIN_N", "TwinBeatImager"]
+__all__ = ["Bench", "DT", "EM_EVERY", "TwinBeatImager"]
 
 DT = 0.01
 """Control period of the simulated controller (s)."""
 
-FORCE_MARGIN_N = {"phantom": DEFAULT_MARGIN_N, "in-vivo": 0.25}
-"""Absolute margin of the force check per condition (N), at the relative margin of 100 %:
-set on the development catheters and patients (100-104 / 0-4), where no return stopped
-without a patient shift (the phantom needed up to 0.05 N, in vivo up to 0.10 N); too narrow
-for the held-out pairs (``docs/results.md``, Table II)."""
+EM_EVERY = 4
+"""Control cycles per EM reading of the tip pose kept with the operator's forces (Eq. F2):
+25 Hz, the rate at which the twin solves its contact while commands stream in (the
+controller reads the tracker's newest sample every cycle; readings within 0.5 mm of the last
+kept one are dropped by :class:`icenav.recovery.force.TipForceMap` either way)."""
 
 
 class TwinBeatImager(SimulatedBeatImager):
@@ -152,18 +154,34 @@ class Bench:
                 window_s=cfg.refine_window_s,
                 rate_hz=cfg.cycle_rate_hz,
             )
-        self.forces = ForceMap()
+        self.force_record = ForceRecord()
+        """The operator's contact forces, per roadmap vertex (Eq. F1) and per measured tip
+        pose (Eq. F2), as the controller keeps them (:attr:`Controller.forces`)."""
+        self.forces = self.force_record.forces
         """Per roadmap vertex, the contact force of the operator's trace (N)."""
         self.force_sensor: TwinForceSensor | None = None
         """The robot's contact-force channel (None on today's twin, or switched off)."""
         if self.twin is not None and cfg.force_check and self.twin.plant.contact is not None:
             self.force_sensor = TwinForceSensor(self.twin.plant)
-        self.force_margin_n = float(
-            cfg.force_margin_n
-            if cfg.force_margin_n is not None
-            else FORCE_MARGIN_N.get(cfg.condition, DEFAULT_MARGIN_N)
+        product = ControllerConfig()
+        self.controller_config = replace(
+            product,
+            force_margin_n=float(
+                cfg.force_margin_n if cfg.force_margin_n is not None else product.force_margin_n
+            ),
+            force_margin_fraction=float(
+                cfg.force_margin_fraction
+                if cfg.force_margin_fraction is not None
+                else product.force_margin_fraction
+            ),
         )
+        """The controller's settings the returns run with (speed, the force check's margins,
+        hold and drift limit): the product's, the margins overridable."""
+        self.force_margin_n = self.controller_config.force_margin_n
         """Absolute margin of the force check (N)."""
+        self.force_margin_fraction = self.controller_config.force_margin_fraction
+        """Relative margin of the force check."""
+        self._cycle = 0
         self.last_force_margin_use = 0.0
         """Largest fraction of the force margin the last return used (> 1: stopped)."""
         self.last_force_margin_needed_n = 0.0
@@ -194,13 +212,28 @@ class Bench:
 
     def drive(self, trace: Array) -> None:
         """Command an operator trace at the control rate; the contact force read at each
-        recorded state is the operator's (:class:`icenav.recovery.force.ForceMap`)."""
-        for q in trace:
+        recorded state is the operator's, kept per vertex and (every :data:`EM_EVERY`
+        cycles) at the EM-measured tip pose, as the controller records it
+        (:class:`icenav.recovery.force.ForceRecord`)."""
+        n = len(trace)
+        for k, q in enumerate(trace):
             self.robot.command_position(q)
             self.record(q)
             if self.force_sensor is not None:
-                self.forces.record(self.roadmap.current_vertex, self.force_sensor.contact_force_n())
+                self._cycle += 1
+                last = k == n - 1
+                tip = self.tip_pose_now() if self._cycle % EM_EVERY == 0 or last else None
+                if tip is not None:  # where the operator left the tip (Eq. F5)
+                    self.force_record.note_motion(tip, operator=True)
+                self.force_record.record(
+                    self.roadmap.current_vertex, self.force_sensor.contact_force_n(), tip
+                )
             self.clock.advance(DT)
+
+    def tip_pose_now(self) -> Array | None:
+        """(4, 4) the EM-measured tip pose now (one sample, mm; None if it dropped out)."""
+        tip = self.tracker.measure_tip2base(1)
+        return None if tip is None else np.asarray(tip, np.float64)
 
     def acquire(self) -> BeatClip:
         """One ECG-gated beat (the catheter held still for a beat)."""
@@ -216,8 +249,9 @@ class Bench:
         return gated.acquire_beat()
 
     def go(self, view: View) -> None:
-        """Return to ``view`` along the roadmap (with the approach), as the controller does,
-        with the force check when the twin has contact (Eq. F1); a return the check stops
+        """Return to ``view`` along the roadmap (with the approach), as the controller's "go
+        to view" does, with its force check when the twin has contact (Eqs. F1, F2, F4, F5 and
+        the settings of :class:`icenav.control.config.ControllerConfig`); a return the check stops
         is noted (:attr:`last_stop`) and then finished without the check, as an operator
         who looked would, so the experiment goes on."""
         check = self.cfg.force_check and self.force_sensor is not None
@@ -229,40 +263,49 @@ class Bench:
         self.clock.advance(0.2)  # settle
 
     def _follow(self, view: View, *, check: bool) -> float:
-        """Plan from here to ``view`` and follow the path; the largest fraction of the force
-        margin used (excess over the trace's force / margin; > 1 stops a checked path)."""
+        """Plan from here to ``view`` and follow the path: the product's "go to view" task
+        (:func:`icenav.control.tasks.goto_view_task`: Eqs. F1, F2, F4, F5 with the
+        controller's margins, hold and drift limit) when ``check``, else the same path
+        unchecked; the largest fraction of the force margin used (the force read against the
+        larger of the path's and the tip's reference; > 1: over the limit at that cycle)."""
         q0 = np.asarray(self.robot.read_state().q, np.float64)
         path = self.roadmap.plan(q0, view, approach=True)
-        profile = None
-        if self.force_sensor is not None:
-            profile = self.forces.profile(self.roadmap, path)
-        cfg = self.cfg
-        margin = self.force_margin_n
-        task = PathTask(
+        margin, fraction = self.force_margin_n, self.force_margin_fraction
+        sensor = self.force_sensor
+        task = goto_view_task(
             path,
-            np.array(ControllerConfig().max_velocity),
-            force_sensor=self.force_sensor if check else None,
-            force_profile=profile if check else None,
-            force_margin_n=margin,
-            force_margin_fraction=float(cfg.force_margin_fraction),
+            self.controller_config,
+            label=f"go to view {view.name!r}",
+            force_sensor=sensor if check else None,
+            forces=self.force_record,
+            roadmap=self.roadmap,
+            tip_pose=self.tip_pose_now,
         )
+        along = None
+        if sensor is not None and self.forces.n_recorded > 0:
+            along = PathForces(self.forces, self.roadmap, path)
+        tips = self.force_record.tips
         use = 0.0
         while True:
-            if self.force_sensor is not None and profile is not None:
-                f = float(self.force_sensor.contact_force_n() or 0.0)
-                rec, limit = force_limit(
-                    profile, task.path_index, margin, cfg.force_margin_fraction
-                )
-                use = max(use, (f - rec) / (limit - rec) if limit > rec else 0.0)
-                self.last_force_margin_needed_n = max(
-                    self.last_force_margin_needed_n, f - rec * (1.0 + cfg.force_margin_fraction)
-                )
+            if sensor is not None and along is not None:
+                f = float(sensor.contact_force_n() or 0.0)
+                ref = along.recorded(task.path_index)
+                if ref is not None and f > ref and tips.n_samples:
+                    at_tip = tips.reference(self.tip_pose_now())  # Eq. (F2)
+                    ref = ref if at_tip is None else max(ref, at_tip)
+                if ref is not None and margin + fraction * ref > 0:
+                    use = max(use, (f - ref) / (margin + fraction * ref))
+                    self.last_force_margin_needed_n = max(
+                        self.last_force_margin_needed_n, f - ref * (1.0 + fraction)
+                    )
             q = task.next_command(np.asarray(self.robot.read_state().q), DT)
             if q is None:
                 break
             self.robot.command_position(q)
             self.record(q)  # every visited state is recorded (Alg. 1)
             self.clock.advance(DT)
+        # the motors moved, not by the operator: the rest tip is forgotten (Eq. F5)
+        self.force_record.note_motion(None, operator=False)
         if task.failure is not None:
             self.last_stop = task.failure
         return use

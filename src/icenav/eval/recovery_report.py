@@ -157,6 +157,10 @@ class RecoveryRecord:
     """Returns the force check stopped."""
     force_margin_needed_n: float = 0.0
     """The absolute margin (N) these returns needed not to stop (at the relative margin)."""
+    true_static_tip_errors_mm: tuple[float, ...] = ()
+    """The static true tip error of each return, in order (mm): how many meet a target."""
+    true_static_orientation_errors_deg: tuple[float, ...] = ()
+    """The static true orientation error of each return, in order (deg)."""
 
 
 def raw_similarity(clip: BeatClip, ref: BeatClip) -> float:
@@ -303,6 +307,8 @@ def make_record(
         max_force_margin_use=float(max(s.force_margin_use for s in rs)),
         returns_stopped=sum(s.return_stopped is not None for s in rs),
         force_margin_needed_n=float(max(s.force_margin_needed_n for s in rs)),
+        true_static_tip_errors_mm=tuple(round(float(x), 4) for x in st_mm),
+        true_static_orientation_errors_deg=tuple(round(float(x), 4) for x in st_deg),
     )
 
 

@@ -162,6 +162,18 @@ class PoseStageConfig:
     """At the end, if the last measurement is worse than the first (the stage made it
     worse), go back to the start state (re-approached) and stop there: never farther from
     the saved pose than it started, as far as the estimator can tell."""
+    end_at_best: bool = False
+    """With ``step_from_last``: the stage ends at its best measured state, the start
+    included. When the last measurement is worse than the best by more than
+    ``min_decrease_mm``, the best command is re-approached and measured again; every
+    correction starts only when it, its measurement and this way back fit in the time
+    budget. It replaces ``undo_if_worse`` (going back to the start is the case where the
+    start was the best), which only ever compared with the first measurement."""
+    verify: bool = False
+    """A measurement within the dead band is accepted only when a second, independent
+    window at the same command (no move) is within it too (when the time allows): one
+    window's estimate can be lucky, and a shaft that slips while the catheter is held moves
+    the tip after it; otherwise the corrections go on from the second measurement."""
 
     def __post_init__(self) -> None:
         unit = "(rad, rad, rad, mm)"
@@ -475,9 +487,10 @@ class PoseStageTask:
             return t
 
         need = travel(self._run.cmd, moves) + self._hold_s
-        if reserve and cfg.undo_if_worse:
+        if reserve and (cfg.undo_if_worse or cfg.end_at_best):
             end = moves[-1] if moves else self._run.cmd
-            need += travel(end, [end - self._engaged() * np.array(cfg.backoff), self.q_start])
+            back = self._best_q if cfg.end_at_best else self.q_start
+            need += travel(end, [end - self._engaged() * np.array(cfg.backoff), back])
             need += self._hold_s
         return self._run.elapsed + need <= cfg.max_duration_s
 
@@ -498,8 +511,17 @@ class PoseStageTask:
                 return
         self._final = m
         if self._within(m):
-            self._status = PoseStageStatus.AT_VIEW
-            return
+            if not (cfg.verify and self._time_for([], reserve=False)):
+                self._status = PoseStageStatus.AT_VIEW
+                return
+            m = yield _MeasurePose()  # an independent window at the same command
+            if m is None:
+                self._status = PoseStageStatus.NO_POSE
+                return
+            self._final = m
+            if self._within(m):
+                self._status = PoseStageStatus.AT_VIEW
+                return
         first = m
         best = m
         self._best_q = m.q.copy()
@@ -557,18 +579,29 @@ class PoseStageTask:
                 best, self._best_q = m, m.q.copy()
             elif not cfg.step_from_last:
                 gain *= 0.5  # the step did not pay: a shorter one from the best state
+            if cfg.verify and self._within(m) and self._time_for([], reserve=False):
+                m2 = yield _MeasurePose()  # accept only what a second window confirms
+                if m2 is None:
+                    self._status = PoseStageStatus.NO_POSE
+                    return
+                m = m2
+                self._final = m
+                if np.array_equal(m.q, best.q):
+                    best = m  # the newer window at the best command replaces the older
         else:
             self._status = PoseStageStatus.CONVERGED
             return
         end_moves = self._approach(best.q.copy(), force=True)
         if (
             cfg.step_from_last
-            and cfg.revisit_best
+            and (cfg.revisit_best or cfg.end_at_best)
             and self._worse_than_best(m, best)
-            and self._time_for(end_moves)
+            and self._time_for(end_moves, reserve=not cfg.end_at_best)
         ):
             # the last draw is worse than a measured one: end at the best command instead
+            # (the start's, when no correction did better: the stage undoes itself)
             self._revisits += 1
+            self._undone = bool(np.array_equal(best.q, self.q_start))
             for t in end_moves:
                 yield _Move(t)
             m5 = yield _MeasurePose()
@@ -585,6 +618,8 @@ class PoseStageTask:
             if m3 is not None:
                 self._final = m3
         last = self._final
+        if cfg.end_at_best:
+            return
         if (
             cfg.undo_if_worse
             and last is not None
