@@ -7,6 +7,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from icenav.control.controller import Controller, ControllerConfig
 from icenav.control.state import Mode
@@ -104,19 +105,25 @@ def test_a_restarted_session_keeps_the_forces_and_stops_a_return_into_a_moved_pa
     assert not np.allclose(robot.read_state().q, views.get("mitral").q)  # held on the way
 
 
-def test_a_return_does_not_start_after_the_patient_carried_the_tip_away() -> None:
+@pytest.mark.parametrize("force_channel", [True, False])
+def test_a_return_does_not_start_after_the_patient_carried_the_tip_away(
+    force_channel: bool,
+) -> None:
     """Eq. (F5) in the controller: the operator drives to a view and half way back with
     the tracker (the twin's disturbed pose); the patient moves 10 mm and carries the
     catheter; "go to view" stops as it starts and says why. Without the shift the return
-    goes on."""
+    goes on. The check needs the tracker only: a robot without a force channel has it too."""
     for shift in (False, True):
         clock = Clock()
         twin = build_twin("phantom", 100, 0, clock)
         robot = SimulatedRobot(twin.plant, clock=clock)
         tracker = DisturbedTracker(exact_tracker(twin.plant.inner, clock), twin.plant)
         tracker.start()
+        sensor = TwinForceSensor(twin.plant) if force_channel else None
         ctrl = Controller(robot, ControllerConfig(), clock=clock,
-                          force_sensor=TwinForceSensor(twin.plant), tracker=tracker)  # fmt: skip
+                          force_sensor=sensor, tracker=tracker)  # fmt: skip
+        if not force_channel:
+            assert ctrl.snapshot().force_check.endswith("tip-drift check on (tracker)")
         q_view = np.asarray(twin.views["mitral_valve"], np.float64)
         ctrl.request_mode(Mode.KNOB)
         _jog_to(ctrl, clock, q_view, 1.2)

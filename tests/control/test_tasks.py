@@ -244,3 +244,8 @@ def test_goto_view_task_is_the_products_check_with_the_controllers_settings() ->
     none = goto_view_task(path, cfg, label="go", force_sensor=None, forces=forces,
                           roadmap=roadmap, tip_pose=None)  # fmt: skip
     assert none.force_sensor is None and none.rest_tip is None
+    # no force channel but a tracker: the tip-drift check (Eq. F5) alone
+    drift_only = goto_view_task(path, cfg, label="go", force_sensor=None, forces=forces,
+                                roadmap=roadmap, tip_pose=lambda: tip)  # fmt: skip
+    assert drift_only.force_sensor is None and drift_only.force_path is None
+    assert drift_only.rest_tip is not None and drift_only.drift_limit_mm == 4.0

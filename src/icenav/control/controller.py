@@ -399,13 +399,14 @@ class Controller(CommandCalls):
             if moved:
                 self._still_since, self._q_last = self._clock(), self._q.copy()
             mode = self.machine.mode
-            operator = self.force_sensor is not None and mode in _OPERATOR_MODES
+            driving = mode in _OPERATOR_MODES
+            operator = self.force_sensor is not None and driving
             buffered = self.pose_buffer is not None and mode not in _UNBUFFERED_MODES
             tip = self.tip_pose_now() if operator or buffered else None
             if buffered:
                 self.pose_buffer.push(self._clock(), tip)  # type: ignore[union-attr]
-            if moved:  # where the operator left the tip (Eq. F5 of recovery.force)
-                self.forces.note_motion(tip, operator)
+            if moved:  # where the operator left the tip (Eq. F5: a tracker is enough)
+                self.forces.note_motion(tip, driving)
             if operator:
                 self._record_force(tip)
             self.record("state", {"q": self._q, "t": self._time})

@@ -117,7 +117,9 @@ class Publisher:
             backbone_true=bb_true,
             sensor2base=sensor,
             tracker_status=tracker_status,
-            force_check=force_check_text(ctrl.force_sensor is not None, ctrl.forces),
+            force_check=force_check_text(
+                ctrl.force_sensor is not None, ctrl.forces, ctrl.tracker is not None
+            ),
             message=self.operator_message(),
             progress=None if task is None else task.progress,
             progress_label="" if task is None else task.label,
@@ -196,9 +198,12 @@ class Publisher:
         self._image_error = f"imaging error: {type(exc).__name__}: {exc}"
 
 
-def force_check_text(has_channel: bool, forces: Any) -> str:
-    """What the operator is told of the returns' force check."""
+def force_check_text(has_channel: bool, forces: Any, has_tracker: bool = False) -> str:
+    """What the operator is told of the returns' checks: the force check (a force channel)
+    and the tip-drift check (a tracker, Eq. F5 of :mod:`icenav.recovery.force`)."""
+    drift = "; tip-drift check on (tracker)" if has_tracker else ""
     if not has_channel:
-        return "off: no force channel"
+        return "off: no force channel" + drift
     n = forces.forces.n_recorded
-    return f"on ({n} states of your trace with a force)" if n else "on (no force recorded yet)"
+    text = f"on ({n} states of your trace with a force)" if n else "on (no force recorded yet)"
+    return text + drift

@@ -346,10 +346,12 @@ def goto_view_task(
     tip_pose: Callable[[], Array | None] | None,
     tip_index: Callable[[], Future[Any] | None] | None = None,
 ) -> PathTask:
-    """The "go to view" path task with the product's force check (Eqs. F1, F2, F4, F5 of
-    :mod:`icenav.recovery.force`, the margins, hold and drift limit of ``config``), checked
-    only with a force channel and a recorded trace: one definition for the controller and
-    the evaluations (``icenav eval recovery``), so Table II measures what the product does.
+    """The "go to view" path task with the product's force check (Eqs. F1, F2, F4 of
+    :mod:`icenav.recovery.force`, the margins and hold of ``config``), checked only with a
+    force channel and a recorded trace, and the tip-drift check (Eq. F5, the drift limit of
+    ``config``), with a tracker that saw where the operator left the tip: one definition
+    for the controller and the evaluations (``icenav eval recovery``), so Table II measures
+    what the product does.
 
     ``path`` (n, 4) motor states; ``forces`` the operator's record (per vertex, per tip pose,
     the rest tip); ``tip_pose`` the tracked tip now ((4, 4) mm or None); ``tip_index`` starts
@@ -371,7 +373,8 @@ def goto_view_task(
         tip_forces=tips,
         tip_pose=tip_pose,
         force_hold_s=config.force_hold_s,
-        rest_tip=forces.rest_tip if checked else None,
+        # Eq. (F5) needs the tracker only, not a force channel
+        rest_tip=forces.rest_tip if tip_pose is not None else None,
         drift_limit_mm=config.force_drift_mm,
     )
 
