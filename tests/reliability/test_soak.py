@@ -46,8 +46,11 @@ def test_short_soak_with_a_small_vertex_budget(tmp_path: Path) -> None:
     assert report.faults == 0 and report.store_consistent
     assert report.returns_done >= 2
     assert report.max_return_error < 1e-6
-    for message in report.failure_messages:
-        assert "is not connected to start vertex" in message
+    for message in report.failure_messages:  # refused: the roadmap has no path from here
+        assert (
+            "is not connected to start vertex" in message  # a view beyond the closed budget
+            or "from the nearest recorded state" in message  # the robot is beyond it
+        ), message
     assert report.returns_failed <= report.isolated_views
 
 
