@@ -16,19 +16,10 @@ from icenav.devices.robot import RobotStatus
 from icenav.devices.sim_robot import IdealPlant, SimulatedRobot
 from icenav.errors import ConfigurationError, InvalidValueError
 from icenav.geometry.kinematics import forward
+from tests.support.clock import Clock
 
 M = JoystickMapping()
 ENABLE = M.enable_button
-
-
-class Clock:
-    """Simulated time, advanced by the controller's cycles."""
-
-    def __init__(self) -> None:
-        self.t = 0.0
-
-    def __call__(self) -> float:
-        return self.t
 
 
 def make(

@@ -17,17 +17,8 @@ from icenav.persistence.recorder import StoreRecorder
 from icenav.persistence.store import SessionStore
 from icenav.sim.conditions import build_twin
 from icenav.sim.disturbed import DisturbedTracker, TwinForceSensor, mean_pose
+from tests.support.clock import Clock
 from tests.support.twin import exact_tracker
-
-
-class Clock:
-    """Simulated time, advanced by the test with the controller's cycles."""
-
-    def __init__(self) -> None:
-        self.t = 0.0
-
-    def __call__(self) -> float:
-        return self.t
 
 
 def _cycle(ctrl: Controller, clock: Clock) -> None:

@@ -10,16 +10,9 @@ from icenav.control.modes import Mode
 from icenav.control.teleop import GamepadReader, JoystickMapping
 from icenav.devices.gamepad import Keyframe, ScriptedInput
 from icenav.devices.sim_robot import IdealPlant, SimulatedRobot
+from tests.support.clock import Clock
 
 M = JoystickMapping()
-
-
-class Clock:
-    def __init__(self) -> None:
-        self.t = 0.0
-
-    def __call__(self) -> float:
-        return self.t
 
 
 def reader(keyframes: list[Keyframe], clock: Clock) -> GamepadReader:

@@ -13,6 +13,7 @@ import pytest
 from icenav.devices.tracker import ToolStatus, TrackerFrame
 from icenav.devices.tracker_feed import PolledTracker
 from icenav.errors import ConfigurationError, TrackerError
+from tests.support.clock import Clock
 
 
 class BlockingTracker:
@@ -54,14 +55,6 @@ class BlockingTracker:
         self.callers.append(threading.current_thread().name)
         self.measuring = False
         return np.eye(4)
-
-
-class Clock:
-    def __init__(self) -> None:
-        self.t = 0.0
-
-    def __call__(self) -> float:
-        return self.t
 
 
 def _feed() -> tuple[PolledTracker, BlockingTracker, Clock]:

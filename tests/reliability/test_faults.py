@@ -26,18 +26,9 @@ from icenav.devices.gamepad import JoystickSample
 from icenav.devices.robot import RobotStatus
 from icenav.devices.sim_robot import IdealPlant, SimulatedRobot
 from icenav.persistence.store import SessionStore
+from tests.support.clock import Clock
 
 M = JoystickMapping()
-
-
-class Clock:
-    """Simulated time."""
-
-    def __init__(self) -> None:
-        self.t = 0.0
-
-    def __call__(self) -> float:
-        return self.t
 
 
 class Pad:

@@ -40,7 +40,7 @@ import math
 import os
 import sys
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass, field
 from typing import Any
 
@@ -158,6 +158,31 @@ def _box_reference(b: Bench, motor: ForceMap, q: Array, box: tuple[float, float]
     return float(np.nanmax(vals)) if np.isfinite(vals).any() else math.nan
 
 
+def _save_views(b: Bench, cfg: ForceStudyConfig, drive: Callable[[Array], None]) -> dict[str, Any]:
+    """The operator drives to each target, dwells 0.5 s and saves it, then wanders
+    (``cfg.wander_moves``): the views by target name."""
+    views = {}
+    for name in TARGETS:
+        drive(b.operator.move_to(b.views[name]))
+        drive(b.operator.dwell(0.5))
+        views[name] = b.roadmap.make_view(name, created_s=b.clock.now())
+    drive(b.operator.explore(cfg.wander_moves))
+    return views
+
+
+def _shift_plan(cfg: ForceStudyConfig) -> list[tuple[float, float, float]]:
+    """The patient shift (mm, x / y / z) before each return: ``cfg.rounds`` undisturbed
+    rounds of the targets, then each shift of ``cfg.shifts_mm`` along +-x, +-y, +-z."""
+    plan: list[tuple[float, float, float]] = [(0.0, 0.0, 0.0)] * (cfg.rounds * len(TARGETS))
+    for s in cfg.shifts_mm:
+        for axis in range(3):
+            for sign in (1.0, -1.0):
+                v = [0.0, 0.0, 0.0]
+                v[axis] = sign * s
+                plan.append((v[0], v[1], v[2]))
+    return plan
+
+
 def run_force_study(cfg: ForceStudyConfig) -> list[ReturnForces]:
     """Run the protocol of the module docstring for one pair."""
     b = Bench(
@@ -187,21 +212,10 @@ def run_force_study(cfg: ForceStudyConfig) -> list[ReturnForces]:
                 m.record(tip, f)
             b.clock.advance(DT)
 
-    views = {}
-    for name in TARGETS:
-        drive(b.operator.move_to(b.views[name]))
-        drive(b.operator.dwell(0.5))
-        views[name] = b.roadmap.make_view(name, created_s=b.clock.now())
-    drive(b.operator.explore(cfg.wander_moves))
+    views = _save_views(b, cfg, drive)
 
     out: list[ReturnForces] = []
-    plan: list[tuple[float, float, float]] = [(0.0, 0.0, 0.0)] * (cfg.rounds * len(TARGETS))
-    for s in cfg.shifts_mm:
-        for axis in range(3):
-            for sign in (1.0, -1.0):
-                v = [0.0, 0.0, 0.0]
-                v[axis] = sign * s
-                plan.append((v[0], v[1], v[2]))
+    plan = _shift_plan(cfg)
     for k, shift in enumerate(plan):
         drive(b.operator.explore(cfg.moves_between))
         moved = any(shift)
@@ -319,19 +333,8 @@ def record_pair(cfg: ForceStudyConfig) -> dict[str, Any]:
             row(k, q, f, math.nan, -1)
             b.clock.advance(DT)
 
-    views = {}
-    for name in TARGETS:
-        drive(b.operator.move_to(b.views[name]))
-        drive(b.operator.dwell(0.5))
-        views[name] = b.roadmap.make_view(name, created_s=b.clock.now())
-    drive(b.operator.explore(cfg.wander_moves))
-    plan: list[tuple[float, float, float]] = [(0.0, 0.0, 0.0)] * (cfg.rounds * len(TARGETS))
-    for s in cfg.shifts_mm:
-        for axis in range(3):
-            for sign in (1.0, -1.0):
-                v = [0.0, 0.0, 0.0]
-                v[axis] = sign * s
-                plan.append((v[0], v[1], v[2]))
+    views = _save_views(b, cfg, drive)
+    plan = _shift_plan(cfg)
     spans: list[tuple[int, int, int]] = []
     for k, shift in enumerate(plan):
         drive(b.operator.explore(cfg.moves_between))
