@@ -19,8 +19,9 @@ from icenav.devices.tracker import (
     mean_sensor_pose,
 )
 from icenav.errors import ConfigurationError
-from icenav.sim import CatheterPlant, EMTracker, TrackerConfig
+from icenav.sim import CatheterPlant, EMTracker
 from tests.support.ndi import FakeAurora
+from tests.support.twin import EXACT
 
 
 @pytest.fixture
@@ -43,14 +44,7 @@ def test_the_twin_and_the_aurora_give_the_same_tip2base_for_the_same_sensor_pose
     format (quaternion, mm): the NDI backend's ``tip2base`` through the twin's registration is
     the plant's true tip, as the twin's own noise-free tracker reports it."""
     plant = CatheterPlant(seed=3)
-    quiet = TrackerConfig(
-        position_bias_rms_mm=0.0,
-        position_jitter_rms_mm=0.0,
-        rotation_bias_rms_rad=0.0,
-        rotation_jitter_rms_rad=0.0,
-        dropout_probability=0.0,
-    )
-    twin = EMTracker(plant, seed=3, config=quiet)
+    twin = EMTracker(plant, seed=3, config=EXACT)
     ndi = NDIAuroraTracker(NDIAuroraConfig(serial_port="/dev/ttyNDI0"))
     ndi.start()
     ndi.registration = twin.registration
