@@ -86,6 +86,7 @@ def test_a_restarted_session_keeps_the_forces_and_stops_a_return_into_a_moved_pa
         roadmap, views, forces = again.load_roadmap(), again.load_views(), load_forces(again)
     np.testing.assert_array_equal(forces.forces.at(ids), before)
     np.testing.assert_array_equal(forces.tips.samples(), tips_before)
+    assert forces.rest_tip is None  # the return moved the motors: the stored rest is gone
     robot.command_position(np.zeros(4))
     twin.shift_patient([0.0, 20.0, 0.0])  # the patient moved on the table
     restarted = Controller(robot, ControllerConfig(), roadmap=roadmap, views=views,
@@ -135,6 +136,63 @@ def test_a_return_does_not_start_after_the_patient_carried_the_tip_away(
             assert ctrl.task is None and np.all(step < [0.05, 0.05, 0.05, 0.5])
         else:
             assert step.max() > 0.05 and "as it started" not in message, message
+
+
+@pytest.mark.parametrize("case", ["still", "patient moved", "motors moved"])
+def test_after_a_crash_the_stored_rest_pose_still_stops_a_return_into_a_moved_patient(
+    case: str, tmp_path: Path
+) -> None:
+    """Eq. (F5) across a crash: the session stores where the operator left the tip and the
+    motors; the process dies; the restarted controller keeps the rest pose only when the
+    robot's motors stand where they were left. Then a patient who moved meanwhile stops the
+    return as it starts; without a shift it goes; motors moved meanwhile (homed, driven by
+    hand) leave no reference and the return goes unchecked by Eq. (F5)."""
+    clock = Clock()
+    twin = build_twin("phantom", 100, 0, clock)
+    robot = SimulatedRobot(twin.plant, clock=clock)
+    tracker = DisturbedTracker(exact_tracker(twin.plant.inner, clock), twin.plant)
+    tracker.start()
+    path = tmp_path / "rest.icenav"
+    store = SessionStore(path, new_session=True, clock=clock)
+    ctrl = Controller(robot, ControllerConfig(), clock=clock, tracker=tracker)
+    recorder = StoreRecorder(store, ctrl.roadmap, threaded=True, forces=ctrl.forces)
+    ctrl.set_recorder(recorder)
+    q_view = np.asarray(twin.views["mitral_valve"], np.float64)
+    ctrl.request_mode(Mode.KNOB)
+    _jog_to(ctrl, clock, q_view, 1.2)
+    ctrl.save_view("mitral")
+    _jog_to(ctrl, clock, 0.5 * q_view, 0.6)
+    for _ in range(60):  # the jog's hold runs out and the motors stop
+        _cycle(ctrl, clock)
+    rest_tip, q_left = ctrl.forces.rest_tip, np.asarray(robot.read_state().q).copy()
+    assert rest_tip is not None
+    recorder.flush()  # committed; then the process dies
+    recorder.writer.close()  # type: ignore[union-attr]
+    store._db.close()  # noqa: SLF001 - a crash: no clean close
+    store._lock.release()  # type: ignore[union-attr]  # noqa: SLF001 - the OS releases it
+
+    with SessionStore(path, clock=clock) as again:
+        roadmap, views, forces = again.load_roadmap(), again.load_views(), load_forces(again)
+    np.testing.assert_array_equal(forces.rest_tip, rest_tip)
+    np.testing.assert_array_equal(forces.rest_q, q_left)
+    if case == "motors moved":
+        robot.command_position(q_left + np.array([0.0, 0.0, 0.1, 0.0]))
+    if case != "still":
+        twin.shift_patient([-10.0, 0.0, 0.0])
+    restarted = Controller(robot, ControllerConfig(), roadmap=roadmap, views=views,
+                           clock=clock, forces=forces, tracker=tracker)  # fmt: skip
+    assert (restarted.forces.rest_tip is None) == (case == "motors moved")
+    q_start = np.asarray(robot.read_state().q).copy()
+    restarted.goto_view("mitral")
+    for _ in range(50):
+        _cycle(restarted, clock)
+    step = np.abs(np.asarray(robot.read_state().q) - q_start)
+    message = restarted.snapshot().message
+    if case == "patient moved":
+        assert "as it started" in message and "motors still" in message, message
+        assert restarted.task is None and np.all(step < [0.05, 0.05, 0.05, 0.5])
+    else:
+        assert step.max() > 0.05 and "as it started" not in message, message
 
 
 def test_without_a_force_channel_there_is_no_check_and_the_operator_is_told() -> None:

@@ -228,6 +228,7 @@ class Controller(CommandCalls):
         self._q_cmd = np.array(q0, dtype=np.float64)
         self._q = np.array(q0, dtype=np.float64)
         self._q_last = self._q.copy()
+        self.forces.keep_rest_if_at(self._q)  # a restored rest pose: only if nothing moved
         self.roadmap.add(self._q)
         self._state = self.publisher.make_state()
 
@@ -406,7 +407,7 @@ class Controller(CommandCalls):
             if buffered:
                 self.pose_buffer.push(self._clock(), tip)  # type: ignore[union-attr]
             if moved:  # where the operator left the tip (Eq. F5: a tracker is enough)
-                self.forces.note_motion(tip, driving)
+                self.forces.note_motion(tip, driving, self._q)
             if operator:
                 self._record_force(tip)
             self.record("state", {"q": self._q, "t": self._time})

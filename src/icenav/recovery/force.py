@@ -53,9 +53,11 @@ __all__ = [
     "DRIFT_WINDOW_S",
     "ForceCheck",
     "ForceMap",
+    "ForceRecord",
     "ForceStop",
     "ForceSensor",
     "PathForces",
+    "REST_Q_TOLERANCE",
     "TipForceMap",
     "TipIndex",
     "TipTrace",
@@ -474,6 +476,19 @@ def shape_reference(
     return float(np.nanmax(vals))
 
 
+REST_Q_TOLERANCE = 1e-3
+"""Largest difference per joint (rad or mm) between the motor state a session stored with
+the rest pose and the one the robot reports after a restart for the rest pose to stand
+(encoder counts of the robot's drives are finer than 1e-4)."""
+
+
+def _check_q(q: ArrayLike, name: str) -> Array:
+    a = np.asarray(q, np.float64).reshape(-1)
+    if a.shape != (4,) or not np.all(np.isfinite(a)):
+        raise ShapeError(f"{name} must be 4 finite joint values (rad, rad, rad, mm), got {q!r}")
+    return a.copy()
+
+
 class ForceRecord:
     """The operator's contact forces a session keeps: per roadmap vertex (:class:`ForceMap`,
     Eq. F1) and per measured tip pose (:class:`TipForceMap`, Eq. F2), with what a store has
@@ -496,6 +511,9 @@ class ForceRecord:
         self._dirty: set[int] = set()
         self._lock = threading.Lock()
         self._rest_tip: Array | None = None
+        self._rest_q: Array | None = None
+        self.rest_version = 0
+        """Counts the changes of the rest pose (a store writes it when this moved on)."""
 
     @property
     def rest_tip(self) -> Array | None:
@@ -503,17 +521,52 @@ class ForceRecord:
         motors, None when unknown or when anything else moved them since (Eq. F5)."""
         return None if self._rest_tip is None else self._rest_tip.copy()
 
-    def note_motion(self, tip2base: ArrayLike | None, operator: bool) -> None:
-        """The motors moved this cycle: by the operator with the tip at ``tip2base`` (4, 4)
-        (mm; None: no pose read), or by anything else (a return, a refinement: the rest pose
-        is forgotten)."""
+    @property
+    def rest_q(self) -> Array | None:
+        """(4,) the motor state (rad, rad, rad, mm) the operator left with the tip at
+        :attr:`rest_tip`; None with it."""
+        return None if self._rest_q is None else self._rest_q.copy()
+
+    def note_motion(
+        self, tip2base: ArrayLike | None, operator: bool, q: ArrayLike | None = None
+    ) -> None:
+        """The motors moved this cycle: by the operator to motor state ``q`` (4,) with the tip
+        at ``tip2base`` (4, 4) (mm; None: no pose read), or by anything else (a return, a
+        refinement: the rest pose is forgotten)."""
+        self.rest_version += 1
         if not operator or tip2base is None:
-            self._rest_tip = None
+            self._rest_tip = self._rest_q = None
             return
         t = np.asarray(tip2base, np.float64)
         if t.shape != (4, 4) or not np.all(np.isfinite(t[:3, 3])):
             raise ShapeError(f"tip2base must be a finite (4, 4) pose, got shape {t.shape}")
         self._rest_tip = t[:3, 3].copy()
+        self._rest_q = None if q is None else _check_q(q, "q")
+
+    def restore_rest(self, rest_tip: ArrayLike, rest_q: ArrayLike) -> None:
+        """The rest pose read back from a session (``rest_tip`` (3,) mm, ``rest_q`` (4,)):
+        valid while the motors stand where the operator left them (:meth:`keep_rest_if_at`)."""
+        tip = np.asarray(rest_tip, np.float64).reshape(-1)
+        if tip.shape != (3,) or not np.all(np.isfinite(tip)):
+            raise ShapeError(f"rest_tip must be 3 finite mm, got {rest_tip!r}")
+        self._rest_tip, self._rest_q = tip.copy(), _check_q(rest_q, "rest_q")
+        self.rest_version += 1
+
+    def keep_rest_if_at(self, q: ArrayLike, tolerance: float = REST_Q_TOLERANCE) -> bool:
+        """Keep the rest pose only if the motors stand at ``q`` (4,) within ``tolerance``
+        (rad or mm, per joint) of where the operator left them: after a restart, motors that
+        moved meanwhile (homed, power-cycled, driven by hand) leave the tip anywhere, so Eq.
+        (F5) has no reference until the operator drives again. Returns whether it is kept."""
+        if self._rest_q is None:
+            if self._rest_tip is not None:  # a rest without its motor state: not trusted
+                self._rest_tip = None
+                self.rest_version += 1
+            return False
+        if np.max(np.abs(_check_q(q, "q") - self._rest_q)) <= tolerance:
+            return True
+        self._rest_tip = self._rest_q = None
+        self.rest_version += 1
+        return False
 
     def record(self, vertex: int, force_n: float | None, tip2base: ArrayLike | None) -> None:
         """Note a reading of the operator's trace: the force (N) at ``vertex`` and, with a
@@ -545,9 +598,10 @@ class ForceRecord:
     @classmethod
     def from_rows(
         cls, vertex_rows: ArrayLike, tip_rows: ArrayLike, radius_mm: float = DEFAULT_RADIUS_MM,
-        angle_deg: float = DEFAULT_ANGLE_DEG,
+        angle_deg: float = DEFAULT_ANGLE_DEG, rest: tuple[ArrayLike, ArrayLike] | None = None,
     ) -> ForceRecord:  # fmt: skip
-        """A record restored from a session: (k, 2) vertex / force rows, (n, 7) tip rows."""
+        """A record restored from a session: (k, 2) vertex / force rows, (n, 7) tip rows and
+        the rest pose (tip (3,) mm, motor state (4,)) or None."""
         vr = np.asarray(vertex_rows, np.float64).reshape(-1, 2)
         tips = TipForceMap.from_samples(
             np.asarray(tip_rows, np.float64).reshape(-1, 7), radius_mm, angle_deg
@@ -556,6 +610,8 @@ class ForceRecord:
         out = cls(tips=tips)
         for v, f in vr.tolist():
             out.forces.record(int(v), f)
+        if rest is not None:
+            out.restore_rest(*rest)
         return out
 
 
