@@ -115,7 +115,10 @@ def test_a_return_does_not_start_after_the_patient_carried_the_tip_away(
         ctrl = Controller(robot, ControllerConfig(), clock=clock,
                           force_sensor=sensor, tracker=tracker)  # fmt: skip
         if not force_channel:
-            assert ctrl.snapshot().force_check.endswith("tip-drift check on (tracker)")
+            assert ctrl.snapshot().force_check.endswith(
+                "tip-drift check on (tracker, armed at your next drive: the last motion was "
+                "not yours)"
+            )
         q_view = np.asarray(twin.views["mitral_valve"], np.float64)
         ctrl.request_mode(Mode.KNOB)
         _jog_to(ctrl, clock, q_view, 1.2)
@@ -124,6 +127,8 @@ def test_a_return_does_not_start_after_the_patient_carried_the_tip_away(
         for _ in range(20):
             _cycle(ctrl, clock)
         q_left = np.asarray(robot.read_state().q).copy()
+        if not force_channel:  # where the operator left the tip: the check is armed
+            assert ctrl.snapshot().force_check.endswith("tip-drift check on (tracker)")
         if shift:
             twin.shift_patient([-10.0, 0.0, 0.0])
         ctrl.goto_view("mitral")
