@@ -200,6 +200,45 @@ def test_after_a_crash_the_stored_rest_pose_still_stops_a_return_into_a_moved_pa
         assert step.max() > 0.05 and "as it started" not in message, message
 
 
+def test_after_a_dwell_the_tip_drift_check_compares_like_phases_of_the_beat() -> None:
+    """Eq. (F5), phase-matched, in the controller (the phantom's ECG connected): the
+    operator stops and looks at the image for 3 s; the loop keeps the tip's readings with
+    their phases; a return then starts when nobody moved and refuses to start after a 10 mm
+    shift."""
+    for shift in (False, True):
+        clock = Clock()
+        twin = build_twin("phantom", 100, 0, clock)
+        robot = SimulatedRobot(twin.plant, clock=clock)
+        tracker = DisturbedTracker(exact_tracker(twin.plant.inner, clock), twin.plant)
+        tracker.start()
+        ctrl = Controller(robot, ControllerConfig(), clock=clock, tracker=tracker,
+                          cardiac_phase=twin.rhythm.phase)  # fmt: skip
+        q_view = np.asarray(twin.views["mitral_valve"], np.float64)
+        ctrl.request_mode(Mode.KNOB)
+        _jog_to(ctrl, clock, q_view, 1.2)
+        ctrl.save_view("mitral")
+        _jog_to(ctrl, clock, 0.5 * q_view, 0.6)
+        for _ in range(int(3.0 * ctrl.config.rate_hz)):  # the jog runs out; then still
+            _cycle(ctrl, clock)
+        rest = ctrl.forces.rest
+        assert rest is not None and rest.n_readings > 1.5 * ctrl.config.rate_hz
+        resp, phase = ctrl.signals(ctrl.now())
+        assert resp is None and phase is not None and 0.0 <= phase < 1.0
+        q_left = np.asarray(robot.read_state().q).copy()
+        if shift:
+            twin.shift_patient([-10.0, 0.0, 0.0])
+        ctrl.goto_view("mitral")
+        for _ in range(50):
+            _cycle(ctrl, clock)
+        step = np.abs(np.asarray(robot.read_state().q) - q_left)
+        message = ctrl.snapshot().message
+        if shift:
+            assert "as it started" in message, message
+            assert np.all(step < [0.05, 0.05, 0.05, 0.5])
+        else:
+            assert step.max() > 0.05 and "as it started" not in message, message
+
+
 def test_without_a_force_channel_there_is_no_check_and_the_operator_is_told() -> None:
     clock = Clock()
     twin = build_twin("phantom", 100, 0, clock)

@@ -190,7 +190,7 @@ def test_a_return_does_not_start_when_the_tip_moved_with_the_motors_still() -> N
 def test_the_return_holds_at_its_start_while_it_checks_the_tip_drift() -> None:
     """Eq. (F5) is checked before the path moves: it holds at its first state for
     DRIFT_WINDOW_S (a tracker sample may be a frame old), then goes on."""
-    from icenav.recovery.force import DRIFT_WINDOW_S
+    from icenav.recovery.drift import DRIFT_WINDOW_S
 
     path = np.zeros((3, 4))
     path[:, 3] = [0.0, 1.0, 2.0]

@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from icenav.errors import ConfigurationError, ShapeError
+from icenav.recovery.drift import REST_Q_TOLERANCE, tip_drift
 from icenav.recovery.force import (
-    REST_Q_TOLERANCE,
     ForceCheck,
     ForceMap,
     ForceRecord,
@@ -18,7 +18,6 @@ from icenav.recovery.force import (
     force_excess,
     force_limit,
     shape_reference,
-    tip_drift,
 )
 from icenav.recovery.roadmap import Roadmap
 

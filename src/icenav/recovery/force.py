@@ -22,8 +22,9 @@ channel there is no check at all (documented in ``docs/view-recovery.md``).
 With a tracker, the reference is also keyed by the measured tip pose (Eq. F2,
 :class:`TipForceMap`); a return stops only when the force has stayed above its limit for a
 hold time (Eq. F4, :class:`ForceCheck`), and it stops as it starts when the tracked tip has
-moved with the motors still since the operator last moved them (Eq. F5, :func:`tip_drift`,
-:attr:`ForceRecord.rest_tip`): the patient moved and carried the catheter.
+moved with the motors still since the operator last moved them (Eq. F5,
+:mod:`icenav.recovery.drift`, :attr:`ForceRecord.rest`): the patient moved and carried the
+catheter.
 """
 
 from __future__ import annotations
@@ -38,6 +39,7 @@ from numpy.typing import ArrayLike
 
 from icenav._typing import Array
 from icenav.errors import ConfigurationError, ShapeError
+from icenav.recovery.drift import REST_Q_TOLERANCE, RestReference, check_q
 from icenav.recovery.roadmap import IntArray, Roadmap
 
 __all__ = [
@@ -46,18 +48,15 @@ __all__ = [
     "DEFAULT_ANGLE_DEG",
     "DEFAULT_MARGIN_FRACTION",
     "DEFAULT_MARGIN_N",
-    "DEFAULT_DRIFT_MM",
     "DEFAULT_HOLD_S",
     "DEFAULT_MIN_SPACING_MM",
     "DEFAULT_RADIUS_MM",
-    "DRIFT_WINDOW_S",
     "ForceCheck",
     "ForceMap",
     "ForceRecord",
     "ForceStop",
     "ForceSensor",
     "PathForces",
-    "REST_Q_TOLERANCE",
     "TipForceMap",
     "TipIndex",
     "TipTrace",
@@ -65,7 +64,6 @@ __all__ = [
     "force_excess",
     "force_limit",
     "shape_reference",
-    "tip_drift",
 ]
 
 DEFAULT_MARGIN_N = 0.1
@@ -476,19 +474,6 @@ def shape_reference(
     return float(np.nanmax(vals))
 
 
-REST_Q_TOLERANCE = 1e-3
-"""Largest difference per joint (rad or mm) between the motor state a session stored with
-the rest pose and the one the robot reports after a restart for the rest pose to stand
-(encoder counts of the robot's drives are finer than 1e-4)."""
-
-
-def _check_q(q: ArrayLike, name: str) -> Array:
-    a = np.asarray(q, np.float64).reshape(-1)
-    if a.shape != (4,) or not np.all(np.isfinite(a)):
-        raise ShapeError(f"{name} must be 4 finite joint values (rad, rad, rad, mm), got {q!r}")
-    return a.copy()
-
-
 class ForceRecord:
     """The operator's contact forces a session keeps: per roadmap vertex (:class:`ForceMap`,
     Eq. F1) and per measured tip pose (:class:`TipForceMap`, Eq. F2), with what a store has
@@ -510,8 +495,9 @@ class ForceRecord:
         self.tips = tips if tips is not None else TipForceMap(min_spacing_mm=DEFAULT_MIN_SPACING_MM)
         self._dirty: set[int] = set()
         self._lock = threading.Lock()
-        self._rest_tip: Array | None = None
-        self._rest_q: Array | None = None
+        self.rest: RestReference | None = None
+        """Where the operator's last motion left the tip (Eq. F5), None when unknown or
+        when anything else moved the motors since."""
         self.rest_version = 0
         """Counts the changes of the rest pose (a store writes it when this moved on)."""
 
@@ -519,37 +505,56 @@ class ForceRecord:
     def rest_tip(self) -> Array | None:
         """(3,) where the tracked tip was (mm, base frame) when the operator last moved the
         motors, None when unknown or when anything else moved them since (Eq. F5)."""
-        return None if self._rest_tip is None else self._rest_tip.copy()
+        return None if self.rest is None else self.rest.tip
 
     @property
     def rest_q(self) -> Array | None:
         """(4,) the motor state (rad, rad, rad, mm) the operator left with the tip at
-        :attr:`rest_tip`; None with it."""
-        return None if self._rest_q is None else self._rest_q.copy()
+        :attr:`rest_tip`; None with it or when not known."""
+        return None if self.rest is None or self.rest.q is None else self.rest.q.copy()
 
     def note_motion(
-        self, tip2base: ArrayLike | None, operator: bool, q: ArrayLike | None = None
+        self,
+        tip2base: ArrayLike | None,
+        operator: bool,
+        q: ArrayLike | None = None,
+        t: float = 0.0,
+        phases: tuple[float | None, float | None] = (None, None),
     ) -> None:
-        """The motors moved this cycle: by the operator to motor state ``q`` (4,) with the tip
-        at ``tip2base`` (4, 4) (mm; None: no pose read), or by anything else (a return, a
-        refinement: the rest pose is forgotten)."""
+        """The motors moved this cycle (time ``t``, s): by the operator to motor state ``q``
+        (4,) with the tip at ``tip2base`` (4, 4) (mm; None: no pose read), read with the
+        respiratory signal and the cardiac phase ``phases``; or by anything else (a return,
+        a refinement: the rest pose is forgotten)."""
         self.rest_version += 1
         if not operator or tip2base is None:
-            self._rest_tip = self._rest_q = None
+            self.rest = None
             return
-        t = np.asarray(tip2base, np.float64)
-        if t.shape != (4, 4) or not np.all(np.isfinite(t[:3, 3])):
-            raise ShapeError(f"tip2base must be a finite (4, 4) pose, got shape {t.shape}")
-        self._rest_tip = t[:3, 3].copy()
-        self._rest_q = None if q is None else _check_q(q, "q")
+        pose = np.asarray(tip2base, np.float64)
+        if pose.shape != (4, 4) or not np.all(np.isfinite(pose[:3, 3])):
+            raise ShapeError(f"tip2base must be a finite (4, 4) pose, got shape {pose.shape}")
+        self.rest = RestReference(t, pose, q, *phases)
+
+    def note_still(
+        self, t: float, tip2base: ArrayLike | None, phases: tuple[float | None, float | None]
+    ) -> None:
+        """A reading of the tip with the motors still at time ``t`` (s), with the
+        respiratory signal and the cardiac phase read with it: part of the rest reference
+        while its window lasts (Eq. F5, phase-matched)."""
+        if self.rest is not None and tip2base is not None and self.rest.wants(t):
+            self.rest.add(t, tip2base, *phases)
+
+    def wants_still_readings(self, t: float) -> bool:
+        """Whether :meth:`note_still` at ``t`` (s) would keep a reading."""
+        return self.rest is not None and self.rest.wants(t)
 
     def restore_rest(self, rest_tip: ArrayLike, rest_q: ArrayLike) -> None:
         """The rest pose read back from a session (``rest_tip`` (3,) mm, ``rest_q`` (4,)):
-        valid while the motors stand where the operator left them (:meth:`keep_rest_if_at`)."""
+        valid while the motors stand where the operator left them (:meth:`keep_rest_if_at`);
+        a single reading, so Eq. (F5) takes its instantaneous form."""
         tip = np.asarray(rest_tip, np.float64).reshape(-1)
         if tip.shape != (3,) or not np.all(np.isfinite(tip)):
             raise ShapeError(f"rest_tip must be 3 finite mm, got {rest_tip!r}")
-        self._rest_tip, self._rest_q = tip.copy(), _check_q(rest_q, "rest_q")
+        self.rest = RestReference(-math.inf, tip, check_q(rest_q, "rest_q"))
         self.rest_version += 1
 
     def keep_rest_if_at(self, q: ArrayLike, tolerance: float = REST_Q_TOLERANCE) -> bool:
@@ -557,14 +562,12 @@ class ForceRecord:
         (rad or mm, per joint) of where the operator left them: after a restart, motors that
         moved meanwhile (homed, power-cycled, driven by hand) leave the tip anywhere, so Eq.
         (F5) has no reference until the operator drives again. Returns whether it is kept."""
-        if self._rest_q is None:
-            if self._rest_tip is not None:  # a rest without its motor state: not trusted
-                self._rest_tip = None
-                self.rest_version += 1
+        if self.rest is None:
             return False
-        if np.max(np.abs(_check_q(q, "q") - self._rest_q)) <= tolerance:
+        rest_q = self.rest.q
+        if rest_q is not None and np.max(np.abs(check_q(q, "q") - rest_q)) <= tolerance:
             return True
-        self._rest_tip = self._rest_q = None
+        self.rest = None  # moved, or a rest without its motor state: not trusted
         self.rest_version += 1
         return False
 
@@ -679,17 +682,6 @@ class PathForces:
         return max(vals) if vals else None
 
 
-DEFAULT_DRIFT_MM = 5.0
-"""Largest distance the tracked tip may have moved, with the motors still, between the
-operator's last motion and the start of a return, Eq. (F5) (mm): chosen on the development
-pairs (``docs/view-recovery.md``)."""
-
-DRIFT_WINDOW_S = 0.1
-"""A return holds at its first state this long, checking Eq. (F5) at every control cycle,
-before it moves (s): a tracker's newest sample may be a frame old when the return starts
-(an NDI Aurora gives one every 25 ms), and once the motors move the shaft may slip and the
-tip jump with it (up to 16 mm in 40 ms on the twin)."""
-
 DEFAULT_HOLD_S = 0.5
 """Time the force must stay above the limit before a return stops, Eq. (F4) (s): chosen
 on the development pairs among 0, 0.25 and 0.5 s (``docs/view-recovery.md``)."""
@@ -774,20 +766,3 @@ class ForceCheck:
         if self._over_s + 1e-9 < self.hold_s:
             return None
         return ForceStop(float(force_n), float(recorded_n), limit, self._over_s)
-
-
-def tip_drift(rest_tip: ArrayLike | None, tip2base: ArrayLike | None) -> float | None:
-    """How far the tracked tip has moved (mm) since the operator last moved the motors,
-    Eq. (F5)::
-
-        D = | p_now - p_rest |                                                    (F5)
-
-    with the motors still since (``rest_tip`` (3,) from :attr:`ForceRecord.rest_tip`,
-    ``tip2base`` (4, 4) now, mm, base frame). The anatomy holds the catheter (the vessel
-    and the walls it lies against): when the patient moves, the tip moves with the motors
-    still; the heart beat, breathing and the shaft's settling move it a few millimetres.
-    None when either is unknown (no check)."""
-    if rest_tip is None or tip2base is None:
-        return None
-    p = np.asarray(tip2base, np.float64)[:3, 3]
-    return float(np.linalg.norm(p - np.asarray(rest_tip, np.float64).reshape(3)))
