@@ -44,6 +44,7 @@ def _reference(dt: float = 0.025) -> RestReference:
 def test_a_still_tip_at_every_phase_matches_its_reference_and_a_shift_does_not() -> None:
     ref = _reference()
     assert abs(ref.n_readings - (REST_WINDOW_S / 0.025 + 1)) <= 1  # then no more
+    assert 4.0 < ref.spread_mm() < 8.0  # the beat's and the breath's 5 mm each
     times = np.linspace(10.0, 60.0, 400)  # phases never seen in this order
     still = [ref.drift(_tip(t), *_signals(t)) for t in times]
     instant = [ref.drift(_tip(t)) for t in times]  # no signals: against the stop
@@ -74,6 +75,7 @@ def test_the_reference_keeps_its_first_reading_and_its_motor_state() -> None:
     ref = RestReference(5.0, pose, [0.1, 0.2, 0.3, 4.0])
     ref.add(5.0 + REST_WINDOW_S + 0.1, [9.0, 9.0, 9.0], None, None)
     assert ref.n_readings == 1 and not ref.wants(5.0 + REST_WINDOW_S + 0.1)
+    assert ref.spread_mm() == 0.0
     np.testing.assert_array_equal(ref.tip, [1.0, 2.0, 3.0])
     np.testing.assert_array_equal(ref.q, [0.1, 0.2, 0.3, 4.0])
     assert tip_drift([1.0, 2.0, 3.0], pose) == 0.0 and tip_drift(None, pose) is None

@@ -287,10 +287,17 @@ class PathTask:
         drift = rest.drift(tip, *phases, t=now)
         if drift <= self.drift_limit_mm:
             return None
+        spread = rest.spread_mm()
+        at_rest = (
+            f"; at rest the tip strayed up to {spread:.1f} mm from its mean with the beat and "
+            "the breath: if the patient did not move, move the catheter a little and go again"
+            if spread > 0.5 * self.drift_limit_mm
+            else ""
+        )
         self.failure = (
             f"{self.label}: stopped as it started: the tracked tip moved {drift:.1f} mm with "
             f"the motors still since the operator last moved them (limit "
-            f"{self.drift_limit_mm:.1f} mm; "
+            f"{self.drift_limit_mm:.1f} mm{at_rest}; "
             "has the patient moved? the roadmap's states may no longer give the views); "
             "the robot holds"
         )

@@ -155,6 +155,15 @@ class RestReference:
     def n_readings(self) -> int:
         return len(self._p)
 
+    def spread_mm(self) -> float:
+        """How far the still tip strayed from its mean over the reference (mm, the 90th
+        percentile of the readings' distances; 0 with one reading): what the beat, the
+        breath and the shaft do at rest here, for the operator to weigh a refusal."""
+        if len(self._p) < 2:
+            return 0.0
+        ps = np.asarray(self._p)
+        return float(np.percentile(np.linalg.norm(ps - ps.mean(axis=0), axis=1), 90))
+
     def wants(self, t: float) -> bool:
         """Whether a reading at ``t`` (s) still belongs to the reference window."""
         return t - self.t0 <= REST_WINDOW_S
