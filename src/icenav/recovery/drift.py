@@ -24,10 +24,8 @@ started at once, or a reference restored after a restart), ``D`` is the distance
 reading at the stop, the instantaneous form. A shift during the reference window, more than
 :data:`GUARD_S` before the return, is partly taken into the reference and may be missed; one
 before the stop, or after the window, or within :data:`GUARD_S` of the return, is seen at
-its full size.
-
-Measured on the twin (``docs/view-recovery.md``): with the motors still, the tip's distance
-from where the operator left it exceeded 5 mm ... (filled in from the study).
+its full size. What it reaches on the twin, by how long the operator looked before the
+return: ``docs/view-recovery.md`` (session 8) and ``docs/results.md`` (the force check).
 """
 
 from __future__ import annotations
