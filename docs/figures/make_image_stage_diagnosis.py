@@ -1,0 +1,220 @@
+"""Why the image stage does not gain: its score against the true error (docs/view-recovery.md).
+
+Usage::
+
+    python docs/figures/make_image_stage_diagnosis.py --seed 100 --patient 0 \
+        --json /tmp/diag_100.json                      # measure one development pair
+    python docs/figures/make_image_stage_diagnosis.py --plot /tmp/diag_10?.json
+                                                       # docs/figures/image_stage_diagnosis.png
+
+Development pairs only (catheters 100-109 with patients 0-9), in vivo, the evaluation's
+bench (:class:`icenav.eval.recovery_bench.Bench`, 128-px pictures). The views are saved as
+``icenav eval recovery`` saves them (the saved beats are the image stage's references).
+Then, for each view and each joint, the catheter is returned to the view along the roadmap
+and moved to ``q_view + offset e_j`` the way the image stage moves (approached from the
+view's arrival direction), held still, and measured:
+
+* the true static error against the saved view (the twin's true pose averaged over complete
+  breaths, as the evaluation's static metric);
+* ``beats`` scores of the image stage (:meth:`RefinementTask.score`) on beats gated on ECG
+  and respiration (:class:`GatedBeatImager`, as the stage measures), and as many on beats
+  gated on ECG alone (to see whether breathing fools the score).
+
+The figure: (a) the gated score against the true orientation error, (b) against the true
+position error, (c) the score against the commanded offset per joint (mean and sd of the
+beats), with the stage's ceiling and its noise threshold.
+"""
+
+from __future__ import annotations
+
+import argparse
+import glob
+import json
+import math
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from icenav.eval.recovery import TARGETS, RecoveryConfig
+from icenav.eval.recovery_bench import DT, Bench
+from icenav.geometry.se3 import rigid_inverse as inv
+from icenav.refinement.gating import GatedBeatImager
+from icenav.refinement.image_search import RefinementConfig, RefinementTask
+
+OUT = Path(__file__).resolve().parent / "image_stage_diagnosis.png"
+JOINTS = ("knob 1 (deg)", "knob 2 (deg)", "roll (deg)", "translation (mm)")
+OFFSETS = (-3.0, -1.5, -0.75, 0.0, 0.75, 1.5, 3.0)
+"""Offsets of each joint (deg for the knobs and roll, half of it in mm for translation)."""
+
+
+def _error(a: np.ndarray, b: np.ndarray) -> tuple[float, float]:
+    d = inv(b) @ a
+    pos = float(np.linalg.norm(a[:3, 3] - b[:3, 3]))
+    c = float(np.clip((np.trace(d[:3, :3]) - 1.0) / 2.0, -1.0, 1.0))
+    return pos, math.degrees(math.acos(c))
+
+
+def _move(b: Bench, targets: list[np.ndarray], vmax: np.ndarray) -> None:
+    for target in targets:
+        q0 = np.asarray(b.robot.read_state().q, np.float64)
+        n = max(1, math.ceil(float(np.max(np.abs(target - q0) / (vmax * DT)))))
+        for f in np.arange(1, n + 1) / n:
+            q = q0 + f * (target - q0)
+            b.robot.command_position(q)
+            b.record(q)
+            b.clock.advance(DT)
+
+
+def sweep(seed: int, patient: int, beats: int, targets: tuple[str, ...]) -> list[dict]:
+    """Measure one development pair (see the module docstring)."""
+    cfg = RecoveryConfig(seed=seed, patient=patient, condition="in-vivo")
+    rc = RefinementConfig()
+    b = Bench(cfg)
+    saved: dict[str, tuple] = {}
+    for name in targets:
+        b.drive(b.operator.move_to(b.views[name]))
+        b.drive(b.operator.dwell(0.5))
+        view = b.roadmap.make_view(name, created_s=b.clock.now(), tip2base=b.true_pose())
+        b.hold_still(b.cycle_window_s)
+        static = b.static_pose()
+        clips = [b.acquire() for _ in range(cfg.ceiling_beats + 1)]
+        refs = [c.subsampled(cfg.refine_subsample) for c in clips]
+        saved[name] = (view, static, refs)
+    b.drive(b.operator.explore(cfg.wander_moves))
+    rows = []
+    vmax = np.array(rc.max_velocity)
+    for name in targets:
+        view, static, refs = saved[name]
+        gated = GatedBeatImager(b.refine_imager, b.respiration, refs[0], cfg.gate_window_beats)
+        task = RefinementTask(view.q, refs, gated, arrival_direction=view.arrival_direction)
+        d = np.array(view.arrival_direction, np.float64)
+        for j in range(4):
+            for off in OFFSETS:
+                b.go(view)
+                q = np.asarray(view.q, np.float64).copy()
+                q[j] += off * (0.5 if j == 3 else math.pi / 180.0)
+                pre = q - d * np.array(rc.overshoot)
+                _move(b, [pre, q], vmax)
+                b.hold_still(b.cycle_window_s)
+                pos, rot = _error(b.static_pose(), static)
+                g, u = [], []
+                for _ in range(beats):
+                    b.clock.advance(gated.beat_duration_s)
+                    g.append(task.score(gated.acquire_beat()))
+                    b.clock.advance(b.refine_imager.beat_duration_s)
+                    u.append(task.score(b.refine_imager.acquire_beat()))
+                rows.append(
+                    dict(
+                        seed=seed,
+                        patient=patient,
+                        view=name,
+                        joint=j,
+                        offset=off,
+                        pos_mm=pos,
+                        rot_deg=rot,
+                        gated=g,
+                        ungated=u,
+                        ceiling=task.ceiling,
+                        noise=task.noise,
+                    )  # fmt: skip
+                )
+                print(f"{seed}/{patient} {name} j{j} {off:+.2f}: {pos:.2f} mm {rot:.2f} deg "
+                      f"gated {np.mean(g):.4f}+-{np.std(g):.4f} ungated {np.mean(u):.4f} "
+                      f"ceiling {task.ceiling:.4f} noise {task.noise:.4f}", flush=True)  # fmt: skip
+    return rows
+
+
+def summary(rows: list[dict]) -> str:
+    """Per view: the score's noise per gated beat at a still catheter, the slope against the
+    true orientation / position error, and the correlation of score with error."""
+    out = []
+    keys = sorted({(r["seed"], r["view"]) for r in rows})
+    for key in keys:
+        rs = [r for r in rows if (r["seed"], r["view"]) == key]
+        noise_g = np.mean([np.std(r["gated"], ddof=1) for r in rs])
+        noise_u = np.mean([np.std(r["ungated"], ddof=1) for r in rs])
+        s = np.array([np.mean(r["gated"]) for r in rs])
+        rot = np.array([r["rot_deg"] for r in rs])
+        pos = np.array([r["pos_mm"] for r in rs])
+        best = rs[int(np.argmax(s))]
+        out.append(
+            f"{key[0]} {key[1]}: noise per gated beat {noise_g:.4f} (ungated {noise_u:.4f}), "
+            f"ref noise {rs[0]['noise']:.4f}; corr(score, rot) {np.corrcoef(s, rot)[0, 1]:+.2f}, "
+            f"corr(score, pos) {np.corrcoef(s, pos)[0, 1]:+.2f}; slope "
+            f"{np.polyfit(rot, s, 1)[0]:+.4f}/deg {np.polyfit(pos, s, 1)[0]:+.4f}/mm; "
+            f"best-scoring state {best['pos_mm']:.2f} mm {best['rot_deg']:.2f} deg vs smallest "
+            f"error {min(pos):.2f} mm {min(rot):.2f} deg; ceiling {rs[0]['ceiling']:.4f}, mean "
+            f"score {s.mean():.4f}"
+        )
+    return "\n".join(out)
+
+
+def plot(rows: list[dict], out: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, 3, figsize=(14, 4.4))
+    colors = ("tab:blue", "tab:orange", "tab:green", "tab:red")
+    for r in rows:
+        # each measurement relative to its view's ceiling (NCC points)
+        y = 100 * (np.mean(r["gated"]) - r["ceiling"])
+        c = colors[r["joint"]]
+        axes[0].plot(r["rot_deg"], y, "o", color=c, ms=3, alpha=0.7)
+        axes[1].plot(r["pos_mm"], y, "o", color=c, ms=3, alpha=0.7)
+    for j in range(4):
+        rs = [r for r in rows if r["joint"] == j]
+        for k, off in enumerate(OFFSETS):
+            v = [100 * (g - r["ceiling"]) for r in rs if r["offset"] == off for g in r["gated"]]
+            x = off + 0.12 * (j - 1.5)
+            axes[2].errorbar(x, np.mean(v), yerr=np.std(v), fmt="o", color=colors[j], ms=4,
+                             label=JOINTS[j] if k == 0 else None)  # fmt: skip
+    noise = 100 * np.nanmean([np.std(r["gated"], ddof=1) for r in rows])
+    for ax in axes:
+        ax.axhline(0.0, color="k", lw=0.8)
+        ax.axhspan(-noise, noise, color="0.85", zorder=0)
+        ax.set_ylabel("gated score - ceiling (NCC points)")
+    axes[0].set_xlabel("true orientation error vs the saved view (deg)")
+    axes[1].set_xlabel("true position error vs the saved view (mm)")
+    axes[2].set_xlabel("commanded offset (deg; translation: x 0.5 mm)")
+    axes[2].legend(fontsize=8)
+    pairs = sorted({(r["seed"], r["patient"]) for r in rows})
+    fig.suptitle(
+        f"Image stage's score (ECG + respiration gated beats) against the true error, in vivo, "
+        f"development pairs {pairs}; grey band: +- the score's sd per gated beat "
+        f"({noise:.2f} points)", fontsize=9,
+    )  # fmt: skip
+    fig.tight_layout()
+    fig.savefig(out, dpi=110)
+    print(f"wrote {out}")
+
+
+def main(argv: list[str]) -> int:
+    p = argparse.ArgumentParser()
+    p.add_argument("--seed", type=int, default=100)
+    p.add_argument("--patient", type=int, default=0)
+    p.add_argument("--beats", type=int, default=3)
+    p.add_argument("--views", default=",".join(TARGETS))
+    p.add_argument("--json", type=Path)
+    p.add_argument("--plot", nargs="*", help="JSON files of earlier sweeps to plot")
+    args = p.parse_args(argv)
+    if args.plot:
+        rows = [r for pat in args.plot for f in sorted(glob.glob(pat))
+                for r in json.loads(Path(f).read_text())]  # fmt: skip
+        print(summary(rows))
+        plot(rows, OUT)
+        return 0
+    if args.seed not in range(100, 110) or args.patient not in range(0, 10):
+        print("development pairs only: catheters 100-109, patients 0-9", file=sys.stderr)
+        return 2
+    rows = sweep(args.seed, args.patient, args.beats, tuple(args.views.split(",")))
+    print(summary(rows))
+    if args.json:
+        args.json.write_text(json.dumps(rows) + "\n")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main(sys.argv[1:]))
