@@ -40,7 +40,7 @@ from icenav.eval.recovery import TARGETS, RecoveryConfig
 from icenav.eval.recovery_bench import DT, Bench
 from icenav.geometry.se3 import rigid_inverse as inv
 from icenav.refinement.gating import GatedBeatImager
-from icenav.refinement.image_search import RefinementConfig, RefinementTask
+from icenav.refinement.image_search import RefinementConfig, RefinementTask, refine
 
 OUT = Path(__file__).resolve().parent / "image_stage_diagnosis.png"
 JOINTS = ("knob 1 (deg)", "knob 2 (deg)", "roll (deg)", "translation (mm)")
@@ -70,18 +70,7 @@ def sweep(seed: int, patient: int, beats: int, targets: tuple[str, ...]) -> list
     """Measure one development pair (see the module docstring)."""
     cfg = RecoveryConfig(seed=seed, patient=patient, condition="in-vivo")
     rc = RefinementConfig()
-    b = Bench(cfg)
-    saved: dict[str, tuple] = {}
-    for name in targets:
-        b.drive(b.operator.move_to(b.views[name]))
-        b.drive(b.operator.dwell(0.5))
-        view = b.roadmap.make_view(name, created_s=b.clock.now(), tip2base=b.true_pose())
-        b.hold_still(b.cycle_window_s)
-        static = b.static_pose()
-        clips = [b.acquire() for _ in range(cfg.ceiling_beats + 1)]
-        refs = [c.subsampled(cfg.refine_subsample) for c in clips]
-        saved[name] = (view, static, refs)
-    b.drive(b.operator.explore(cfg.wander_moves))
+    b, saved = _bench(cfg, targets)
     rows = []
     vmax = np.array(rc.max_velocity)
     for name in targets:
@@ -122,6 +111,74 @@ def sweep(seed: int, patient: int, beats: int, targets: tuple[str, ...]) -> list
                 print(f"{seed}/{patient} {name} j{j} {off:+.2f}: {pos:.2f} mm {rot:.2f} deg "
                       f"gated {np.mean(g):.4f}+-{np.std(g):.4f} ungated {np.mean(u):.4f} "
                       f"ceiling {task.ceiling:.4f} noise {task.noise:.4f}", flush=True)  # fmt: skip
+    return rows
+
+
+def _bench(cfg: RecoveryConfig, targets: tuple[str, ...]) -> tuple[Bench, dict[str, tuple]]:
+    """The bench with the views saved as ``icenav eval recovery`` saves them, then the
+    operator's wander: (view, static pose, reference beats) per view."""
+    b = Bench(cfg)
+    saved: dict[str, tuple] = {}
+    for name in targets:
+        b.drive(b.operator.move_to(b.views[name]))
+        b.drive(b.operator.dwell(0.5))
+        view = b.roadmap.make_view(name, created_s=b.clock.now(), tip2base=b.true_pose())
+        b.hold_still(b.cycle_window_s)
+        static = b.static_pose()
+        clips = [b.acquire() for _ in range(cfg.ceiling_beats + 1)]
+        refs = [c.subsampled(cfg.refine_subsample) for c in clips]
+        saved[name] = (view, static, refs)
+    b.drive(b.operator.explore(cfg.wander_moves))
+    return b, saved
+
+
+VARIANTS = {
+    "session7": RefinementConfig(),
+    "safe": RefinementConfig(
+        joints=(True, True, True, False), beats=2, significance=2.0, verify_end=True
+    ),
+    "safe_all_joints": RefinementConfig(beats=2, significance=2.0, verify_end=True),
+}
+"""Image-stage settings of the paired ablation (``--ablate NAME``)."""
+
+
+def ablate(seed: int, patient: int, variant: str, rounds: int) -> list[dict]:
+    """Paired ablation: after each roadmap return, the true static error before and after
+    the image stage (settings ``VARIANTS[variant]``, gated beats as the evaluation's)."""
+    cfg = RecoveryConfig(seed=seed, patient=patient, condition="in-vivo")
+    b, saved = _bench(cfg, TARGETS)
+    rows = []
+    for k in range(rounds):
+        for name in TARGETS:
+            view, static, refs = saved[name]
+            b.go(view)
+            b.hold_still(b.cycle_window_s)
+            before = _error(b.static_pose(), static)
+            gated = GatedBeatImager(b.refine_imager, b.respiration, refs[0], cfg.gate_window_beats)
+            res = refine(b.robot, view.q, refs, gated, arrival_direction=view.arrival_direction,
+                         config=VARIANTS[variant], dt=DT, sleep=b.clock.advance,
+                         on_command=b.record)  # fmt: skip
+            b.clock.advance(0.2)
+            b.hold_still(b.cycle_window_s)
+            after = _error(b.static_pose(), static)
+            rows.append(
+                dict(
+                    seed=seed,
+                    patient=patient,
+                    view=name,
+                    round=k,
+                    variant=variant,
+                    before=before,
+                    after=after,
+                    moved=res.n_commands > 0,
+                    status=res.status.value,
+                    beats=len(res.trials),
+                    s=res.duration_s,
+                )  # fmt: skip
+            )
+            print(f"{variant} {seed}/{patient} {k} {name}: {before[0]:.2f} mm {before[1]:.2f} deg "
+                  f"-> {after[0]:.2f} mm {after[1]:.2f} deg  {res.status.value} "
+                  f"{len(res.trials)} beats {res.duration_s:.0f} s", flush=True)  # fmt: skip
     return rows
 
 
@@ -199,6 +256,8 @@ def main(argv: list[str]) -> int:
     p.add_argument("--views", default=",".join(TARGETS))
     p.add_argument("--json", type=Path)
     p.add_argument("--plot", nargs="*", help="JSON files of earlier sweeps to plot")
+    p.add_argument("--ablate", choices=sorted(VARIANTS), help="paired ablation of a variant")
+    p.add_argument("--rounds", type=int, default=4, help="returns per view (--ablate)")
     args = p.parse_args(argv)
     if args.plot:
         rows = [r for pat in args.plot for f in sorted(glob.glob(pat))
@@ -209,8 +268,16 @@ def main(argv: list[str]) -> int:
     if args.seed not in range(100, 110) or args.patient not in range(0, 10):
         print("development pairs only: catheters 100-109, patients 0-9", file=sys.stderr)
         return 2
-    rows = sweep(args.seed, args.patient, args.beats, tuple(args.views.split(",")))
-    print(summary(rows))
+    if args.ablate:
+        rows = ablate(args.seed, args.patient, args.ablate, args.rounds)
+        if args.json:
+            args.json.write_text(json.dumps(rows) + "\n")
+        for key in ("before", "after"):
+            e = np.array([r[key] for r in rows])
+            print(f"{key}: {e[:, 0].mean():.2f} mm {e[:, 1].mean():.2f} deg")
+    else:
+        rows = sweep(args.seed, args.patient, args.beats, tuple(args.views.split(",")))
+        print(summary(rows))
     if args.json:
         args.json.write_text(json.dumps(rows) + "\n")
     return 0

@@ -55,6 +55,10 @@ def test_never_leaves_its_neighbourhood_random_cases() -> None:
             min_improvement=float(rng.uniform(0.0, 0.01)),
             stop_within=0.0,
             confirm=bool(rng.integers(0, 2)),
+            joints=tuple(bool(x) for x in rng.permutation([1, *rng.integers(0, 2, 3)])),
+            beats=int(rng.integers(1, 4)),
+            significance=float(rng.choice([0.0, 2.0])),
+            verify_end=bool(rng.integers(0, 2)),
         )
         plant = CatheterPlant(seed=100 + seed, vessel="moderate")
         robot = SimulatedRobot(plant)
@@ -82,7 +86,14 @@ def test_never_leaves_its_neighbourhood_random_cases() -> None:
         assert np.all(np.abs(res.q_final - q_view) <= radius * (1 + 1e-9) + 1e-12)
         assert len(res.trials) <= cfg.max_evaluations
         assert imager.calls == len(res.trials)
-        assert res.status in (RefinementStatus.CONVERGED, RefinementStatus.BUDGET)
+        assert res.status in (
+            RefinementStatus.CONVERGED,
+            RefinementStatus.BUDGET,
+            RefinementStatus.UNDONE,
+        )
+        # a joint not searched ends where it started (it only moves to take up its play)
+        fixed = ~np.array(cfg.joints)
+        np.testing.assert_allclose(res.q_final[fixed], q_start[fixed], atol=1e-12)
         # the robot ends at the incumbent
         np.testing.assert_allclose(robot.read_state().q, res.q_final)
 
@@ -240,6 +251,9 @@ def test_start_outside_the_neighbourhood_is_refused() -> None:
         ({"max_duration_s": 0.0}, "max_duration_s"),
         ({"min_improvement": -0.1}, "min_improvement"),
         ({"blur_factor": 0}, "blur_factor"),
+        ({"beats": 0}, "beats"),
+        ({"joints": (False, False, False, False)}, "joints"),
+        ({"significance": -1.0}, "significance"),
     ],
 )
 def test_bad_config_is_rejected(kwargs: dict[str, object], match: str) -> None:
@@ -329,3 +343,57 @@ def test_thresholds_follow_the_noise_of_the_saved_beats() -> None:
             d.append(float(np.linalg.norm((res.q_final - q_view) / scale)))
         drift[factor] = float(np.mean(d))
     assert drift[1.5] < 0.5 * drift[0.0]
+
+
+class _LuckyImager(BlobImager):
+    """A flat landscape (the blob at the view wherever the catheter is) whose beats are
+    noisy except the ones numbered in ``lucky`` (0-based), which match the saved beat."""
+
+    def __init__(self, robot: SimulatedRobot, q_view: Array, lucky: set[int]) -> None:
+        super().__init__(robot, q_view, noise=0.3, seed=3)
+        self.lucky = lucky
+
+    def acquire_beat(self) -> BeatClip:
+        k = self.calls
+        self.calls += 1
+        base = self.image_at(self.q_best)
+        sd = 0.0 if k in self.lucky else self.noise
+        imgs = np.stack([base + self.rng.normal(0, sd, base.shape) for _ in range(3)])
+        return BeatClip(imgs, np.array([0.0, 1 / 3, 2 / 3]))
+
+
+def test_verify_end_goes_back_to_the_start_when_fresh_beats_do_not_confirm() -> None:
+    """A trial accepted on lucky beats (a flat landscape: nothing to gain) is measured again
+    with fresh beats at the end; they do not beat the start's, so the stage goes back to
+    the start (UNDONE); without ``verify_end`` it would stay at the lucky state."""
+    ends = {}
+    for verify in (False, True):
+        robot, _, q_view = _blob_setup()
+        imager = _LuckyImager(robot, q_view, lucky={2, 3})  # the first trial and its confirm
+        cfg = RefinementConfig(stop_within=0.0, max_evaluations=8, beats=1, verify_end=verify,
+                               significance=2.0)  # fmt: skip
+        res = refine(robot, q_view, reference(imager), imager, config=cfg)
+        assert res.trials[1].accepted is False and res.trials[2].accepted is True
+        ends[verify] = res
+        np.testing.assert_allclose(robot.read_state().q, res.q_final)
+    assert not np.array_equal(ends[False].q_final, q_view)
+    assert ends[True].status == RefinementStatus.UNDONE
+    np.testing.assert_allclose(ends[True].q_final, q_view)
+    assert ends[True].best_score == ends[True].start_score
+
+
+def test_joints_beats_and_verify_keep_a_real_gain() -> None:
+    """Noise-free blob 2 deg off in phi1 and 1 mm in d4, translation not searched, two beats
+    per measurement, the end verified: the search moves phi1 towards the optimum, never d4,
+    keeps its end (the fresh beats confirm it) and measures in pairs of beats."""
+    robot, imager, q_view = _blob_setup()
+    cfg = RefinementConfig(stop_within=0.0, max_evaluations=40, max_duration_s=200.0,
+                           joints=(True, True, True, False), beats=2, significance=2.0,
+                           verify_end=True)  # fmt: skip
+    sent: list[Array] = []
+    res = refine(robot, q_view, reference(imager), imager, config=cfg, on_command=sent.append)
+    assert res.status in (RefinementStatus.CONVERGED, RefinementStatus.BUDGET)
+    assert np.all(np.array(sent)[:, 3] == q_view[3])
+    assert abs(res.q_final[0] - imager.q_best[0]) < 0.5 * DEG
+    assert res.best_score > res.start_score
+    assert imager.calls == len(res.trials) and len(res.trials) % 2 == 0
