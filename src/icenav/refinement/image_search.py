@@ -72,6 +72,7 @@ from icenav._validation import check_joint_state, check_positive
 from icenav.devices.robot import RobotBackend
 from icenav.errors import ConfigurationError, NeighbourhoodError, ShapeError
 from icenav.recovery.beats import BeatClip, BeatImager
+from icenav.refinement._stepper import _Measure, _Move, _Request, _Stepper
 from icenav.refinement.similarity import beat_score, blur_frames, match_by_phase, ncc_rows
 
 __all__ = [
@@ -123,12 +124,13 @@ class RefinementConfig:
     consecutive-beat score (the ceiling, measured on the saved beats; needs >= 2 of them):
     the view is already recovered as well as the images can tell, and every trial move
     would shift the transmission's play (hysteresis) for nothing. NCC units; 0 disables."""
-    noise_factor: float = 1.5
+    noise_factor: float = 3.0
     """``min_improvement`` and ``stop_within`` are at least this many times the score's
     beat-to-beat noise measured on the reference beats (the standard deviation of each
-    reference beat's score against the others; needs >= 3 of them): on images that
-    decorrelate from beat to beat a fixed threshold below that noise accepts lucky beats.
-    0: the fixed values only."""
+    reference beat's score against the others; needs >= 3 of them) and, with
+    ``significance``, ``stop_within`` at least this many times the start's own noise per
+    beat: the stage searches only when the start is clearly below the ceiling (a view
+    lost, not a view a little off). 0: the fixed values only."""
     confirm: bool = True
     """Measure a trial that looks better a second time and accept it only if the mean of
     both beats still beats the incumbent by ``min_improvement`` (fewer false accepts)."""
@@ -148,18 +150,18 @@ class RefinementConfig:
     """Gaussian blur of the similarity (pixels of the images)."""
     blur_factor: int = 2
     """Down-sampling of the similarity."""
-    joints: tuple[bool, bool, bool, bool] = (True, True, True, True)
+    joints: tuple[bool, bool, bool, bool] = (True, True, True, False)
     """Joints the search moves (phi1, phi2, phi3, d4); the others stay where they are."""
-    beats: int = 1
+    beats: int = 2
     """Gated beats averaged per measurement (the start, every trial, every re-measurement):
     the score's beat-to-beat noise falls as 1 / sqrt(beats); each beat counts against
     ``max_evaluations``."""
-    significance: float = 0.0
+    significance: float = 2.0
     """A trial (and the end state, ``verify_end``) must beat the incumbent (the start) by at
     least ``significance * sigma * sqrt(1 / n_a + 1 / n_b)``: a z-test of two means of
     ``n_a`` and ``n_b`` beats, ``sigma`` the score's noise per beat (the larger of the saved
     beats' and the start's beats' standard deviation); 0: off (``min_improvement`` only)."""
-    verify_end: bool = False
+    verify_end: bool = True
     """When the search ended away from its start, measure the end state again with fresh
     beats (the accepted ones were selected for being high) and go back to the start unless
     these beat the start's by the ``significance`` test (status ``UNDONE``): never farther
@@ -267,78 +269,6 @@ class RefinementResult:
     """Set-points sent."""
     max_offset: Array = field(default_factory=lambda: np.zeros(4))
     """(4,) largest |set-point - q_view| per joint over the run (rad, rad, rad, mm)."""
-
-
-# --- the search as a generator of requests -------------------------------------------------
-
-
-@dataclass(frozen=True)
-class _Move:
-    q: Array
-
-
-@dataclass(frozen=True)
-class _Measure:
-    pass
-
-
-_Request = _Move | _Measure
-"""What the search asks for next: a move to a state, or one beat measured there."""
-
-
-class _Stepper:
-    """Runs a generator of move / measure requests one set-point per control cycle, inside a
-    box around ``q_view`` (shared mechanics of the refinement stages)."""
-
-    def __init__(
-        self,
-        q_view: Array,
-        q_start: Array,
-        radius: Array,
-        max_velocity: Array,
-        abort: Callable[[], bool] | None,
-        last_dir: Array | None = None,
-        label: str = "set-point",
-    ) -> None:
-        self.q_view = q_view
-        self.radius = radius
-        self.lo = q_view - radius
-        self.hi = q_view + radius
-        self.max_velocity = max_velocity
-        self.abort = abort
-        self.cmd = q_start.copy()
-        self.last_dir = np.zeros(4) if last_dir is None else last_dir.copy()
-        self.label = label
-        self.queue: list[Array] = []
-        self.elapsed = 0.0
-        self.n_cmd = 0
-        self.max_off = np.zeros(4)
-
-    def send(self, q: Array) -> Array:
-        off = np.abs(q - self.q_view)
-        if np.any(off > self.radius * (1 + 1e-9) + 1e-12):
-            j = int(np.argmax(off / self.radius))
-            raise NeighbourhoodError(
-                f"{self.label} {q.tolist()} is {off[j]:.4g} from the view on joint {j}, "
-                f"outside the radius {self.radius[j]:.4g} (rad, rad, rad, mm)"
-            )
-        moved = np.sign(q - self.cmd)
-        self.last_dir = np.where(moved != 0, moved, self.last_dir)
-        self.max_off = np.maximum(self.max_off, off)
-        self.cmd = q.copy()
-        self.n_cmd += 1
-        return q.copy()
-
-    def queue_moves(self, targets: Sequence[Array], dt: float) -> None:
-        v = self.max_velocity * dt
-        for target in targets:
-            base = self.queue[-1] if self.queue else self.cmd
-            delta = target - base
-            n = max(1, math.ceil(float(np.max(np.abs(delta) / v)) - 1e-9))
-            f = np.arange(1, n + 1)[:, None] / n
-            pts = base + f * delta
-            pts[-1] = target
-            self.queue.extend(list(pts))
 
 
 class RefinementTask:
@@ -508,6 +438,16 @@ class RefinementTask:
             return self.min_improvement
         return max(self.min_improvement, z * self.sigma * math.sqrt(1.0 / n_a + 1.0 / n_b))
 
+    def _learn_noise(self, start: list[float]) -> None:
+        """With ``significance``: the noise per beat is at least the start's beats' standard
+        deviation (the saved beats are few and taken at the saved state), and so is the gate
+        (``noise_factor`` times it)."""
+        if len(start) < 2 or self.config.significance <= 0:
+            return
+        self.sigma = float(np.nanmax([self.noise, np.std(start, ddof=1)]))
+        if self.stop_within > 0:
+            self.stop_within = max(self.stop_within, self.config.noise_factor * self.sigma)
+
     def _fits(self, n_beats: int) -> bool:
         """``n_beats`` more beats fit in the evaluation budget (and, with ``verify_end``, in
         the time budget, with 2 s of moves)."""
@@ -530,6 +470,7 @@ class RefinementTask:
         self._start_score = best
         self._best_q, self._best_score = best_q.copy(), best
         gate = self.stop_within > 0 and math.isfinite(self.ceiling)
+        self._learn_noise(start)
         if gate and best < self.ceiling - self.stop_within and self._fits(1):
             # one measurement may be unlucky (respiration, the beat): another before moving
             more = yield from self._beats()
@@ -538,8 +479,7 @@ class RefinementTask:
             start += more
             best, n_best = float(np.mean(start)), len(start)
             self._best_score = best
-        if len(start) >= 2 and cfg.significance > 0:
-            self.sigma = float(np.nanmax([self.noise, np.std(start, ddof=1)]))
+            self._learn_noise(start)
         start_mean, n_start = best, n_best
         if gate and best >= self.ceiling - self.stop_within:
             self._status = RefinementStatus.AT_VIEW
