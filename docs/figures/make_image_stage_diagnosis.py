@@ -133,11 +133,17 @@ def _bench(cfg: RecoveryConfig, targets: tuple[str, ...]) -> tuple[Bench, dict[s
 
 
 VARIANTS = {
-    "session7": RefinementConfig(),
-    "safe": RefinementConfig(
-        joints=(True, True, True, False), beats=2, significance=2.0, verify_end=True
+    "default": RefinementConfig(),
+    "session7": RefinementConfig(
+        joints=(True, True, True, True),
+        beats=1,
+        significance=0.0,
+        verify_end=False,
+        noise_factor=1.5,
     ),
-    "safe_all_joints": RefinementConfig(beats=2, significance=2.0, verify_end=True),
+    "safe": RefinementConfig(noise_factor=1.5),
+    "safe_all_joints": RefinementConfig(noise_factor=1.5, joints=(True, True, True, True)),
+    "knobs": RefinementConfig(noise_factor=1.5, joints=(True, True, False, False)),
 }
 """Image-stage settings of the paired ablation (``--ablate NAME``)."""
 
@@ -182,6 +188,31 @@ def ablate(seed: int, patient: int, variant: str, rounds: int) -> list[dict]:
     return rows
 
 
+def drift(seed: int, patient: int, rounds: int, windows: int = 6) -> list[dict]:
+    """A still catheter after a roadmap return: the true static error against the saved
+    view over ``windows`` consecutive cycle windows (9 s each), no command but the held
+    set-point (what any measuring stage costs in time)."""
+    cfg = RecoveryConfig(seed=seed, patient=patient, condition="in-vivo")
+    b, saved = _bench(cfg, TARGETS)
+    rows = []
+    for k in range(rounds):
+        for name in TARGETS:
+            view, static, _ = saved[name]
+            b.go(view)
+            t0 = b.clock.now()
+            errs = []
+            for _ in range(windows):
+                q = np.asarray(b.robot.read_state().q, np.float64)
+                while b.clock.now() - t0 < (len(errs) + 1) * b.cycle_window_s:
+                    b.robot.command_position(q)  # the controller re-sends its set-point
+                    b.clock.advance(DT)
+                errs.append((b.clock.now() - t0, *_error(b.static_pose(), static)))
+            rows.append(dict(seed=seed, patient=patient, view=name, round=k, errors=errs))
+            print(f"drift {seed}/{patient} {k} {name}: "
+                  + " ".join(f"{e[1]:.2f}" for e in errs) + " mm", flush=True)  # fmt: skip
+    return rows
+
+
 def summary(rows: list[dict]) -> str:
     """Per view: the score's noise per gated beat at a still catheter, the slope against the
     true orientation / position error, and the correlation of score with error."""
@@ -213,7 +244,9 @@ def plot(rows: list[dict], out: Path) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, axes = plt.subplots(1, 3, figsize=(14, 4.4))
+    still = [r for r in rows if "errors" in r]
+    rows = [r for r in rows if "gated" in r]
+    fig, axes = plt.subplots(1, 4, figsize=(18, 4.4))
     colors = ("tab:blue", "tab:orange", "tab:green", "tab:red")
     for r in rows:
         # each measurement relative to its view's ceiling (NCC points)
@@ -229,7 +262,17 @@ def plot(rows: list[dict], out: Path) -> None:
             axes[2].errorbar(x, np.mean(v), yerr=np.std(v), fmt="o", color=colors[j], ms=4,
                              label=JOINTS[j] if k == 0 else None)  # fmt: skip
     noise = 100 * np.nanmean([np.std(r["gated"], ddof=1) for r in rows])
-    for ax in axes:
+    for r in still:
+        t = [e[0] for e in r["errors"]]
+        axes[3].plot(t, [e[1] - r["errors"][0][1] for e in r["errors"]], "-", color="0.5", lw=0.7)
+    if still:
+        e = np.array([[x[1] - r["errors"][0][1] for x in r["errors"]] for r in still])
+        axes[3].plot(t, e.mean(axis=0), "k-", lw=2, label=f"mean of {len(still)} returns")
+        axes[3].legend(fontsize=8)
+    axes[3].set_xlabel("time since the return, catheter still (s)")
+    axes[3].set_ylabel("true static position error - first window's (mm)")
+    axes[3].axhline(0.0, color="k", lw=0.8)
+    for ax in axes[:3]:
         ax.axhline(0.0, color="k", lw=0.8)
         ax.axhspan(-noise, noise, color="0.85", zorder=0)
         ax.set_ylabel("gated score - ceiling (NCC points)")
@@ -258,17 +301,24 @@ def main(argv: list[str]) -> int:
     p.add_argument("--plot", nargs="*", help="JSON files of earlier sweeps to plot")
     p.add_argument("--ablate", choices=sorted(VARIANTS), help="paired ablation of a variant")
     p.add_argument("--rounds", type=int, default=4, help="returns per view (--ablate)")
+    p.add_argument("--drift", action="store_true", help="a still catheter's static error")
     args = p.parse_args(argv)
     if args.plot:
         rows = [r for pat in args.plot for f in sorted(glob.glob(pat))
                 for r in json.loads(Path(f).read_text())]  # fmt: skip
-        print(summary(rows))
+        print(summary([r for r in rows if "gated" in r]))
         plot(rows, OUT)
         return 0
     if args.seed not in range(100, 110) or args.patient not in range(0, 10):
         print("development pairs only: catheters 100-109, patients 0-9", file=sys.stderr)
         return 2
-    if args.ablate:
+    if args.drift:
+        rows = drift(args.seed, args.patient, args.rounds)
+        if args.json:
+            args.json.write_text(json.dumps(rows) + "\n")
+        e = np.array([[x[1] for x in r["errors"]] for r in rows])
+        print("mean static error (mm) per window:", np.round(e.mean(axis=0), 3))
+    elif args.ablate:
         rows = ablate(args.seed, args.patient, args.ablate, args.rounds)
         if args.json:
             args.json.write_text(json.dumps(rows) + "\n")
