@@ -404,3 +404,27 @@ def test_joints_beats_and_verify_keep_a_real_gain() -> None:
     assert abs(res.q_final[0] - imager.q_best[0]) < 0.5 * DEG
     assert res.best_score > res.start_score
     assert imager.calls == len(res.trials) and len(res.trials) % 2 == 0
+
+
+def test_a_good_start_on_decorrelating_beats_is_left_alone() -> None:
+    """At the optimum, the saved beats alike but the live beats decorrelating (the blob
+    jitters 0.2 deg / mm between saved beats, 1.2 between live ones): the default stage
+    learns the noise per beat from its start's beats and does not search (AT_VIEW, no
+    move) in any seed, where the session-7 search, trusting the saved beats' scatter,
+    moves in most."""
+    moved = {}
+    for name, extra in (("default", {}), ("session7", SESSION7)):
+        n = 0
+        for seed in range(8):
+            robot, _, q_view = _blob_setup(seed)
+            imager = JitterBlobImager(robot, q_view.copy(), noise=0.0, seed=seed)
+            imager.jitter = 0.2
+            refs = imager.saved_beats(4)
+            imager.jitter = 1.2
+            cfg = RefinementConfig(max_evaluations=12, **extra)  # type: ignore[arg-type]
+            res = refine(robot, q_view, refs, imager, config=cfg)
+            if name == "default":
+                assert res.status == RefinementStatus.AT_VIEW and res.n_commands == 0
+            n += res.n_commands > 0
+        moved[name] = n
+    assert moved["default"] == 0 and moved["session7"] >= 4

@@ -10,8 +10,8 @@ Search
 ------
 A compass (pattern) search with halving steps over (phi1, phi2, phi3, d4):
 
-1. Measure the similarity ``s*`` at the start state ``q*`` (one beat; a second one if the
-   first looks off). If it is within ``stop_within`` of the *ceiling* (the saved beats
+1. Measure the similarity ``s*`` at the start state ``q*`` (``beats`` gated beats; as many
+   again if they look off). If it is within ``stop_within`` of the *ceiling* (the saved beats
    scored against each other), stop: the view is recovered as far as the images can tell,
    and every trial move would shift the transmission's play for nothing.
 2. Poll the trial states ``q* +- step_j e_j`` (the last successful direction first). A
@@ -22,7 +22,8 @@ A compass (pattern) search with halving steps over (phi1, phi2, phi3, d4):
 3. When no trial is accepted the steps halve and ``q*`` is measured again (its score is the
    running mean of its measurements, so a lucky beat does not hold the search).
 4. Stop when every step is below ``min_step``, after ``max_evaluations`` beats, after
-   ``max_duration_s`` of controller time, or when ``abort()`` returns True; end at ``q*``.
+   ``max_duration_s`` of controller time, or when ``abort()`` returns True; end at ``q*``
+   (``verify_end``: only if fresh beats there still beat the start's, else at the start).
 
 Safety
 ------
