@@ -30,7 +30,7 @@ from tests.support.refinement import BlobImager, JitterBlobImager, TrackedPlant,
 Array = NDArray[np.float64]
 DEG = math.pi / 180
 SESSION7 = dict(joints=(True, True, True, True), beats=1, significance=0.0, verify_end=False,
-                noise_factor=1.5)  # fmt: skip
+                noise_factor=1.5, search=True)  # fmt: skip
 """The session-7 search (every joint, one beat per measurement, no z-test, no verified end)."""
 
 
@@ -62,6 +62,7 @@ def test_never_leaves_its_neighbourhood_random_cases() -> None:
             beats=int(rng.integers(1, 3)),
             significance=float(rng.choice([0.0, 2.0])),
             verify_end=bool(rng.integers(0, 2)),
+            search=True,
         )
         plant = CatheterPlant(seed=100 + seed, vessel="moderate")
         robot = SimulatedRobot(plant)
@@ -151,8 +152,8 @@ def test_improves_similarity_on_a_perturbed_return(renderer: UltrasoundRenderer)
     robot.command_position(q_view + np.array([2.5 * DEG, -2.5 * DEG, 2.5 * DEG, 0.0]))
     start_pose = plant.state.tip2base.copy()
     before = fresh_score()
-    res = refine(robot, q_view, refs, imager, config=RefinementConfig(max_evaluations=40),
-                 sleep=clock.advance)  # fmt: skip
+    cfg = RefinementConfig(max_evaluations=40, search=True)
+    res = refine(robot, q_view, refs, imager, config=cfg, sleep=clock.advance)
     assert res.status in (RefinementStatus.CONVERGED, RefinementStatus.BUDGET)
     after = fresh_score()
     assert after > before + 0.01
@@ -204,7 +205,7 @@ def test_abort_stops_at_once() -> None:
         return len(polls) > 120
 
     sent: list[Array] = []
-    cfg = RefinementConfig(stop_within=0.0, max_evaluations=100)
+    cfg = RefinementConfig(stop_within=0.0, max_evaluations=100, search=True)
     res = refine(robot, q_view, reference(imager), imager, config=cfg, abort=abort,
                  on_command=sent.append)  # fmt: skip
     assert res.status == RefinementStatus.ABORTED
@@ -378,7 +379,7 @@ def test_verify_end_goes_back_to_the_start_when_fresh_beats_do_not_confirm() -> 
         robot, _, q_view = _blob_setup()
         imager = _LuckyImager(robot, q_view, lucky={2, 3})  # the first trial and its confirm
         cfg = RefinementConfig(stop_within=0.0, max_evaluations=8, beats=1, verify_end=verify,
-                               significance=2.0)  # fmt: skip
+                               significance=2.0, search=True)  # fmt: skip
         res = refine(robot, q_view, reference(imager), imager, config=cfg)
         assert res.trials[1].accepted is False and res.trials[2].accepted is True
         ends[verify] = res
@@ -396,7 +397,7 @@ def test_joints_beats_and_verify_keep_a_real_gain() -> None:
     robot, imager, q_view = _blob_setup()
     cfg = RefinementConfig(stop_within=0.0, max_evaluations=40, max_duration_s=200.0,
                            joints=(True, True, True, False), beats=2, significance=2.0,
-                           verify_end=True)  # fmt: skip
+                           verify_end=True, search=True)  # fmt: skip
     sent: list[Array] = []
     res = refine(robot, q_view, reference(imager), imager, config=cfg, on_command=sent.append)
     assert res.status in (RefinementStatus.CONVERGED, RefinementStatus.BUDGET)
@@ -428,3 +429,19 @@ def test_a_good_start_on_decorrelating_beats_is_left_alone() -> None:
             n += res.n_commands > 0
         moved[name] = n
     assert moved["default"] == 0 and moved["session7"] >= 4
+
+
+def test_by_default_it_reports_a_lost_view_and_never_moves() -> None:
+    """The default stage (``search`` off) measures the start: 2 deg and 1 mm off the
+    optimum it reports LOST, at the optimum AT_VIEW; it holds still either way."""
+    for off, status in ((np.array([2 * DEG, 0, 0, 1.0]), RefinementStatus.LOST),
+                        (np.zeros(4), RefinementStatus.AT_VIEW)):  # fmt: skip
+        robot, _, q_view = _blob_setup()
+        imager = JitterBlobImager(robot, q_view + off, noise=0.0, seed=2)
+        imager.jitter = 0.2
+        sent: list[Array] = []
+        res = refine(robot, q_view, imager.saved_beats(4), imager, on_command=sent.append)
+        assert res.status == status
+        # it only held still while it measured
+        assert res.n_commands == 0 and all(np.array_equal(q, q_view) for q in sent)
+        np.testing.assert_array_equal(res.q_final, q_view)

@@ -42,7 +42,9 @@ recipe) over the reference beat, frames matched by cardiac phase (smooth in pose
 speckle NCC is not); with several saved beats the best match over them. A trial that looks
 better is measured a second time before it is accepted (``confirm``).
 
-Options for images that decorrelate from beat to beat (``RefinementConfig``): search only
+The search is off by default (``search``): the stage then measures the start and reports
+whether the view looks recovered or lost, without moving. Options for images that
+decorrelate from beat to beat (``RefinementConfig``): search only
 the joints the image constrains (``joints``), average several gated beats per measurement
 (``beats``), accept a trial only when its gain passes a z-test against the score's noise per
 beat (``significance``), and re-measure the end state with fresh beats, going back to the
@@ -151,6 +153,11 @@ class RefinementConfig:
     """Gaussian blur of the similarity (pixels of the images)."""
     blur_factor: int = 2
     """Down-sampling of the similarity."""
+    search: bool = False
+    """Search at all. Off (the default): the stage measures the start and reports whether the
+    view looks recovered (``AT_VIEW``) or lost (``LOST``), and never moves. On the twin, in
+    vivo, a search from the images alone made returns worse, not better
+    (``docs/view-recovery.md``); a lost view is better returned to again."""
     joints: tuple[bool, bool, bool, bool] = (True, True, True, False)
     """Joints the search moves (phi1, phi2, phi3, d4); the others stay where they are."""
     beats: int = 2
@@ -227,6 +234,8 @@ class RefinementStatus(enum.Enum):
     """``max_duration_s`` of controller time passed."""
     ABORTED = "aborted"
     """``abort()`` returned True; the robot holds where it was."""
+    LOST = "lost"
+    """``search`` off: the start scored below the gate (or there is no gate); no move."""
     UNDONE = "undone"
     """``verify_end``: the end state's fresh beats did not beat the start's; back at the
     start."""
@@ -484,6 +493,9 @@ class RefinementTask:
         start_mean, n_start = best, n_best
         if gate and best >= self.ceiling - self.stop_within:
             self._status = RefinementStatus.AT_VIEW
+            return
+        if not cfg.search:
+            self._status = RefinementStatus.LOST
             return
         reserve = cfg.beats if cfg.verify_end else 0
         last_ok: tuple[int, float] | None = None
