@@ -4,8 +4,12 @@ Usage::
 
     python docs/figures/make_image_stage_diagnosis.py --seed 100 --patient 0 \
         --json /tmp/diag_100.json                      # measure one development pair
-    python docs/figures/make_image_stage_diagnosis.py --plot /tmp/diag_10?.json
-                                                       # docs/figures/image_stage_diagnosis.png
+    python docs/figures/make_image_stage_diagnosis.py --drift --seed 100 --patient 0 \
+        --rounds 3 --json /tmp/drift_100.json          # a still catheter's static error
+    cd docs/figures && python make_image_stage_diagnosis.py --plot 'image_stage/diag_*.json' \
+        'image_stage/drift_*.json'                     # docs/figures/image_stage_diagnosis.png
+    python docs/figures/make_image_stage_diagnosis.py --ablate c45f301 --seed 107 --patient 7 \
+        --rounds 4 --json /tmp/pab.json                # paired ablation of a variant
 
 Development pairs only (catheters 100-109 with patients 0-9), in vivo, the evaluation's
 bench (:class:`icenav.eval.recovery_bench.Bench`, 128-px pictures). The views are saved as
@@ -134,16 +138,20 @@ def _bench(cfg: RecoveryConfig, targets: tuple[str, ...]) -> tuple[Bench, dict[s
 
 VARIANTS = {
     "default": RefinementConfig(),
+    "c45f301": RefinementConfig(search=True),
     "session7": RefinementConfig(
         joints=(True, True, True, True),
         beats=1,
         significance=0.0,
         verify_end=False,
         noise_factor=1.5,
+        search=True,
     ),
-    "safe": RefinementConfig(noise_factor=1.5),
-    "safe_all_joints": RefinementConfig(noise_factor=1.5, joints=(True, True, True, True)),
-    "knobs": RefinementConfig(noise_factor=1.5, joints=(True, True, False, False)),
+    "safe": RefinementConfig(noise_factor=1.5, search=True),
+    "safe_all_joints": RefinementConfig(
+        noise_factor=1.5, joints=(True, True, True, True), search=True
+    ),
+    "knobs": RefinementConfig(noise_factor=1.5, joints=(True, True, False, False), search=True),
 }
 """Image-stage settings of the paired ablation (``--ablate NAME``)."""
 
