@@ -117,24 +117,28 @@ class TendonKnobMap:
         if self._roll is None:
             self._p3 = self._i = x3
             return
-        bend = self._model_bend()
+        bend, psi = self._model_bend()
         m = self._roll
-        w = m.backlash + m.backlash_slope * abs(x3) + self._roll_extra(bend)
+        w = m.backlash + m.backlash_slope * abs(x3) + self._roll_extra(bend, psi)
         self._p3 = min(max(self._p3, x3 - w), x3 + w)
-        h = self._twist_extra(bend)
+        h = self._twist_extra(bend, psi)
         self._i = min(max(self._i, self._p3 - h), self._p3 + h)
 
-    def _roll_extra(self, bend: float) -> float:
-        return 0.0 if self._plays is None else float(self._plays.roll_extra(bend))
+    def _roll_extra(self, bend: float, direction: float) -> float:
+        """The roll's extra play (rad) at a model ``bend`` (rad) in ``direction`` (rad in the
+        knob plane; a law of the bend alone ignores it)."""
+        return 0.0 if self._plays is None else float(self._plays.roll_extra(bend, direction))
 
-    def _twist_extra(self, bend: float) -> float:
-        return 0.0 if self._plays is None else float(self._plays.twist_extra(bend))
+    def _twist_extra(self, bend: float, direction: float) -> float:
+        return 0.0 if self._plays is None else float(self._plays.twist_extra(bend, direction))
 
-    def _model_bend(self) -> float:
-        """Model bend (rad) of the present effective knobs."""
+    def _model_bend(self) -> tuple[float, float]:
+        """Model bend (rad) of the present effective knobs and its direction in the knob
+        plane (rad, ``atan2(phi2, phi1)`` of the model knobs)."""
         z1, z2 = self._knobs.effective_knobs
         k = self._f.motor_to_model(np.array([z1, z2, 0.0, 0.0]), check=False)
-        return self.geometry.knob_ratio * math.hypot(float(k[0]), float(k[1]))
+        bend = self.geometry.knob_ratio * math.hypot(float(k[0]), float(k[1]))
+        return bend, math.atan2(float(k[1]), float(k[0]))
 
     # --- the map -------------------------------------------------------------------------
 
@@ -165,7 +169,8 @@ class TendonKnobMap:
         else:
             # the image must move: the section leads it by the twist play (it pushes at the
             # play's edge); else the twist stays as it is
-            h = self._twist_extra(self.geometry.knob_ratio * math.hypot(a, b))
+            psi = math.atan2(b, a)  # the intended bend's direction
+            h = self._twist_extra(self.geometry.knob_ratio * math.hypot(a, b), psi)
             t = (
                 -h
                 if phi3 > self._i + 1e-12
@@ -181,7 +186,7 @@ class TendonKnobMap:
         if self._roll is not None:
             m = self._roll
             p = float(m.dead_zone_inverse(float(eff[2])))
-            extra = self._roll_extra(self.geometry.knob_ratio * math.hypot(a, b))
+            extra = self._roll_extra(self.geometry.knob_ratio * math.hypot(a, b), math.atan2(b, a))
             if p > self._p3 + 1e-12:
                 out[2] = m.play_inverse(p, 1.0, extra)
             elif p < self._p3 - 1e-12:
