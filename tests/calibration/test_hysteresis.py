@@ -145,6 +145,39 @@ def test_the_roll_play_law_is_measured_on_a_plant_of_another_form() -> None:
         assert abs(comp.twist_play.at(bend) - plant.twist_play()) < math.radians(1.5)
 
 
+def test_the_plays_over_the_knob_plane_are_measured_on_a_plant_of_another_form() -> None:
+    """Data from the nonlinear-play family (plays growing with the total tendon tension, so
+    with the bend's direction as well as its size): the roll's play read by the direction
+    of the bend matches the plant's own in the three further directions swept and between
+    them, where the AP knob's law alone misses it by more."""
+    from icenav.compensation.bend_play import KnobPlanePlay
+    from icenav.sim.families import NonlinearPlayPlant
+    from icenav.sim.tracker import EMTracker
+
+    plant = NonlinearPlayPlant(seed=211)
+    hplan = hysteresis_plan(joints=(2,), roll_step=10 * DEG)
+    assert len(hplan.play_directions) == 3
+    plant.reset()
+    comp = fit_hysteresis(
+        hplan, run_visits(plan_visits(hplan.plan), plant.move, EMTracker(plant, seed=211))
+    ).compensator
+    plane = comp.roll_play
+    assert isinstance(plane, KnobPlanePlay) and plane.directions[0] == 0.0
+    plant.reset()
+    straight = plant.roll_play()
+    ours, ap_only = [], []
+    for psi_deg in (45.0, 70.0, 90.0, 135.0):
+        psi = math.radians(psi_deg)
+        pose = plant.move([50 * DEG * math.cos(psi), 50 * DEG * math.sin(psi), 0.0, 0.0])
+        bend = math.acos(float(pose[2, 2]))
+        truth = plant.roll_play() - straight
+        ours.append(abs(plane.at(bend, psi) - truth))
+        ap_only.append(abs(plane.laws[0].at(bend) - truth))
+        plant.reset()
+    assert max(ours) < math.radians(1.5)  # measured 0.2-0.8 deg
+    assert max(ap_only) > 3.0 * max(ours)  # measured 1.3-6.7 deg
+
+
 def test_a_play_reading_at_the_search_bound_is_dropped() -> None:
     """A roll sweep narrower than the play (plus the margin) cannot read it: the reading at
     the search bound is dropped from the law, the others kept; a sweep widened with the
