@@ -54,6 +54,7 @@ __all__ = [
     "BOTH_WAYS_STOPS",
     "KNOB_RINGS",
     "RING_RADII",
+    "SWEEP_STEP",
     "ShortRingCalibration",
     "ShortRingPlan",
     "fit_short_rings",
@@ -67,9 +68,15 @@ KNOB_RINGS = "knob rings"
 RING_RADII = tuple(math.radians(a) for a in (25.0, 50.0, 75.0))
 """Knob radii of the rings (rad): those of the full calibration's knob circles, spanning the
 spins' 20-60 deg."""
-BOTH_WAYS_STOPS = 7
-"""Stops per turn and sense of the rings turned both ways: 3 rings x (1 + 2 x 7) = 45 moves,
-which with the roll sweeps (54) and the return to rest keeps the plan within 100 moves."""
+BOTH_WAYS_STOPS = 10
+"""Stops per turn and sense of the rings turned both ways: 3 rings x (1 + 2 x 10) = 63 moves,
+which with the roll sweeps (36 at :data:`SWEEP_STEP`) and the return to rest keeps the plan
+within 100 moves (7 stops and 10 deg sweeps until session 8: the stops identify more than
+the sweeps' resolution, docs/calibration.md section 7)."""
+
+SWEEP_STEP = math.radians(20.0)
+"""Roll step of the short calibration's sweeps (rad): a play's width is read from the offset
+between the up and the down branch, which a coarse step samples too."""
 
 
 def ring_path(
@@ -126,16 +133,17 @@ def short_ring_plan(
     n_stops: int | None = None,
     direction: int = 1,
     both_ways: bool = True,
+    roll_step: float = SWEEP_STEP,
 ) -> ShortRingPlan:
-    """Roll sweeps straight (+-30 deg) and with the AP knob at 50 deg (+-50 deg), 10 deg
-    steps, then :func:`ring_path`: 100 moves with the defaults (both ways,
-    :data:`BOTH_WAYS_STOPS` stops; one way: 12 stops, 94 moves), the 5-point search's 11
+    """Roll sweeps straight (+-30 deg) and with the AP knob at 50 deg (+-50 deg) in
+    ``roll_step``, then :func:`ring_path`: 100 moves with the defaults (both ways,
+    :data:`BOTH_WAYS_STOPS` stops; one way: 12 stops, 76 moves), the 5-point search's 11
     before them."""
     stops = (BOTH_WAYS_STOPS if both_ways else 12) if n_stops is None else int(n_stops)
     sweeps = hysteresis_plan(
         joints=(2,),
         roll_amplitude=math.radians(30.0),
-        roll_step=math.radians(10.0),
+        roll_step=roll_step,
         roll_widening=0.4,
         more_roll_bends=(),
     )
