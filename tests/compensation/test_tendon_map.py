@@ -4,6 +4,7 @@ catheter built from the same kind of transmission (tendons, roll play, distal tw
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
@@ -12,6 +13,7 @@ import pytest
 from icenav.calibration.plans import raster_grid
 from icenav.compensation.elasticity import CalibrationSet, ElasticityMap
 from icenav.compensation.hysteresis import HysteresisCompensator, JointHysteresis
+from icenav.compensation.section_length import SectionLength
 from icenav.compensation.tendon_map import TendonKnobMap
 from icenav.compensation.transmission import (
     PairTransmission,
@@ -21,7 +23,7 @@ from icenav.compensation.transmission import (
     TransmissionFit,
 )
 from icenav.errors import ConfigurationError, NonFiniteError, ShapeError
-from icenav.geometry.kinematics import forward
+from icenav.geometry.kinematics import DEFAULT_GEOMETRY, forward
 
 DEG = math.pi / 180
 TRUTH = TendonTransmission(
@@ -207,3 +209,20 @@ def test_bad_input_is_refused(calibration: TransmissionCalibration) -> None:
         cmap.motor_to_model(np.zeros((2, 4)))
     with pytest.raises(NonFiniteError, match="q_motor must be finite"):
         cmap.observe([0.0, math.nan, 0.0, 0.0])
+
+
+def test_a_longer_section_is_taken_by_the_translation(
+    calibration: TransmissionCalibration,
+) -> None:
+    """With a section 4 % longer than the model's, the knobs are as before and the
+    translation takes the axial excess at the model bend; asking back gives the model's d4."""
+    longer = dataclasses.replace(calibration, section=SectionLength(scale=1.04))
+    q = np.array([30 * DEG, -20 * DEG, 0.0, 2.0])
+    plain = TendonKnobMap(calibration).model_to_motor(q)
+    cmd = TendonKnobMap(longer).model_to_motor(q)
+    bend = DEFAULT_GEOMETRY.knob_ratio * math.hypot(30 * DEG, 20 * DEG)
+    excess = 0.04 * 60.0 * math.sin(bend) / bend
+    assert np.allclose(cmd[:3], plain[:3])
+    assert cmd[3] == pytest.approx(2.0 - excess)
+    back = TendonKnobMap(longer).motor_to_model(cmd)
+    assert back[3] == pytest.approx(2.0, abs=0.02)

@@ -56,6 +56,7 @@ from icenav.compensation.elasticity import (
     table_nodes,
 )
 from icenav.compensation.hysteresis import HysteresisCompensator, JointHysteresis
+from icenav.compensation.section_length import SectionLength
 from icenav.compensation.tracker_bias import TrackerBias
 from icenav.compensation.transmission import (
     PairTransmission,
@@ -503,6 +504,23 @@ def _encode_transmission(t: TransmissionCalibration) -> dict[str, Any]:
             "dead_zone_ramp": c.dead_zone_ramp,
             "xtol": c.xtol,
         },
+        section=_data(t.section),
+    )
+
+
+def _decode_section(r: _Field | None) -> SectionLength:
+    if r is None:
+        return SectionLength.none()
+    return r.build(
+        lambda: SectionLength(
+            scale=r.number("scale"),
+            offset_mm=r.number("offset_mm"),
+            rms_residual_mm=r.number("rms_residual_mm"),
+            cv_residual_mm=r.number("cv_residual_mm"),
+            cv_residual_nominal_mm=r.number("cv_residual_nominal_mm"),
+            n_samples=r.integer("n_samples"),
+            length_mm=r.number("length_mm"),
+        )
     )
 
 
@@ -534,6 +552,7 @@ def _decode_transmission(r: _Field) -> TransmissionCalibration:
         effective_map=_decode_map(r.sub("effective_map")),
         compensator=compensator,
         n_moves=r.integer("n_moves"),
+        section=_decode_section(r.optional("section") if "section" in r.doc else None),
     )
 
 
