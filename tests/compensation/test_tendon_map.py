@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 from icenav.calibration.plans import raster_grid
+from icenav.compensation.bend_play import BendPlay, KnobPlanePlay
 from icenav.compensation.elasticity import CalibrationSet, ElasticityMap
 from icenav.compensation.hysteresis import HysteresisCompensator, JointHysteresis
 from icenav.compensation.section_length import SectionLength
@@ -174,6 +175,33 @@ def test_a_reversal_jumps_the_roll_across_its_play(calibration: TransmissionCali
     bend = 40 * DEG
     play = 2 * (ROLL.backlash + ROLL_PER_BEND * bend) + 2 * TWIST_PER_BEND * bend
     assert up[2] - down[2] == pytest.approx(play, rel=0.15)
+
+
+def test_the_roll_play_is_looked_up_by_the_bend_s_direction(
+    calibration: TransmissionCalibration,
+) -> None:
+    """A roll play over the knob plane twice as wide along the RL knob as along the AP knob:
+    the reversal jump at one bend is the AP law's bent by the AP knob and the RL law's bent
+    by the RL knob (a law of the bend alone gives the AP one in both)."""
+    ap, rl = BendPlay.linear(ROLL_PER_BEND), BendPlay.linear(2 * ROLL_PER_BEND)
+    plane = KnobPlanePlay((0.0, math.pi / 2), (ap, rl))
+
+    def jump(law: BendPlay | KnobPlanePlay, knobs: tuple[float, float]) -> float:
+        roll = HysteresisCompensator([None, None, ROLL, None], roll_play=law)  # no twist
+        cal = dataclasses.replace(calibration, compensator=TendonCompensator(TRUTH, roll))
+        cmap = TendonKnobMap(cal)
+        bent = np.array([knobs[0], knobs[1], 0.0, 0.0])
+        for q in np.linspace(np.zeros(4), bent + [0, 0, 0.5, 0], 30):
+            cmap.observe(cmap.model_to_motor(q))
+        up = cmap.model_to_motor(bent + [0, 0, 0.5 + 1e-3, 0])
+        down = cmap.model_to_motor(bent + [0, 0, 0.5 - 1e-3, 0])
+        return float(up[2] - down[2])
+
+    bend = 40 * DEG
+    for knobs, k in (((bend, 0.0), ROLL_PER_BEND), ((0.0, bend), 2 * ROLL_PER_BEND)):
+        play = 2 * (ROLL.backlash + k * bend)
+        assert jump(plane, knobs) == pytest.approx(play, rel=0.05)
+    assert jump(ap, (0.0, bend)) == pytest.approx(jump(ap, (bend, 0.0)), rel=0.05)
 
 
 def test_observing_other_motions_keeps_the_state(calibration: TransmissionCalibration) -> None:
