@@ -1,4 +1,7 @@
-"""A development ablation, not the method (docs/results.md, round 3): the roll's and the
+"""A development ablation of session 7 (docs/results.md, round 3), kept to reproduce it: the
+method now does this itself (``KnobPlanePlay``, docs/calibration.md section 4); here the
+plan's own further directions are switched off (``play_directions=()``) so that "ours" is
+the AP-only method the ablation compared against. The roll's and the
 twist's plays measured with the section bent in four directions of the knob plane (the AP
 knob, the diagonal, the RL knob, the anti-diagonal: the same roll sweeps at three bends
 each) and used by the direction of the intended bend, against ours (the AP knob only).
@@ -24,6 +27,7 @@ from typing import Any
 
 import numpy as np
 
+import icenav.calibration.catheter as C
 from icenav.calibration.hysteresis import fit_hysteresis, hysteresis_plan
 from icenav.calibration.procedure import run_visits
 from icenav.calibration.procedures import plan_visits
@@ -36,6 +40,8 @@ fam, seed = sys.argv[1], int(sys.argv[2])
 one_bend = len(sys.argv) > 3 and sys.argv[3] == "one-bend"
 if not 210 <= seed <= 229:
     raise SystemExit("development catheters only (210-229)")
+_plan = C.hysteresis_plan
+C.hysteresis_plan = lambda **kw: _plan(play_directions=(), **kw)  # ours as in session 7
 cal = S.calibrate(seed, fam)
 base = cal.catheter.hysteresis.compensator
 laws: dict[float, tuple[Any, Any]] = {0.0: (base.roll_play, base.twist_play)}
@@ -44,7 +50,7 @@ for psi_deg in (45.0, 90.0, 135.0):
     hp = (
         hysteresis_plan(joints=(2,), more_roll_bends=())
         if one_bend
-        else hysteresis_plan(joints=(2,))
+        else hysteresis_plan(joints=(2,), play_directions=())
     )
     q = hp.plan.q_motor.copy()
     k = q[:, 0].copy()
@@ -102,10 +108,10 @@ class DirMap(TendonKnobMap):
         finally:
             self._theta = saved
 
-    def _roll_extra(self, bend: float) -> float:
+    def _roll_extra(self, bend: float, direction: float = 0.0) -> float:
         return blend(0, bend, self._theta)
 
-    def _twist_extra(self, bend: float) -> float:
+    def _twist_extra(self, bend: float, direction: float = 0.0) -> float:
         return blend(1, bend, self._theta)
 
 

@@ -1,13 +1,14 @@
 """Markdown tables of docs/results.md (plant families) from the records of ``icenav eval spin``.
 
-The held-out records are made by ONE run each. Catheters 310-314 (round 3; the freeze
-commit is in docs/results.md; on the busy 2-core machine shared by five engineers):
+The held-out records are made by ONE run each. Catheters 315-319 (round 4, session 8; the
+freeze commit is in docs/results.md; on the busy 2-core machine shared by five engineers):
 
-    nice -n 10 icenav eval spin --plant-family all --seeds 310-314 --jobs 2 \\
+    nice -n 10 icenav eval spin --plant-family all --seeds 315-319 --jobs 2 \\
         --conditions none,dense,dense+hysteresis,short+rings \\
-        --json docs/figures/families_seeds310-314.json
+        --json docs/figures/families_seeds315-319.json
 
-and, the rounds before (now spent): ``--seeds 305-309`` (methods frozen at 899b631,
+and, the rounds before (now spent): ``--seeds 310-314`` (round 3, at 2bf7dc3, the same
+conditions), ``--seeds 305-309`` (methods frozen at 899b631,
 without ``short+rings``) and ``--seeds 300-304`` (at b41cbd4), their records in
 ``docs/figures/families_seeds305-309.json`` and ``..._seeds300-304.json``.
 
@@ -17,7 +18,9 @@ BEFORE.json AFTER.json`` it prints ours (``dense+hysteresis``, EM) before -> aft
 and bend, e.g. on the development catheters 210-212
 (``docs/figures/families_dev210-212_before.json``, ``..._after.json``: the same command
 with ``--seeds 210-212 --conditions dense+hysteresis`` at bcf97b2 and at 899b631; round 3:
-``families_dev210-214_before.json`` / ``..._after.json`` on 210-214); with
+``families_dev210-214_before.json`` / ``..._after.json`` on 210-214; session 8:
+``families_dev210-212_s8_{before,after}.json``, ours with the AP knob's plays only and with
+the plays over the knob plane); with
 ``--short FULL.json SHORT.json`` the short calibrations against ours on the same catheters
 (and how many family x bend cells are within 25 % of ours).
 """
@@ -153,7 +156,7 @@ def main() -> None:
             print(f"ours (EM mean over catheters {seeds}), before -> after\n")
             compare(before, after)
         return
-    path = Path(sys.argv[1]) if len(sys.argv) > 1 else HERE / "families_seeds310-314.json"
+    path = Path(sys.argv[1]) if len(sys.argv) > 1 else HERE / "families_seeds315-319.json"
     records = load(path)
     if records:
         seeds = sorted({r.seed for r in records})

@@ -122,7 +122,7 @@ def test_the_roll_play_law_is_measured_on_a_plant_of_another_form() -> None:
     from icenav.sim.tracker import EMTracker
 
     plant = NonlinearPlayPlant(seed=210)
-    hplan = hysteresis_plan(joints=(2,))
+    hplan = hysteresis_plan(joints=(2,), play_directions=())  # the AP knob's law alone
     plant.reset()
     comp = fit_hysteresis(
         hplan, run_visits(plan_visits(hplan.plan), plant.move, EMTracker(plant, seed=210))
@@ -145,19 +145,73 @@ def test_the_roll_play_law_is_measured_on_a_plant_of_another_form() -> None:
         assert abs(comp.twist_play.at(bend) - plant.twist_play()) < math.radians(1.5)
 
 
+def test_the_plays_over_the_knob_plane_are_measured_on_a_plant_of_another_form() -> None:
+    """Data from the nonlinear-play family (plays growing with the total tendon tension, so
+    with the bend's direction as well as its size): the roll's play read by the direction
+    of the bend matches the plant's own in the three further directions swept and between
+    them, where the AP knob's law alone misses it by more."""
+    from icenav.compensation.bend_play import KnobPlanePlay
+    from icenav.sim.families import NonlinearPlayPlant
+    from icenav.sim.tracker import EMTracker
+
+    plant = NonlinearPlayPlant(seed=211)
+    hplan = hysteresis_plan(joints=(2,), roll_step=10 * DEG)
+    assert len(hplan.play_directions) == 3
+    plant.reset()
+    comp = fit_hysteresis(
+        hplan, run_visits(plan_visits(hplan.plan), plant.move, EMTracker(plant, seed=211))
+    ).compensator
+    plane = comp.roll_play
+    assert isinstance(plane, KnobPlanePlay) and plane.directions[0] == 0.0
+    plant.reset()
+    straight = plant.roll_play()
+    ours, ap_only = [], []
+    for psi_deg in (45.0, 70.0, 90.0, 135.0):
+        psi = math.radians(psi_deg)
+        pose = plant.move([50 * DEG * math.cos(psi), 50 * DEG * math.sin(psi), 0.0, 0.0])
+        bend = math.acos(float(pose[2, 2]))
+        truth = plant.roll_play() - straight
+        ours.append(abs(plane.at(bend, psi) - truth))
+        ap_only.append(abs(plane.laws[0].at(bend) - truth))
+        plant.reset()
+    assert max(ours) < math.radians(1.5)  # measured 0.2-0.8 deg
+    assert max(ap_only) > 3.0 * max(ours)  # measured 1.3-6.7 deg
+
+
 def test_a_play_reading_at_the_search_bound_is_dropped() -> None:
     """A roll sweep narrower than the play (plus the margin) cannot read it: the reading at
     the search bound is dropped from the law, the others kept; a sweep widened with the
     bend reads every one (data of a single play growing with the knob, 0.5 rad/rad)."""
     cath = SyntheticCatheter(r=(0.0, 0.0, 1.5 * DEG), roll_per_bend=0.5)
-    narrow = hysteresis_plan(joints=(2,), roll_amplitude=40 * DEG, roll_widening=0.0)
+    narrow = hysteresis_plan(
+        joints=(2,), roll_amplitude=40 * DEG, roll_widening=0.0, play_directions=()
+    )
     comp = fit_hysteresis(narrow, run_visits(plan_visits(narrow.plan), cath.move, Tracker(cath)))
     play = comp.compensator.roll_play
     assert play is not None and len(play.bends) == 2  # 37.5 deg of play at 75 deg: dropped
     np.testing.assert_allclose(play.extra, np.radians([12.5, 25.0]), atol=1.0 * DEG)
     cath = SyntheticCatheter(r=(0.0, 0.0, 1.5 * DEG), roll_per_bend=0.5)
-    wide = hysteresis_plan(joints=(2,), roll_amplitude=40 * DEG, roll_widening=0.8)
+    wide = hysteresis_plan(
+        joints=(2,), roll_amplitude=40 * DEG, roll_widening=0.8, play_directions=()
+    )
     comp = fit_hysteresis(wide, run_visits(plan_visits(wide.plan), cath.move, Tracker(cath)))
     play = comp.compensator.roll_play
     assert play is not None and len(play.bends) == 3
     np.testing.assert_allclose(play.extra, np.radians([12.5, 25.0, 37.5]), atol=1.0 * DEG)
+
+
+def test_the_full_plan_sweeps_the_roll_bent_in_four_directions() -> None:
+    """The AP knob's bends and one bend in each further direction (the knobs along it); the
+    short plan none; bad directions refused."""
+    hplan = hysteresis_plan(joints=(2,))
+    assert hplan.play_directions == pytest.approx(np.radians([45.0, 90.0, 135.0]))
+    for psi in (45, 90, 135):
+        knobs = hplan.plan.q_motor[hplan.plan.segment(f"sweep phi3, bent {psi} deg")][:, :2]
+        want = hplan.bend * np.array([math.cos(math.radians(psi)), math.sin(math.radians(psi))])
+        np.testing.assert_allclose(knobs, np.tile(want, (len(knobs), 1)), atol=1e-12)
+    assert hysteresis_plan(joints=(2,), more_roll_bends=()).play_directions == ()
+    assert hysteresis_plan(joints=(0, 1)).play_directions == ()
+    with pytest.raises(ConfigurationError, match=r"play_directions must be in \(0, 180\)"):
+        hysteresis_plan(play_directions=(0.0,))
+    with pytest.raises(ConfigurationError, match="ascending"):
+        hysteresis_plan(play_directions=(1.0, 0.5))

@@ -1,4 +1,4 @@
-"""Calibration files of version 3: the fitted model is kept, and loading gives the
+"""Calibration files of versions 3 and 4: the fitted model is kept, and loading gives the
 compensation the fit gave (a reduced dense+hysteresis fit on the twin, conftest's
 ``twin_catheter_calibration``)."""
 
@@ -24,7 +24,7 @@ from icenav.calibration.model_files import (
     decode_model,
     encode_model,
 )
-from icenav.compensation.bend_play import BendPlay
+from icenav.compensation.bend_play import BendPlay, KnobPlanePlay
 from icenav.compensation.elasticity import BuildReport, ElasticityMap
 from icenav.compensation.hysteresis import HysteresisCompensator, JointHysteresis
 from icenav.compensation.tendon_map import TendonKnobMap
@@ -167,7 +167,8 @@ def test_every_field_of_every_serialised_class_is_in_the_document(
     assert set(model["elasticity_map"]["report"]) == _init_fields(BuildReport)
     assert set(model["elasticity_map"]["geometry"]) == _init_fields(CatheterGeometry)
     assert cat.hysteresis.compensator.roll_play is not None  # the fit has a bend play
-    assert set(h["compensator"]["roll_play"]) == _init_fields(BendPlay)
+    assert set(h["compensator"]["roll_play"]) == _init_fields(KnobPlanePlay)
+    assert set(h["compensator"]["roll_play"]["laws"][0]) == _init_fields(BendPlay)
     # the stateful compensators: by their constructors' parameters
     params = set(inspect.signature(HysteresisCompensator.__init__).parameters) - {"self"}
     assert params == set(HYSTERESIS_COMPENSATOR_KEYS) == set(h["compensator"])
@@ -230,8 +231,8 @@ def document(saved: Path) -> dict[str, Any]:
     ("change", "match", "error"),
     [
         (
-            lambda d: d.update(version=4),
-            r"x\.json: calibration file version 4 .* 1\.\.3",
+            lambda d: d.update(version=5),
+            r"x\.json: calibration file version 5 .* 1\.\.4",
             UnsupportedVersionError,
         ),
         (lambda d: d.update(kind="dense+magic"), r"x\.json: kind must be one of", FileFormatError),
@@ -268,6 +269,42 @@ def test_a_damaged_file_is_refused_naming_the_file_and_the_field(
     path.write_text(json.dumps(doc), encoding="utf-8")
     with pytest.raises(error, match=match):
         CalibrationFile.load(path)
+
+
+def test_plays_over_the_knob_plane_are_version_4_and_a_version_3_file_still_loads(
+    twin_catheter_calibration: CatheterCalibration, document: dict[str, Any], tmp_path: Path
+) -> None:
+    """The twin fit's plays are laws over the knob plane: the file is version 4. A version 3
+    file (written before: one law of the bend) loads, its law the same in every direction."""
+    assert document["version"] == 4
+    comp = document["model"]["hysteresis"]["compensator"]
+    assert len(comp["roll_play"]["directions"]) == 4 and len(comp["twist_play"]["laws"]) == 4
+    old = copy.deepcopy(document)
+    old["version"] = 3
+
+    def strip(c: dict[str, Any] | None) -> None:  # as icenav wrote it: the AP knob's law only
+        if c is not None:
+            for key in ("roll_play", "twist_play"):
+                c[key] = c[key]["laws"][0]
+
+    strip(old["model"]["hysteresis"]["compensator"])
+    strip(old["model"]["transmission"]["compensator"]["roll"])
+    path = tmp_path / "v3.json"
+    path.write_text(json.dumps(old), encoding="utf-8")
+    back = CalibrationFile.load(path)
+    assert isinstance(back.model, CatheterCalibration)
+    loaded = back.model.hysteresis.compensator
+    plane = twin_catheter_calibration.hysteresis.compensator.roll_play
+    assert isinstance(plane, KnobPlanePlay) and isinstance(loaded.roll_play, BendPlay)
+    b = np.radians(np.linspace(0.0, 120.0, 13))
+    for psi in np.radians([0.0, 45.0, 90.0, 160.0]):
+        np.testing.assert_array_equal(loaded.roll_extra(b, psi), plane.laws[0](b))
+        np.testing.assert_array_equal(loaded.twist_extra(b, psi), loaded.twist_extra(b))
+    # it saves again as version 3 (nothing in it needs 4); the knob map runs on it
+    assert back.to_dict()["version"] == 3
+    knob_map = back.compensation()
+    assert isinstance(knob_map, TendonKnobMap)
+    assert np.all(np.isfinite(knob_map.model_to_motor(_random_states(5))))
 
 
 def test_dense_files_keep_f_and_version_2_files_still_load(

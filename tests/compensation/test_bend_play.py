@@ -8,7 +8,7 @@ import math
 import numpy as np
 import pytest
 
-from icenav.compensation.bend_play import MAX_EXTRA, BendPlay, select_bend_play
+from icenav.compensation.bend_play import MAX_EXTRA, BendPlay, KnobPlanePlay, select_bend_play
 from icenav.errors import ConfigurationError
 
 BENDS = np.radians([45.0, 80.0, 115.0])
@@ -134,3 +134,93 @@ def test_bad_forms_are_refused() -> None:
         BendPlay("quadratic", (1.0,))
     with pytest.raises(ConfigurationError, match="at least one measured point"):
         BendPlay("table")
+
+
+# --- the play over the knob plane (B5) --------------------------------------------------------
+
+DIRS = (0.0, math.pi / 4, math.pi / 2, 3 * math.pi / 4)
+
+
+def _plane() -> KnobPlanePlay:
+    """Four laws of different forms and levels, as the directions of a catheter whose play
+    grows with the total tendon tension would give."""
+    return KnobPlanePlay(
+        DIRS,
+        (
+            BendPlay("power", (0.06, 2.3)),
+            BendPlay.linear(0.05),
+            BendPlay("quadratic", (0.02, 0.1)),
+            select_bend_play(BENDS, [0.05, 0.2, 0.21]).scaled(1.5),
+        ),
+    )
+
+
+def test_the_knob_plane_law_is_each_direction_s_law_and_periodic() -> None:
+    plane = _plane()
+    b = np.radians(np.linspace(0.0, 130.0, 27))
+    for d, law in zip(DIRS, plane.laws, strict=True):
+        np.testing.assert_allclose(plane(b, d), law(b), atol=1e-15)
+        # the bending plane's axis, not its sense: psi and psi + pi (and - pi) are one law
+        np.testing.assert_allclose(plane(b, d + math.pi), law(b), atol=1e-15)
+        np.testing.assert_allclose(plane(b, d - math.pi), law(b), atol=1e-15)
+    # between two directions it lies between their laws; past 135 deg it returns to 0 deg's
+    mid = plane(b, math.radians(22.5))
+    lo, hi = (
+        np.minimum(plane.laws[0](b), plane.laws[1](b)),
+        np.maximum(plane.laws[0](b), plane.laws[1](b)),
+    )
+    assert np.all(mid >= lo - 1e-15) and np.all(mid <= hi + 1e-15)
+    np.testing.assert_allclose(
+        plane(b, math.radians(157.5)), 0.5 * (plane.laws[3](b) + plane.laws[0](b)), atol=1e-15
+    )
+
+
+def test_the_knob_plane_law_is_non_negative_and_non_decreasing_in_every_direction() -> None:
+    plane = _plane()
+    b = np.radians(np.linspace(0.0, 140.0, 141))
+    for psi in np.radians(np.arange(-180.0, 180.0, 7.5)):
+        e = plane(b, psi)
+        assert e[0] == 0.0 and np.all(e >= 0.0) and np.all(np.diff(e) >= -1e-15)
+        assert np.all(e <= MAX_EXTRA)
+    # arrays of bends and directions broadcast (a path's samples)
+    psis = np.radians(np.linspace(-90.0, 270.0, b.size))
+    np.testing.assert_allclose(
+        plane(b, psis), [plane.at(x, p) for x, p in zip(b, psis, strict=True)]
+    )
+
+
+def test_a_law_of_the_bend_alone_is_the_same_in_every_direction() -> None:
+    law = select_bend_play(BENDS, [0.05, 0.2, 0.21])
+    b = np.radians(np.linspace(0.0, 130.0, 14))
+    for psi in np.radians([0.0, 33.0, 90.0, -120.0]):
+        np.testing.assert_array_equal(law(b, psi), law(b))
+        np.testing.assert_array_equal(KnobPlanePlay.uniform(law)(b, psi), law(b))
+
+
+def test_a_scaled_law_keeps_its_form_and_bounds() -> None:
+    for law in (
+        _plane().laws[0],
+        BendPlay.linear(0.05),
+        select_bend_play(BENDS, [0.05, 0.2, 0.21]),
+    ):
+        s = law.scaled(1.7)
+        assert s.form == law.form
+        np.testing.assert_allclose(s(BENDS), np.minimum(1.7 * law(BENDS), MAX_EXTRA))
+    with pytest.raises(ConfigurationError, match="scale"):
+        BendPlay.linear(0.05).scaled(-1.0)
+
+
+@pytest.mark.parametrize(
+    ("directions", "n_laws", "message"),
+    [
+        ((), 0, "one law per direction"),
+        ((0.0, 1.0), 1, "one law per direction"),
+        ((0.0, math.pi), 2, r"in \[0, 3.1416\)"),
+        ((1.0, 0.5), 2, "ascending"),
+    ],
+)
+def test_bad_knob_plane_laws_are_refused(
+    directions: tuple[float, ...], n_laws: int, message: str
+) -> None:
+    with pytest.raises(ConfigurationError, match=message):
+        KnobPlanePlay(directions, (BendPlay.linear(0.1),) * n_laws)

@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from icenav.calibration.hysteresis import sweep_path
+from icenav.compensation.bend_play import BendPlay, KnobPlanePlay
 from icenav.compensation.hysteresis import HysteresisCompensator, JointHysteresis
 from icenav.errors import ConfigurationError
 
@@ -194,6 +195,40 @@ def test_compensator_cancels_play_that_grows_with_the_bend() -> None:
         HysteresisCompensator([None] * 4, roll_play_per_bend=-1.0)
     with pytest.raises(ConfigurationError, match="bends must have 381 values"):
         comp.command_path(path, bends=np.zeros(3))
+
+
+def test_a_roll_play_over_the_knob_plane_is_looked_up_by_the_bend_s_direction() -> None:
+    """A roll play twice as wide bent by the RL knob as by the AP knob (a play growing with
+    the total tendon tension): the compensator cancels it along a spin, whose bend goes
+    round the knob plane; the AP law alone leaves the difference."""
+    roll = JointHysteresis(backlash=0.5 * DEG)
+    plane = KnobPlanePlay(
+        (0.0, math.pi / 2), (BendPlay("power", (0.05, 2.0)), BendPlay("power", (0.10, 2.0)))
+    )
+    t = np.linspace(0, 2 * math.pi, 361)
+    want = np.stack([0.9 * np.cos(t), 0.9 * np.sin(t), -t, np.zeros_like(t)], axis=-1)
+    path = np.vstack([np.linspace(np.zeros(4), want[0], 21)[1:], want])
+
+    def roll_reached(comp: HysteresisCompensator) -> np.ndarray:
+        comp.reset(np.zeros(4))
+        cmd = comp.command_path(path)
+        p, out = 0.0, []
+        for x, z in zip(cmd, path, strict=True):  # the plant: its play by the direction
+            w = roll.backlash + plane.at(math.hypot(z[0], z[1]), math.atan2(z[1], z[0]))
+            p = min(max(p, x[2] - w), x[2] + w)
+            out.append(p)
+        return np.array(out[20:])
+
+    ours = HysteresisCompensator([None, None, roll, None], roll_play=plane)
+    assert np.max(np.abs(roll_reached(ours) - want[:, 2])) < 1e-9
+    ap_only = HysteresisCompensator([None, None, roll, None], roll_play=plane.laws[0])
+    err = np.abs(roll_reached(ap_only) - want[:, 2])
+    assert np.max(err) > math.radians(2.0)  # 0.05 * 0.9^2 rad short where RL bends
+    # the model's own simulation reads the play by the direction too (from the first
+    # command, where it starts relaxed)
+    ours.reset(np.zeros(4))
+    eff = ours.effective_path(ours.command_path(path), q_start=np.zeros(4))
+    assert np.max(np.abs(eff[20:, 2] - want[:, 2])) < 1e-9
 
 
 def test_twist_preshaping_turns_the_image_frame_about_its_own_axis() -> None:

@@ -4,14 +4,17 @@ catheter built from the same kind of transmission (tendons, roll play, distal tw
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
 import pytest
 
 from icenav.calibration.plans import raster_grid
+from icenav.compensation.bend_play import BendPlay, KnobPlanePlay
 from icenav.compensation.elasticity import CalibrationSet, ElasticityMap
 from icenav.compensation.hysteresis import HysteresisCompensator, JointHysteresis
+from icenav.compensation.section_length import SectionLength
 from icenav.compensation.tendon_map import TendonKnobMap
 from icenav.compensation.transmission import (
     PairTransmission,
@@ -21,7 +24,7 @@ from icenav.compensation.transmission import (
     TransmissionFit,
 )
 from icenav.errors import ConfigurationError, NonFiniteError, ShapeError
-from icenav.geometry.kinematics import forward
+from icenav.geometry.kinematics import DEFAULT_GEOMETRY, forward
 
 DEG = math.pi / 180
 TRUTH = TendonTransmission(
@@ -174,6 +177,33 @@ def test_a_reversal_jumps_the_roll_across_its_play(calibration: TransmissionCali
     assert up[2] - down[2] == pytest.approx(play, rel=0.15)
 
 
+def test_the_roll_play_is_looked_up_by_the_bend_s_direction(
+    calibration: TransmissionCalibration,
+) -> None:
+    """A roll play over the knob plane twice as wide along the RL knob as along the AP knob:
+    the reversal jump at one bend is the AP law's bent by the AP knob and the RL law's bent
+    by the RL knob (a law of the bend alone gives the AP one in both)."""
+    ap, rl = BendPlay.linear(ROLL_PER_BEND), BendPlay.linear(2 * ROLL_PER_BEND)
+    plane = KnobPlanePlay((0.0, math.pi / 2), (ap, rl))
+
+    def jump(law: BendPlay | KnobPlanePlay, knobs: tuple[float, float]) -> float:
+        roll = HysteresisCompensator([None, None, ROLL, None], roll_play=law)  # no twist
+        cal = dataclasses.replace(calibration, compensator=TendonCompensator(TRUTH, roll))
+        cmap = TendonKnobMap(cal)
+        bent = np.array([knobs[0], knobs[1], 0.0, 0.0])
+        for q in np.linspace(np.zeros(4), bent + [0, 0, 0.5, 0], 30):
+            cmap.observe(cmap.model_to_motor(q))
+        up = cmap.model_to_motor(bent + [0, 0, 0.5 + 1e-3, 0])
+        down = cmap.model_to_motor(bent + [0, 0, 0.5 - 1e-3, 0])
+        return float(up[2] - down[2])
+
+    bend = 40 * DEG
+    for knobs, k in (((bend, 0.0), ROLL_PER_BEND), ((0.0, bend), 2 * ROLL_PER_BEND)):
+        play = 2 * (ROLL.backlash + k * bend)
+        assert jump(plane, knobs) == pytest.approx(play, rel=0.05)
+    assert jump(ap, (0.0, bend)) == pytest.approx(jump(ap, (bend, 0.0)), rel=0.05)
+
+
 def test_observing_other_motions_keeps_the_state(calibration: TransmissionCalibration) -> None:
     """Motions the map did not command (knob jog) are followed through observe: afterwards it
     knows where the catheter is, and brings it back exactly."""
@@ -207,3 +237,20 @@ def test_bad_input_is_refused(calibration: TransmissionCalibration) -> None:
         cmap.motor_to_model(np.zeros((2, 4)))
     with pytest.raises(NonFiniteError, match="q_motor must be finite"):
         cmap.observe([0.0, math.nan, 0.0, 0.0])
+
+
+def test_a_longer_section_is_taken_by_the_translation(
+    calibration: TransmissionCalibration,
+) -> None:
+    """With a section 4 % longer than the model's, the knobs are as before and the
+    translation takes the axial excess at the model bend; asking back gives the model's d4."""
+    longer = dataclasses.replace(calibration, section=SectionLength(scale=1.04))
+    q = np.array([30 * DEG, -20 * DEG, 0.0, 2.0])
+    plain = TendonKnobMap(calibration).model_to_motor(q)
+    cmd = TendonKnobMap(longer).model_to_motor(q)
+    bend = DEFAULT_GEOMETRY.knob_ratio * math.hypot(30 * DEG, 20 * DEG)
+    excess = 0.04 * 60.0 * math.sin(bend) / bend
+    assert np.allclose(cmd[:3], plain[:3])
+    assert cmd[3] == pytest.approx(2.0 - excess)
+    back = TendonKnobMap(longer).motor_to_model(cmd)
+    assert back[3] == pytest.approx(2.0, abs=0.02)

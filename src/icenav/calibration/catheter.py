@@ -38,6 +38,7 @@ from icenav.calibration.transmission import (
     motion_from,
 )
 from icenav.compensation.elasticity import CalibrationSet, ElasticityMap
+from icenav.compensation.section_length import fit_section_length
 from icenav.compensation.tendon_map import TendonKnobMap
 from icenav.compensation.tracker_bias import TrackerBias
 from icenav.compensation.transmission import TransmissionCalibration
@@ -150,11 +151,14 @@ def fit_catheter(
     )
     hyst = fit_hysteresis(cplan.hysteresis, sweeps, geometry)
     bias = fit_tracker_bias_from(recording)
+    unbiased = bias.correct_calibration(dense)
+    section = fit_section_length(unbiased, geometry)
     transmission = build_transmission(
-        bias.correct_calibration(dense),
+        unbiased,
         cplan.raster,
-        motion_from(recording, KNOB_CIRCLES, tracker_bias=bias, geometry=geometry),
+        motion_from(recording, KNOB_CIRCLES, tracker_bias=bias, geometry=geometry, section=section),
         hyst.compensator,
+        section=section,
     )
     return CatheterCalibration(
         dense=dense,

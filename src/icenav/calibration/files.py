@@ -11,7 +11,11 @@ The document is :meth:`icenav.compensation.elasticity.CalibrationSet.to_dict` (`
 - version 3: ``kind`` (``dense``, ``five_point`` or ``dense+hysteresis``) and ``model``, the
   fitted compensation (:mod:`icenav.calibration.model_files`): the paper's F, or for
   ``dense+hysteresis`` the per-tendon / hysteresis model whose knob map the controller
-  installs.
+  installs;
+- version 4: the same, the roll's and the twist's plays as laws over the knob plane (the
+  bend and its direction). A file is written with the oldest version that holds its model
+  (3 when every play is a law of the bend alone), and a version 3 file's laws load as the
+  same law in every direction.
 
 :meth:`CalibrationFile.compensation` gives the controller's compensation: the stored model
 (v3), or for version 1 and 2 files (samples only; version 1 has no registration either) the
@@ -26,7 +30,12 @@ from pathlib import Path
 from typing import Any
 
 from icenav.calibration.catheter import CatheterCalibration
-from icenav.calibration.model_files import MODEL_KINDS, decode_model, encode_model
+from icenav.calibration.model_files import (
+    MODEL_KINDS,
+    decode_model,
+    encode_model,
+    needs_knob_plane,
+)
 from icenav.compensation.elasticity import CalibrationSet, ElasticityMap
 from icenav.devices.registration import Registration
 from icenav.errors import ConfigurationError, FileFormatError, UnsupportedVersionError
@@ -34,9 +43,11 @@ from icenav.geometry.kinematics import DEFAULT_GEOMETRY, CatheterGeometry
 
 __all__ = ["CALIBRATION_FILE_VERSION", "CalibrationFile"]
 
-CALIBRATION_FILE_VERSION = 3
-"""The version :meth:`CalibrationFile.save` writes when the file has a model (1 and 2 load)."""
-_SAMPLES_VERSION = 2  # the samples' own document (CalibrationSet) inside a version 3 file
+CALIBRATION_FILE_VERSION = 4
+"""The newest version :meth:`CalibrationFile.save` writes (when the model holds a play over the
+knob plane; 3 for any other model; 1 to 4 load)."""
+_MODEL_VERSIONS = (3, 4)  # the versions with a kind and a model
+_SAMPLES_VERSION = 2  # the samples' own document (CalibrationSet) inside a version 3 or 4 file
 
 
 @dataclass(frozen=True, eq=False)
@@ -146,19 +157,20 @@ class CalibrationFile:
         return text
 
     def to_dict(self) -> dict[str, Any]:
-        """The JSON document (version 3 with a model, else version 2)."""
+        """The JSON document (version 4 with a play over the knob plane, 3 with another
+        model, else version 2)."""
         doc = self.calibration.to_dict()
         if self.registration is not None:
             doc["registration"] = self.registration.to_dict()
         if self.model is not None:
-            doc["version"] = CALIBRATION_FILE_VERSION
+            doc["version"] = CALIBRATION_FILE_VERSION if needs_knob_plane(self.model) else 3
             doc["kind"] = self.kind
             doc["model"] = encode_model(self.kind, self.model)
         return doc
 
     @classmethod
     def from_dict(cls, doc: object, source: str = "calibration document") -> CalibrationFile:
-        """Parse a document (version 1, 2 or 3); FileFormatError naming ``source`` and the
+        """Parse a document (version 1 to 4); FileFormatError naming ``source`` and the
         field."""
         if not isinstance(doc, dict):
             raise FileFormatError(f"{source}: expected a JSON object, got {type(doc).__name__}")
@@ -173,13 +185,13 @@ class CalibrationFile:
                 f"icenav reads versions 1..{CALIBRATION_FILE_VERSION} (upgrade icenav to "
                 "read newer files)"
             )
-        samples = dict(doc, version=_SAMPLES_VERSION) if version == 3 else doc
+        samples = dict(doc, version=_SAMPLES_VERSION) if version in _MODEL_VERSIONS else doc
         cal = CalibrationSet.from_dict(samples, source)
         reg = doc.get("registration")
         registration = (
             None if reg is None else Registration.from_dict(reg, f"{source}: registration")
         )
-        if version != 3:
+        if version not in _MODEL_VERSIONS:
             return cls(calibration=cal, registration=registration)
         kind = doc.get("kind")
         if kind not in MODEL_KINDS:
@@ -187,7 +199,7 @@ class CalibrationFile:
                 f"{source}: kind must be one of {', '.join(MODEL_KINDS)}, got {kind!r}"
             )
         if "model" not in doc:
-            raise FileFormatError(f"{source}: model is missing (a version 3 file has one)")
+            raise FileFormatError(f"{source}: model is missing (a version {version} file has one)")
         model = decode_model(kind, doc["model"], source)
         return cls(calibration=cal, registration=registration, kind=kind, model=model)
 

@@ -25,7 +25,7 @@ from scipy.optimize import least_squares
 from icenav._typing import Array
 from icenav._validation import check_finite
 from icenav.calibration.plans import MotionPlan, Recording, _check_counts
-from icenav.compensation.bend_play import BendPlay, select_bend_play
+from icenav.compensation.bend_play import BendPlay, KnobPlanePlay, PlayLaw, select_bend_play
 from icenav.compensation.hysteresis import HysteresisCompensator, JointHysteresis, _play
 from icenav.errors import ConfigurationError
 from icenav.geometry.kinematics import DEFAULT_GEOMETRY, CatheterGeometry
@@ -35,6 +35,8 @@ __all__ = [
     "HysteresisFit",
     "HysteresisIdentification",
     "HysteresisPlan",
+    "DIRECTION_STEP",
+    "PLAY_DIRECTIONS",
     "fit_hysteresis",
     "hysteresis_plan",
     "identify",
@@ -266,6 +268,25 @@ class HysteresisPlan:
     """Further AP knob angles (rad) of roll sweeps (segments ``sweep phi3, phi1 bent N``
     and ``bend check N``, N in deg), for the roll's and the twist's play against the bend
     (:func:`icenav.compensation.bend_play.select_bend_play`)."""
+    play_directions: tuple[float, ...] = ()
+    """Further directions of the bend in the knob plane (rad, in (0, pi)) of one roll sweep
+    each at the knob angle ``bend`` (segments ``sweep phi3, bent N deg`` and ``bend check N
+    deg``, N the direction in deg): the plays over the knob plane
+    (:class:`icenav.compensation.bend_play.KnobPlanePlay`)."""
+
+
+PLAY_DIRECTIONS = (math.pi / 4, math.pi / 2, 3 * math.pi / 4)
+"""The directions of the bend (rad in the knob plane: the diagonal, the RL knob, the
+anti-diagonal) swept besides the AP knob's in the full calibration's plan."""
+
+
+DIRECTION_STEP = math.radians(10.0)
+"""Step of the further directions' roll sweeps (rad): twice the AP knob's, so that the plan
+stays under 10 min of robot time (docs/calibration.md section 7)."""
+
+
+def _direction_tag(psi: float) -> str:
+    return f" {math.degrees(psi):.0f} deg"
 
 
 def hysteresis_plan(
@@ -279,6 +300,8 @@ def hysteresis_plan(
     more_roll_bends: Sequence[float] = (math.radians(25.0), math.radians(75.0)),
     joints: Sequence[int] = (0, 1, 2),
     retries: int = 10,
+    play_directions: Sequence[float] | None = None,
+    direction_step: float | None = None,
 ) -> HysteresisPlan:
     """The sweeps: each knob of ``joints`` 0 -> +A -> -A -> +A -> 0 (``amplitude``, in
     ``step``) with the others at 0, one tracker sample per step; phi1 again with phi2 at
@@ -288,7 +311,11 @@ def hysteresis_plan(
     measured at every bent sweep). A bent roll sweep at knob angle k swings
     ``roll_amplitude + roll_widening * k``: the plays widen with the bend, and a sweep
     narrower than the roll's and the twist's plays together leaves the image frame still
-    (its reading saturates, :data:`SATURATION_MARGIN`). The robot starts and ends at zeros
+    (its reading saturates, :data:`SATURATION_MARGIN`). With ``play_directions`` (rad in (0,
+    pi); default :data:`PLAY_DIRECTIONS` when ``more_roll_bends`` is not empty, else none)
+    the roll is swept once more per direction with the knobs bent ``roll_bend`` along it
+    (``phi1, phi2 = roll_bend (cos psi, sin psi)``; in ``direction_step``, default
+    ``roll_step``), for the plays over the knob plane. The robot starts and ends at zeros
     (unread moves)."""
     _check_counts(retries, 1)
     if not (0.0 <= roll_widening <= 2.0):
@@ -301,14 +328,27 @@ def hysteresis_plan(
                 f"more_roll_bends must be in (0, {math.degrees(DEFAULT_GEOMETRY.knob_limit):.0f}]"
                 f" deg and differ from roll_bend, got {math.degrees(b):.1f} deg"
             )
+    dirs: tuple[float, ...]
+    if play_directions is None:
+        dirs = PLAY_DIRECTIONS if more else ()
+    else:
+        dirs = tuple(float(p) for p in play_directions) if roll_bend > 0.0 else ()
+    for p in dirs:
+        if not (0.0 < p < math.pi):
+            raise ConfigurationError(
+                f"play_directions must be in (0, 180) deg, got {math.degrees(p):.1f} deg"
+            )
+    if any(b <= a for a, b in zip(dirs, dirs[1:], strict=False)):
+        raise ConfigurationError(f"play_directions must be ascending, got {dirs!r}")
+    dstep = DIRECTION_STEP if direction_step is None else float(direction_step)
     for j in js:
         if j not in (0, 1, 2):
             raise ConfigurationError(f"joints must be among 0, 1, 2 (phi1..phi3), got {j}")
     sweep = sweep_path(amplitude, step)
     roll_sweep = sweep_path(roll_amplitude, roll_step)
 
-    def bent_roll_sweep(knob: float) -> Array:
-        return sweep_path(min(roll_amplitude + roll_widening * knob, math.pi), roll_step)
+    def bent_roll_sweep(knob: float, step: float = roll_step) -> Array:
+        return sweep_path(min(roll_amplitude + roll_widening * knob, math.pi), step)
 
     zero = np.zeros((1, 4))
     parts: list[MotionPlan] = []
@@ -344,6 +384,16 @@ def hysteresis_plan(
                         base[None, :], f"bend check {tag}", n_average=5, retries=retries
                     ),
                 ]
+            for psi in dirs:
+                base = np.array([roll_bend * math.cos(psi), roll_bend * math.sin(psi), 0.0, 0.0])
+                tag = _direction_tag(psi)
+                parts += [
+                    unread(base, "to zero"),
+                    swept(bent_roll_sweep(roll_bend, dstep), 2, base, f"sweep phi3, bent{tag}"),
+                    MotionPlan.make(
+                        base[None, :], f"bend check{tag}", n_average=5, retries=retries
+                    ),
+                ]
     parts.append(unread(zero, "to zero"))
     return HysteresisPlan(
         plan=MotionPlan.concat(parts),
@@ -352,6 +402,7 @@ def hysteresis_plan(
         joints=js,
         bend=float(roll_bend),
         more_bends=more,
+        play_directions=dirs if 2 in js else (),
     )
 
 
@@ -362,18 +413,23 @@ tell a wide play from a stalled tip; a width found at that bound is *saturated* 
 
 
 def _bent_roll_play(
-    observed: Any, recording: Recording, straight_play: float, knob: float, tag: str
+    observed: Any,
+    recording: Recording,
+    straight_play: float,
+    knob: float,
+    tag: str,
+    sweep: str = "sweep phi3, phi1 bent",
 ) -> tuple[float, float, float]:
-    """One bent roll sweep (segment ``sweep phi3, phi1 bent{tag}``): the true bend there
-    (rad, from the 5-sample ``bend check{tag}``; the AP knob angle ``knob`` when it was not
-    tracked), the roll play's extra half-width over the straight ``straight_play`` and the
-    twist play's half-width (the image frame's extra lag over the section's) (rad).
+    """One bent roll sweep (segment ``{sweep}{tag}``): the true bend there (rad, from the
+    5-sample ``bend check{tag}``; the knob angle ``knob`` when it was not tracked), the roll
+    play's extra half-width over the straight ``straight_play`` and the twist play's
+    half-width (the image frame's extra lag over the section's) (rad).
 
     The play is searched up to the sweep's amplitude less :data:`SATURATION_MARGIN`; a width
     found at that bound is not a measurement (the plays together nearly fill the sweep, the
     tip hardly responds) and comes back NaN: the roll's extra play when the section's play
     saturates, the twist when the image frame's does."""
-    x, y, y_frame = observed(f"sweep phi3, phi1 bent{tag}", 2)
+    x, y, y_frame = observed(f"{sweep}{tag}", 2)
     resolution = math.radians(0.5)
     wide = max(float(np.max(np.abs(x))) - SATURATION_MARGIN, 2.0 * resolution)
     kw: dict[str, Any] = {
@@ -420,6 +476,39 @@ def _bend_law(points: Sequence[tuple[float, float, float]], k: int) -> BendPlay 
     return select_bend_play([b for b, _ in kept], [e for _, e in kept])
 
 
+SCALE_RANGE = (0.0, 4.0)
+"""Bounds of a direction's scale of the AP knob's law (:func:`_direction_law`)."""
+
+
+def _direction_law(ap: BendPlay | None, point: tuple[float, float, float], k: int) -> BendPlay:
+    """The law of reading ``k`` (1: roll, 2: twist) in a direction swept at one bend: the
+    AP knob's law ``ap`` scaled to pass through that sweep's reading ``e`` at its bend
+    ``b``, ``e_psi(b') = e_AP(b') * e / e_AP(b)`` (B6; scale clipped to
+    :data:`SCALE_RANGE`), the shape measured along the AP knob, the level in the direction.
+    Without an AP law, or where the AP law is below 0.1 deg there, the line through the
+    point; a saturated reading (NaN) keeps the AP law (or no play)."""
+    b, e = point[0], point[k]
+    if not math.isfinite(e):
+        return ap if ap is not None else BendPlay.linear(0.0)
+    e = max(e, 0.0)
+    if ap is None or ap.at(b) < math.radians(0.1):
+        return BendPlay("linear", (min(e / b, 0.5),), (b,), (e,))
+    scale = min(max(e / ap.at(b), SCALE_RANGE[0]), SCALE_RANGE[1])
+    return ap.scaled(scale)  # (B6)
+
+
+def _knob_plane_law(
+    ap: BendPlay | None, points: Sequence[tuple[float, float, float]], dirs: Sequence[float], k: int
+) -> PlayLaw | None:
+    """The AP knob's law and one law per further direction (:func:`_direction_law`) as a
+    :class:`KnobPlanePlay`; the AP law alone without further directions."""
+    if not dirs:
+        return ap
+    laws = [ap if ap is not None else BendPlay.linear(0.0)]
+    laws += [_direction_law(ap, p, k) for p in points]
+    return KnobPlanePlay((0.0, *dirs), tuple(laws))
+
+
 def short_hysteresis_plan() -> HysteresisPlan:
     """The short calibration's sweeps (78 moves): the roll only, 0 -> +-30 deg in 5 deg
     steps, straight and with the AP knob at 50 deg (the roll's play and the twist's, as
@@ -431,6 +520,7 @@ def short_hysteresis_plan() -> HysteresisPlan:
         roll_step=math.radians(5.0),
         roll_widening=0.0,
         more_roll_bends=(),
+        play_directions=(),
     )
 
 
@@ -450,7 +540,10 @@ def fit_hysteresis(
     play are measured at every bent sweep and their law against the bend is chosen by
     held-out residual (:func:`icenav.compensation.bend_play.select_bend_play`: linear,
     quadratic, power or a monotone table, each non-negative and non-decreasing in the bend);
-    ``*_per_bend`` keep the slope of the ``roll_bend`` sweep."""
+    ``*_per_bend`` keep the slope of the ``roll_bend`` sweep. With ``hplan.play_directions``
+    the roll's and the twist's plays become laws over the knob plane
+    (:class:`~icenav.compensation.bend_play.KnobPlanePlay`): the AP knob's law, and in each
+    further direction that law scaled to the direction's sweep (B6)."""
     if recording.plan is not hplan.plan and recording.plan.segments != hplan.plan.segments:
         raise ConfigurationError("the recording is not of this hysteresis plan")
     models: list[Any] = [None, None, None, None]
@@ -458,8 +551,8 @@ def fit_hysteresis(
     per_bend = 0.0
     knob_per_bend = 0.0
     twist_per_bend = 0.0
-    roll_play: BendPlay | None = None
-    twist_play: BendPlay | None = None
+    roll_play: PlayLaw | None = None
+    twist_play: PlayLaw | None = None
     bend = hplan.bend
     more = hplan.more_bends
 
@@ -495,6 +588,24 @@ def fit_hysteresis(
             if more:
                 roll_play = _bend_law(points, 1)
                 twist_play = _bend_law(points, 2)
+            dirs = hplan.play_directions
+            if dirs:
+                ap_roll = roll_play if roll_play is not None else BendPlay.linear(per_bend)
+                ap_twist = twist_play if twist_play is not None else BendPlay.linear(twist_per_bend)
+                assert isinstance(ap_roll, BendPlay) and isinstance(ap_twist, BendPlay)
+                tagged = [
+                    _bent_roll_play(
+                        observed,
+                        recording,
+                        fit.model.backlash,
+                        bend,
+                        _direction_tag(p),
+                        sweep="sweep phi3, bent",
+                    )
+                    for p in dirs
+                ]
+                roll_play = _knob_plane_law(ap_roll, tagged, dirs, 1)
+                twist_play = _knob_plane_law(ap_twist, tagged, dirs, 2)
     return HysteresisIdentification(
         compensator=HysteresisCompensator(
             models,

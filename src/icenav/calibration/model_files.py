@@ -1,5 +1,5 @@
 """The fitted compensation of a calibration as JSON (the ``model`` of a calibration file,
-format version 3; :mod:`icenav.calibration.files`).
+format versions 3 and 4; :mod:`icenav.calibration.files`).
 
 A calibration file of version 2 kept the tracked samples only, so a loader could rebuild the
 paper's F from them but not our per-tendon / hysteresis model. Version 3 also keeps what the
@@ -26,6 +26,11 @@ milliseconds, and F evaluates the same to rounding (the tests bound it). The map
 interpolant (``ElasticityMap.real_position``, which no compensation path uses) is rebuilt from
 the samples on first use.
 
+Version 4 differs only in the roll's and the twist's plays: a law over the knob plane
+(:class:`~icenav.compensation.bend_play.KnobPlanePlay`) is stored as ``directions`` (rad) and
+``laws`` (one law of the bend each, as version 3 stores its one law); a version 3 law loads as
+that law in every direction.
+
 Errors name the source (file) and the field's path in the document
 (``model.transmission.fit.static_coefficients``).
 """
@@ -42,7 +47,7 @@ import numpy as np
 from icenav._typing import Array
 from icenav.calibration.catheter import CatheterCalibration
 from icenav.calibration.hysteresis import HysteresisFit, HysteresisIdentification
-from icenav.compensation.bend_play import BendPlay
+from icenav.compensation.bend_play import BendPlay, KnobPlanePlay, PlayLaw
 from icenav.compensation.elasticity import (
     TABLE_NODES,
     BuildReport,
@@ -51,6 +56,7 @@ from icenav.compensation.elasticity import (
     table_nodes,
 )
 from icenav.compensation.hysteresis import HysteresisCompensator, JointHysteresis
+from icenav.compensation.section_length import SectionLength
 from icenav.compensation.tracker_bias import TrackerBias
 from icenav.compensation.transmission import (
     PairTransmission,
@@ -68,6 +74,7 @@ __all__ = [
     "TENDON_COMPENSATOR_KEYS",
     "decode_model",
     "encode_model",
+    "needs_knob_plane",
 ]
 
 MODEL_KINDS = ("dense", "five_point", "dense+hysteresis")
@@ -308,6 +315,43 @@ def _encode_bend_play(p: BendPlay | None) -> dict[str, Any] | None:
     )
 
 
+def _encode_play(p: PlayLaw | None) -> dict[str, Any] | None:
+    """A law of the bend alone as before (version 3); a law over the knob plane (version 4)
+    as ``directions`` (rad) and one law of the bend per direction."""
+    if isinstance(p, KnobPlanePlay):
+        return {"directions": list(p.directions), "laws": [_encode_bend_play(x) for x in p.laws]}
+    return _encode_bend_play(p)
+
+
+def _decode_play(r: _Field | None) -> PlayLaw | None:
+    """Either form of :func:`_encode_play` (a version 3 file has laws of the bend alone)."""
+    if r is None:
+        return None
+    if "laws" not in r.doc:
+        return _decode_bend_play(r)
+    laws = [_decode_bend_play(x) for x in r.items("laws")]
+    if any(x is None for x in laws):
+        raise r.error("laws", "must not hold null")
+    return r.build(
+        lambda: KnobPlanePlay(
+            directions=r.floats("directions", -1), laws=tuple(x for x in laws if x is not None)
+        )
+    )
+
+
+def needs_knob_plane(model: object) -> bool:
+    """Whether a model holds a play over the knob plane (a version 4 file): the file
+    version :mod:`icenav.calibration.files` writes is the oldest that can hold the model."""
+    if isinstance(model, CatheterCalibration):
+        comps = [model.hysteresis.compensator, model.transmission.compensator.roll]
+        return any(
+            isinstance(c.roll_play, KnobPlanePlay) or isinstance(c.twist_play, KnobPlanePlay)
+            for c in comps
+            if c is not None
+        )
+    return False
+
+
 def _decode_bend_play(r: _Field | None) -> BendPlay | None:
     if r is None:
         return None
@@ -344,8 +388,8 @@ def _encode_compensator(c: HysteresisCompensator | None) -> dict[str, Any] | Non
         "knob_play_per_bend": c.knob_play_per_bend,
         "twist_play_per_bend": c.twist_play_per_bend,
         "reversal_threshold": c.reversal_threshold,
-        "roll_play": _encode_bend_play(c.roll_play),
-        "twist_play": _encode_bend_play(c.twist_play),
+        "roll_play": _encode_play(c.roll_play),
+        "twist_play": _encode_play(c.twist_play),
     }
 
 
@@ -362,8 +406,8 @@ def _decode_compensator(r: _Field | None) -> HysteresisCompensator | None:
             knob_play_per_bend=r.number("knob_play_per_bend"),
             twist_play_per_bend=r.number("twist_play_per_bend"),
             reversal_threshold=r.number("reversal_threshold"),
-            roll_play=_decode_bend_play(r.optional("roll_play")),
-            twist_play=_decode_bend_play(r.optional("twist_play")),
+            roll_play=_decode_play(r.optional("roll_play")),
+            twist_play=_decode_play(r.optional("twist_play")),
         )
     )
 
@@ -460,6 +504,23 @@ def _encode_transmission(t: TransmissionCalibration) -> dict[str, Any]:
             "dead_zone_ramp": c.dead_zone_ramp,
             "xtol": c.xtol,
         },
+        section=_data(t.section),
+    )
+
+
+def _decode_section(r: _Field | None) -> SectionLength:
+    if r is None:
+        return SectionLength.none()
+    return r.build(
+        lambda: SectionLength(
+            scale=r.number("scale"),
+            offset_mm=r.number("offset_mm"),
+            rms_residual_mm=r.number("rms_residual_mm"),
+            cv_residual_mm=r.number("cv_residual_mm"),
+            cv_residual_nominal_mm=r.number("cv_residual_nominal_mm"),
+            n_samples=r.integer("n_samples"),
+            length_mm=r.number("length_mm"),
+        )
     )
 
 
@@ -491,6 +552,7 @@ def _decode_transmission(r: _Field) -> TransmissionCalibration:
         effective_map=_decode_map(r.sub("effective_map")),
         compensator=compensator,
         n_moves=r.integer("n_moves"),
+        section=_decode_section(r.optional("section") if "section" in r.doc else None),
     )
 
 

@@ -35,7 +35,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -46,6 +46,7 @@ from icenav.calibration.hysteresis import HysteresisPlan, fit_hysteresis, hyster
 from icenav.calibration.plans import MotionPlan, Recording
 from icenav.compensation.elasticity import CalibrationSet, ElasticityMap
 from icenav.compensation.hysteresis import HysteresisCompensator
+from icenav.compensation.section_length import SectionLength, fit_section_length
 from icenav.errors import ConfigurationError
 from icenav.geometry.kinematics import DEFAULT_GEOMETRY, CatheterGeometry
 
@@ -53,6 +54,7 @@ __all__ = [
     "BOTH_WAYS_STOPS",
     "KNOB_RINGS",
     "RING_RADII",
+    "SWEEP_STEP",
     "ShortRingCalibration",
     "ShortRingPlan",
     "fit_short_rings",
@@ -66,9 +68,15 @@ KNOB_RINGS = "knob rings"
 RING_RADII = tuple(math.radians(a) for a in (25.0, 50.0, 75.0))
 """Knob radii of the rings (rad): those of the full calibration's knob circles, spanning the
 spins' 20-60 deg."""
-BOTH_WAYS_STOPS = 7
-"""Stops per turn and sense of the rings turned both ways: 3 rings x (1 + 2 x 7) = 45 moves,
-which with the roll sweeps (54) and the return to rest keeps the plan within 100 moves."""
+BOTH_WAYS_STOPS = 10
+"""Stops per turn and sense of the rings turned both ways: 3 rings x (1 + 2 x 10) = 63 moves,
+which with the roll sweeps (36 at :data:`SWEEP_STEP`) and the return to rest keeps the plan
+within 100 moves (7 stops and 10 deg sweeps until session 8: the stops identify more than
+the sweeps' resolution, docs/calibration.md section 7)."""
+
+SWEEP_STEP = math.radians(20.0)
+"""Roll step of the short calibration's sweeps (rad): a play's width is read from the offset
+between the up and the down branch, which a coarse step samples too."""
 
 
 def ring_path(
@@ -125,16 +133,17 @@ def short_ring_plan(
     n_stops: int | None = None,
     direction: int = 1,
     both_ways: bool = True,
+    roll_step: float = SWEEP_STEP,
 ) -> ShortRingPlan:
-    """Roll sweeps straight (+-30 deg) and with the AP knob at 50 deg (+-50 deg), 10 deg
-    steps, then :func:`ring_path`: 100 moves with the defaults (both ways,
-    :data:`BOTH_WAYS_STOPS` stops; one way: 12 stops, 94 moves), the 5-point search's 11
+    """Roll sweeps straight (+-30 deg) and with the AP knob at 50 deg (+-50 deg) in
+    ``roll_step``, then :func:`ring_path`: 100 moves with the defaults (both ways,
+    :data:`BOTH_WAYS_STOPS` stops; one way: 12 stops, 76 moves), the 5-point search's 11
     before them."""
     stops = (BOTH_WAYS_STOPS if both_ways else 12) if n_stops is None else int(n_stops)
     sweeps = hysteresis_plan(
         joints=(2,),
         roll_amplitude=math.radians(30.0),
-        roll_step=math.radians(10.0),
+        roll_step=roll_step,
         roll_widening=0.4,
         more_roll_bends=(),
     )
@@ -182,20 +191,27 @@ class ShortRingCalibration:
     """Moves of the plan (the 5-point search's not counted)."""
     reverse_map: ElasticityMap | None = None
     """``F-``: over the five points and the stops turned clockwise (None: one way only)."""
+    section: SectionLength = field(default_factory=SectionLength)
+    """The section's length, fitted on every tracked pose of the calibration (the five
+    points, the sweeps, the ring stops): F is built on tips with its axial excess removed,
+    and :meth:`model_to_motor_path` sends it to the translation."""
 
     def model_to_motor_path(self, q_model: ArrayLike) -> Array:
         """Motor joint states (n, 4) of a path of model joint states (n, 4) in the order
-        driven: (S1) with both maps, ``F+`` alone without ``reverse_map``; phi3 and d4
-        unchanged (the path is not range-checked: clip the knobs after)."""
+        driven: (S1) with both maps, ``F+`` alone without ``reverse_map``; phi3 unchanged,
+        d4 less the section's axial excess at the model bend (the path is not range-checked:
+        clip the knobs after)."""
         q = np.asarray(q_model, dtype=np.float64)
         if q.ndim != 2 or q.shape[1] != 4:
             raise ConfigurationError(f"q_model must have shape (n, 4), got {q.shape}")
-        fwd = np.asarray(self.elasticity_map.model_to_motor(q, check=False), np.float64)
-        if self.reverse_map is None:
-            return fwd
-        rev = np.asarray(self.reverse_map.model_to_motor(q, check=False), np.float64)
-        w = 0.5 * (1.0 + turn_sense(q[:, :2]))[:, None]  # (S1)
-        return w * fwd + (1.0 - w) * rev
+        out = np.asarray(self.elasticity_map.model_to_motor(q, check=False), np.float64)
+        if self.reverse_map is not None:
+            rev = np.asarray(self.reverse_map.model_to_motor(q, check=False), np.float64)
+            w = 0.5 * (1.0 + turn_sense(q[:, :2]))[:, None]  # (S1)
+            out = w * out + (1.0 - w) * rev
+        bend = DEFAULT_GEOMETRY.knob_ratio * np.hypot(q[:, 0], q[:, 1])
+        out[:, 3] = q[:, 3] - self.section.axial_excess(bend)  # (SL1)
+        return out
 
 
 def fit_short_rings(
@@ -203,9 +219,13 @@ def fit_short_rings(
     recording: Recording,
     five_point: CalibrationSet,
     geometry: CatheterGeometry = DEFAULT_GEOMETRY,
+    *,
+    fit_length: bool = True,
 ) -> ShortRingCalibration:
     """F on the five points (``five_point``, the paper's search) and the tracked ring stops,
-    and the roll's plays from the sweeps, of a recording of ``splan``."""
+    and the roll's plays from the sweeps, of a recording of ``splan``; with ``fit_length``
+    the section's length (:func:`~icenav.compensation.section_length.fit_section_length`
+    over every tracked pose), its axial excess removed from F's samples."""
     if recording.plan is not splan.plan and recording.plan.segments != splan.plan.segments:
         raise ConfigurationError("the recording is not of this short calibration's plan")
     n = splan.sweeps.plan.n
@@ -213,8 +233,13 @@ def fit_short_rings(
         plan=splan.sweeps.plan, tip2base=recording.tip2base[:n], attempts=recording.attempts[:n]
     )
     roll = fit_hysteresis(splan.sweeps, sweeps, geometry).compensator
+    section = _fit_section(recording, five_point, geometry) if fit_length else SectionLength()
     q, poses = recording.part(KNOB_RINGS)
     tracked = np.all(np.isfinite(poses.reshape(len(q), -1)), axis=1)
+    if np.any(tracked):
+        poses = np.array(poses)
+        poses[tracked] = section.correct_poses(poses[tracked])
+    five_point = section.correct(five_point)
     # the sense each stop was reached in: the first pass of a ring, then (both ways) the
     # second; the move onto the ring (a radial one) joins neither
     per_ring = 1 + (2 if splan.both_ways else 1) * splan.n_stops
@@ -240,5 +265,25 @@ def fit_short_rings(
         fwd = f_over(first if ccw_first else second)
         rev = f_over(second if ccw_first else first)
     return ShortRingCalibration(
-        elasticity_map=fwd, hysteresis=roll, n_moves=splan.plan.n, reverse_map=rev
+        elasticity_map=fwd,
+        hysteresis=roll,
+        n_moves=splan.plan.n,
+        reverse_map=rev,
+        section=section,
     )
+
+
+def _fit_section(
+    recording: Recording, five_point: CalibrationSet, geometry: CatheterGeometry
+) -> SectionLength:
+    """:func:`fit_section_length` over the five points and every tracked pose of the
+    recording (its heights and radii do not depend on the roll the sweeps turn)."""
+    ok = recording.measured
+    everything = CalibrationSet(
+        q_motor=np.vstack([five_point.q_motor, recording.plan.q_motor[ok]]),
+        tip2base=np.concatenate([five_point.tip2base, recording.tip2base[ok]]),
+        catheter_id=five_point.catheter_id,
+        vessel=five_point.vessel,
+        method="five-point+short",
+    )
+    return fit_section_length(everything, geometry)

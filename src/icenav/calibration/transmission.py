@@ -31,6 +31,7 @@ from icenav._validation import check_finite
 from icenav.calibration.plans import MotionPlan, Recording
 from icenav.compensation.elasticity import CalibrationSet, ElasticityMap
 from icenav.compensation.hysteresis import HysteresisCompensator
+from icenav.compensation.section_length import SectionLength
 from icenav.compensation.tracker_bias import TrackerBias
 from icenav.compensation.transmission import (
     _MAX_PLAY,
@@ -178,14 +179,18 @@ def motion_from(
     phase: str = KNOB_CIRCLES,
     tracker_bias: TrackerBias | None = None,
     geometry: CatheterGeometry = DEFAULT_GEOMETRY,
+    section: SectionLength | None = None,
 ) -> CalibrationMotion:
     """The recorded segment ``phase`` as a :class:`CalibrationMotion` (observed knobs from the
-    tracked tips; NaN where MISSING), with ``tracker_bias`` removed from the tips if given."""
+    tracked tips; NaN where MISSING), with ``tracker_bias`` removed from the tips if given,
+    then the ``section``'s axial excess (:meth:`SectionLength.correct_poses`) if given."""
     q, poses = recording.part(phase)
     poses = np.array(poses)
     ok = np.all(np.isfinite(poses.reshape(q.shape[0], -1)), axis=1)
     if tracker_bias is not None and np.any(ok):
         poses[ok] = tracker_bias.correct_poses(poses[ok])
+    if section is not None and np.any(ok):
+        poses[ok] = section.correct_poses(poses[ok])
     obs = np.full((q.shape[0], 2), np.nan)
     if np.any(ok):
         obs[ok] = observed_knobs(poses[ok], geometry)
@@ -346,6 +351,7 @@ def build_transmission(
     smoothing: float = F_SMOOTHING,
     circles_in_map: bool = True,
     geometry: CatheterGeometry = DEFAULT_GEOMETRY,
+    section: SectionLength | None = None,
     **identify_kwargs: Any,
 ) -> TransmissionCalibration:
     """Identify the tendon transmission and build F on its effective knobs.
@@ -365,11 +371,18 @@ def build_transmission(
         The per-joint model whose roll and twist plays the compensator keeps.
     smoothing : float
         RBF smoothing of F (see :data:`F_SMOOTHING`).
+    section : SectionLength, optional
+        The section's identified length (:func:`~icenav.compensation.section_length.
+        fit_section_length`): its axial excess is removed from ``dense`` here (``circles``
+        must have it removed already, :func:`motion_from`) and the compensation sends it to
+        the translation. None: the model's length.
     identify_kwargs
         Passed to :func:`identify_transmission` (degree, fit_limit, max_gain, max_nfev).
     """
     if not isinstance(dense, CalibrationSet):
         raise ConfigurationError(f"dense must be a CalibrationSet, got {type(dense).__name__}")
+    section = SectionLength.none() if section is None else section
+    dense = section.correct(dense)
     path = check_finite(raster, "raster", "rad")
     if path.ndim != 2 or path.shape[1] != 4:
         raise ShapeError(f"raster must have shape (n, 4), got {path.shape}")
@@ -409,6 +422,7 @@ def build_transmission(
         effective_map=fmap,
         compensator=TendonCompensator(fit.model, roll, knob_limit=lim),
         n_moves=0,
+        section=section,
     )
 
 
@@ -454,4 +468,5 @@ def reidentify_in_situ(
         effective_map=calibration.effective_map,
         compensator=comp,
         n_moves=circles.q_motor.shape[0] + 1,
+        section=calibration.section,
     )

@@ -45,7 +45,15 @@ from scipy.optimize import isotonic_regression, nnls
 from icenav._typing import Array
 from icenav.errors import ConfigurationError
 
-__all__ = ["BEND_PLAY_FORMS", "BendPlay", "MAX_EXTRA", "P_RANGE", "select_bend_play"]
+__all__ = [
+    "BEND_PLAY_FORMS",
+    "BendPlay",
+    "KnobPlanePlay",
+    "MAX_EXTRA",
+    "P_RANGE",
+    "PlayLaw",
+    "select_bend_play",
+]
 
 BEND_PLAY_FORMS = ("linear", "quadratic", "power", "table")
 """The forms, simplest first (the order that breaks a tie of residuals)."""
@@ -111,8 +119,10 @@ class BendPlay:
         """(B1) with slope ``k`` (rad of play per rad of bend)."""
         return cls("linear", (float(k),))
 
-    def __call__(self, bend: ArrayLike) -> Array:
-        """Extra half-width (rad) at ``bend`` (rad, any shape; |bend| is used)."""
+    def __call__(self, bend: ArrayLike, direction: ArrayLike | None = None) -> Array:
+        """Extra half-width (rad) at ``bend`` (rad, any shape; |bend| is used). ``direction``
+        (the bend's direction in the knob plane) is ignored: a law of the bend alone is the
+        same in every direction (:class:`KnobPlanePlay` is not)."""
         b = np.abs(np.asarray(bend, dtype=np.float64))
         if self.form == "linear":
             e = self.coef[0] * b  # (B1)
@@ -124,9 +134,25 @@ class BendPlay:
             e = _table(np.asarray(self.bends), np.asarray(self.extra), b)  # (B3)
         return np.clip(e, 0.0, MAX_EXTRA)
 
-    def at(self, bend: float) -> float:
+    def at(self, bend: float, direction: float | None = None) -> float:
         """:meth:`__call__` of one bend (rad) as a float."""
         return float(self(bend))
+
+    def scaled(self, factor: float) -> BendPlay:
+        """The same form times ``factor`` (>= 0): coefficients ``k``, ``k1, k2``, ``a`` and
+        the measured points' plays scaled, the exponent and the bends kept (still
+        non-negative and non-decreasing in the bend)."""
+        s = float(factor)
+        if not math.isfinite(s) or s < 0.0:
+            raise ConfigurationError(f"a bend play's scale must be finite and >= 0, got {factor!r}")
+        coef = (
+            (self.coef[0] * s, self.coef[1])
+            if self.form == "power"
+            else tuple(c * s for c in self.coef)
+        )
+        return BendPlay(
+            self.form, coef, self.bends, tuple(e * s for e in self.extra), self.loo_rms * s
+        )
 
     @property
     def slope(self) -> float:
@@ -224,3 +250,85 @@ def select_bend_play(bends: ArrayLike, extra: ArrayLike) -> BendPlay:
             best = BendPlay(fitted.form, fitted.coef, fitted.bends, fitted.extra, rms)
     assert best is not None  # the linear form always qualifies with two points or more
     return best
+
+
+@dataclass(frozen=True)
+class KnobPlanePlay:
+    """The extra play half-width over the knob plane, :math:`e(b, \\psi)` (rad).
+
+    A bend ``b`` of the section has a direction ``psi`` in the knob plane (``atan2(phi2,
+    phi1)``: 0 the AP knob, pi/2 the RL knob). Where a play grows with the *total* tendon
+    tension, one bend pulls harder in some directions than in others, so the play is
+    measured in several directions ``psi_i`` (rad, ascending in ``[0, pi)``), each a law of
+    the bend (:class:`BendPlay`), and interpolated between them linearly and periodically::
+
+        e(b, psi) = (1 - w) e_i(b) + w e_{i+1}(b),   psi mod pi in [psi_i, psi_{i+1}],
+                    w = (psi - psi_i) / (psi_{i+1} - psi_i),  psi_{n} = psi_0 + pi   (B5)
+
+    A convex combination of non-negative laws non-decreasing in the bend is one too, for
+    every direction. What it assumes beyond each law's: the play depends on the axis of the
+    bending plane, not on its sense (period pi: the two tendons of a pair are mirror
+    images), and varies linearly in direction between the directions measured. One
+    direction is a law of the bend alone (:meth:`uniform`).
+    """
+
+    directions: tuple[float, ...]
+    """Directions measured (rad), ascending in [0, pi)."""
+    laws: tuple[BendPlay, ...]
+    """The law of the bend in each direction."""
+
+    def __post_init__(self) -> None:
+        d = np.asarray(self.directions, dtype=np.float64)
+        if d.ndim != 1 or d.size == 0 or d.size != len(self.laws):
+            raise ConfigurationError(
+                f"need one law per direction (>= 1), got {len(self.directions)} directions and "
+                f"{len(self.laws)} laws"
+            )
+        if not np.all(np.isfinite(d)) or np.any(d < 0.0) or np.any(d >= math.pi):
+            raise ConfigurationError(
+                f"directions must be in [0, {math.pi:.4f}) rad ([0, 180) deg), got "
+                f"{self.directions!r}"
+            )
+        if np.any(np.diff(d) <= 0.0):
+            raise ConfigurationError(f"directions must be ascending, got {self.directions!r}")
+        for law in self.laws:
+            if not isinstance(law, BendPlay):
+                raise ConfigurationError(f"laws must be BendPlay, got {type(law).__name__}")
+
+    @classmethod
+    def uniform(cls, law: BendPlay) -> KnobPlanePlay:
+        """``law`` in every direction (a law of the bend alone)."""
+        return cls((0.0,), (law,))
+
+    def __call__(self, bend: ArrayLike, direction: ArrayLike | None = None) -> Array:
+        """Extra half-width (rad) at ``bend`` (rad) in ``direction`` (rad; broadcast with
+        ``bend``; None: the first direction measured), (B5)."""
+        b = np.asarray(bend, dtype=np.float64)
+        if len(self.laws) == 1:
+            return self.laws[0](b)
+        psi = self.directions[0] if direction is None else direction
+        t = np.mod(np.asarray(psi, dtype=np.float64), math.pi)
+        b, t = np.broadcast_arrays(b, t)
+        knots = np.append(np.asarray(self.directions), self.directions[0] + math.pi)
+        t = np.where(t < knots[0], t + math.pi, t)  # into [psi_0, psi_0 + pi)
+        i = np.clip(np.searchsorted(knots, t, side="right") - 1, 0, len(self.laws) - 1)
+        w = (t - knots[i]) / (knots[i + 1] - knots[i])
+        values = np.stack([law(b) for law in (*self.laws, self.laws[0])])  # (n + 1, ...)
+        lo = np.take_along_axis(values, i[None], axis=0)[0]
+        hi = np.take_along_axis(values, (i + 1)[None], axis=0)[0]
+        return (1.0 - w) * lo + w * hi  # (B5)
+
+    def at(self, bend: float, direction: float | None = None) -> float:
+        """:meth:`__call__` of one bend and direction (rad) as a float."""
+        return float(self(bend, direction))
+
+    def describe(self) -> str:
+        """One line per direction: the direction (deg) and its law."""
+        return "; ".join(
+            f"{math.degrees(d):.0f} deg: {law.describe()}"
+            for d, law in zip(self.directions, self.laws, strict=True)
+        )
+
+
+PlayLaw = BendPlay | KnobPlanePlay
+"""A play's law: of the bend alone (:class:`BendPlay`) or over the knob plane."""

@@ -41,7 +41,7 @@ from numpy.typing import ArrayLike
 
 from icenav._typing import Array
 from icenav._validation import check_finite
-from icenav.compensation.bend_play import BendPlay
+from icenav.compensation.bend_play import PlayLaw
 from icenav.errors import ConfigurationError
 
 __all__ = [
@@ -160,8 +160,8 @@ class HysteresisCompensator:
         twist_play_per_bend: float = 0.0,
         reversal_threshold: float = 0.0,
         *,
-        roll_play: BendPlay | None = None,
-        twist_play: BendPlay | None = None,
+        roll_play: PlayLaw | None = None,
+        twist_play: PlayLaw | None = None,
     ) -> None:
         if len(joints) != 4:
             raise ConfigurationError(f"joints must have 4 entries (phi1..d4), got {len(joints)}")
@@ -198,8 +198,9 @@ class HysteresisCompensator:
         """Distal twist play per rad of bend (rad/rad): the image frame lags the roll about
         its own axis without moving the tip; see :meth:`preshape_model`."""
         self.roll_play = roll_play
-        """The roll's extra play against the bend (:class:`BendPlay`, measured at several
-        bends); None: ``roll_play_per_bend * bend``."""
+        """The roll's extra play against the bend (:class:`~icenav.compensation.bend_play.BendPlay`,
+        measured at several bends) or over the knob plane (``KnobPlanePlay``: against the bend
+        and its direction); None: ``roll_play_per_bend * bend``."""
         self.twist_play = twist_play
         """The twist play against the bend; None: ``twist_play_per_bend * bend``."""
         self._p = [0.0, 0.0, 0.0, 0.0]
@@ -233,16 +234,19 @@ class HysteresisCompensator:
             twist_play=self.twist_play,
         )
 
-    def roll_extra(self, bend: ArrayLike) -> Array:
-        """Extra half-width of the roll's play (rad) at ``bend`` (rad, any shape)."""
+    def roll_extra(self, bend: ArrayLike, direction: ArrayLike | None = None) -> Array:
+        """Extra half-width of the roll's play (rad) at ``bend`` (rad, any shape) in
+        ``direction`` (rad in the knob plane, ``atan2(phi2, phi1)``, broadcast with ``bend``;
+        a law of the bend alone ignores it; None: the AP knob's)."""
         if self.roll_play is not None:
-            return self.roll_play(bend)
+            return self.roll_play(bend, direction)
         return self.roll_play_per_bend * np.abs(np.asarray(bend, dtype=np.float64))
 
-    def twist_extra(self, bend: ArrayLike) -> Array:
-        """Half-width of the distal twist play (rad) at ``bend`` (rad, any shape)."""
+    def twist_extra(self, bend: ArrayLike, direction: ArrayLike | None = None) -> Array:
+        """Half-width of the distal twist play (rad) at ``bend`` (rad, any shape) in
+        ``direction`` (rad, as :meth:`roll_extra`)."""
         if self.twist_play is not None:
-            return self.twist_play(bend)
+            return self.twist_play(bend, direction)
         return self.twist_play_per_bend * np.abs(np.asarray(bend, dtype=np.float64))
 
     @property
@@ -267,7 +271,7 @@ class HysteresisCompensator:
             self._p[j] = p
             if j == 2:
                 b = math.hypot(z[0], z[1]) if bend is None else float(bend)
-                extra = float(self.roll_extra(b))
+                extra = float(self.roll_extra(b, math.atan2(z[1], z[0])))
             elif j < 2:
                 extra = self.knob_play_per_bend * abs(float(z[1 - j]))
             else:
@@ -323,7 +327,7 @@ class HysteresisCompensator:
                 elif d3 < -1e-12:
                     direction = -1.0
             a, b = float(path[i, 0]), float(path[i, 1])
-            delta = direction * float(self.twist_extra(math.hypot(a, b)))
+            delta = direction * float(self.twist_extra(math.hypot(a, b), math.atan2(b, a)))
             c, s_ = math.cos(delta), math.sin(delta)
             out[i, 0] = c * a + s_ * b  # bending plane turned by -delta
             out[i, 1] = -s_ * a + c * b
@@ -359,7 +363,9 @@ class HysteresisCompensator:
                 out[:, j] = m.simulate(path[:, j], p0=float(start[j]))
         m = self.joints[2]
         if m is not None:
-            extra = self.roll_extra(np.hypot(out[:, 0], out[:, 1]))
+            extra = self.roll_extra(
+                np.hypot(out[:, 0], out[:, 1]), np.arctan2(out[:, 1], out[:, 0])
+            )
             out[:, 2] = m.simulate(path[:, 2], p0=float(start[2]), extra_width=extra)
         return out
 

@@ -25,7 +25,8 @@ What it leaves out of that condition, on purpose: the Savitzky-Golay filter (a s
 set-points has no future samples; F_eff is a smoothed RBF already) and the tracker-bias shift
 (which aims the *true* tip where the tracker reads the intended one: in a procedure without a
 tracker the true tip is what counts; the bias still keeps F_eff bias-free). Translation passes
-through (its play is not identified).
+takes the section's axial excess when its length differs from the model's
+(:mod:`icenav.compensation.section_length`; its play is not identified).
 """
 
 from __future__ import annotations
@@ -92,6 +93,7 @@ class TendonKnobMap:
         roll = old.roll
         self._roll: JointHysteresis | None = None if roll is None else roll.joints[2]
         self._plays = roll  # the roll's and the twist's play against the bend
+        self._section = calibration.section  # the section's length: its axial excess
         self._x3 = 0.0  # last motor roll (rad)
         self._p3 = 0.0  # the roll's play output: the section's roll (rad)
         self._i = 0.0  # the image frame's roll after the distal twist play (rad)
@@ -117,24 +119,28 @@ class TendonKnobMap:
         if self._roll is None:
             self._p3 = self._i = x3
             return
-        bend = self._model_bend()
+        bend, psi = self._model_bend()
         m = self._roll
-        w = m.backlash + m.backlash_slope * abs(x3) + self._roll_extra(bend)
+        w = m.backlash + m.backlash_slope * abs(x3) + self._roll_extra(bend, psi)
         self._p3 = min(max(self._p3, x3 - w), x3 + w)
-        h = self._twist_extra(bend)
+        h = self._twist_extra(bend, psi)
         self._i = min(max(self._i, self._p3 - h), self._p3 + h)
 
-    def _roll_extra(self, bend: float) -> float:
-        return 0.0 if self._plays is None else float(self._plays.roll_extra(bend))
+    def _roll_extra(self, bend: float, direction: float) -> float:
+        """The roll's extra play (rad) at a model ``bend`` (rad) in ``direction`` (rad in the
+        knob plane; a law of the bend alone ignores it)."""
+        return 0.0 if self._plays is None else float(self._plays.roll_extra(bend, direction))
 
-    def _twist_extra(self, bend: float) -> float:
-        return 0.0 if self._plays is None else float(self._plays.twist_extra(bend))
+    def _twist_extra(self, bend: float, direction: float) -> float:
+        return 0.0 if self._plays is None else float(self._plays.twist_extra(bend, direction))
 
-    def _model_bend(self) -> float:
-        """Model bend (rad) of the present effective knobs."""
+    def _model_bend(self) -> tuple[float, float]:
+        """Model bend (rad) of the present effective knobs and its direction in the knob
+        plane (rad, ``atan2(phi2, phi1)`` of the model knobs)."""
         z1, z2 = self._knobs.effective_knobs
         k = self._f.motor_to_model(np.array([z1, z2, 0.0, 0.0]), check=False)
-        return self.geometry.knob_ratio * math.hypot(float(k[0]), float(k[1]))
+        bend = self.geometry.knob_ratio * math.hypot(float(k[0]), float(k[1]))
+        return bend, math.atan2(float(k[1]), float(k[0]))
 
     # --- the map -------------------------------------------------------------------------
 
@@ -159,13 +165,16 @@ class TendonKnobMap:
     def _command(self, q: Array) -> Array:
         """The motor command (4,) for model state q from the present state (not advanced)."""
         a, b, phi3 = float(q[0]), float(q[1]), float(q[2])
-        out = np.array([0.0, 0.0, phi3, float(q[3])])
+        bend = self.geometry.knob_ratio * math.hypot(a, b)
+        psi = math.atan2(b, a)  # the intended bend's direction in the knob plane
+        # (SL1): the translation takes what the section's length adds along the shaft
+        out = np.array([0.0, 0.0, phi3, float(q[3]) - float(self._section.axial_excess(bend))])
         if self._roll is None:
             t = 0.0
         else:
             # the image must move: the section leads it by the twist play (it pushes at the
             # play's edge); else the twist stays as it is
-            h = self._twist_extra(self.geometry.knob_ratio * math.hypot(a, b))
+            h = self._twist_extra(bend, psi)
             t = (
                 -h
                 if phi3 > self._i + 1e-12
@@ -181,7 +190,7 @@ class TendonKnobMap:
         if self._roll is not None:
             m = self._roll
             p = float(m.dead_zone_inverse(float(eff[2])))
-            extra = self._roll_extra(self.geometry.knob_ratio * math.hypot(a, b))
+            extra = self._roll_extra(bend, psi)
             if p > self._p3 + 1e-12:
                 out[2] = m.play_inverse(p, 1.0, extra)
             elif p < self._p3 - 1e-12:
@@ -221,7 +230,8 @@ class TendonKnobMap:
             out = self._present_model()
         finally:
             self._restore(saved)
-        out[3] = float(q[3])
+        bend = self.geometry.knob_ratio * math.hypot(float(out[0]), float(out[1]))
+        out[3] = float(q[3]) + float(self._section.axial_excess(bend))
         return out
 
     def _save(self) -> tuple[Any, float, float, float]:

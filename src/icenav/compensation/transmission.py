@@ -54,6 +54,7 @@ from icenav._typing import Array
 from icenav._validation import check_finite
 from icenav.compensation.elasticity import ElasticityMap
 from icenav.compensation.hysteresis import HysteresisCompensator
+from icenav.compensation.section_length import SectionLength
 from icenav.errors import ConfigurationError, ShapeError
 from icenav.geometry.kinematics import DEFAULT_GEOMETRY
 
@@ -481,3 +482,7 @@ class TransmissionCalibration:
     n_moves: int
     """Robot moves of the circles it was (re-)identified from (0 for
     :func:`icenav.calibration.transmission.build_transmission`)."""
+    section: SectionLength = field(default_factory=SectionLength)
+    """The bending section's length (:mod:`icenav.compensation.section_length`): F was
+    built on tracked tips with its axial excess removed, and the compensation sends it to
+    the translation (the model's own length: nothing)."""
