@@ -414,6 +414,7 @@ def _one_return(
                 arrival_direction=view.arrival_direction,
                 start_direction=tuple(int(d) for d in b.last_direction),
                 config=ps_cfg,
+                expiration=b.expiration,
                 dt=DT,
                 sleep=b.clock.advance,
                 on_command=b.record,
