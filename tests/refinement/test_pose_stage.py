@@ -426,3 +426,55 @@ def test_every_last_leg_starts_at_end_expiration_and_waits_no_longer_than_its_ca
     asked: list[float] = []
     leg_starts(lambda: asked.append(clock.now()) or True, replace(cfg, arrive_at_expiration=False))
     assert asked == []
+
+
+class _Offset:
+    """EM 'tracker' reading the saved pose moved ``mm`` back along its own z axis (the
+    bending section's axis: a translation error) at every measurement."""
+
+    def __init__(self, saved: Array, mm: float) -> None:
+        self.saved, self.mm = saved, mm
+
+    def measure_tip2base(self, n_average: int = 1) -> Array:
+        back = np.eye(4)
+        back[2, 3] = -self.mm
+        out: Array = self.saved @ back
+        return out
+
+
+def test_a_translation_step_beyond_the_release_threshold_sweeps_the_roll() -> None:
+    """``release_translation_mm``: a correction that moves the translation by more than it
+    re-approaches the roll through its backoff (the sweep that releases the shaft's axial
+    stiction); a translation step below it leaves the roll alone."""
+    clock, plant, robot, _ = em_bench(110)
+    q0 = np.array([0.05, -0.05, 0.3, 2.0])
+    saved = forward(q0)
+    cfg = PoseStageConfig(max_iterations=1, reapproach_first=False, hold_s=0.1,
+                          step_from_last=True, tolerance_mm=0.1, undo_if_worse=False,
+                          release_translation_mm=0.3)  # fmt: skip
+    roll: list[float] = []
+    for mm, swept in ((1.5, True), (0.15, False)):
+        robot.command_position(q0)
+        clock.advance(0.5)
+        roll.clear()
+        res = pose_stage(robot, q0, saved, _Offset(saved, mm), config=cfg, sleep=clock.advance,
+                         arrival_direction=(1, 1, -1, 1),
+                         on_command=lambda q: roll.append(float(q[2])))  # fmt: skip
+        assert abs(res.q_final[3] - q0[3]) > (0.3 if swept else 0.0)
+        # (the roll's engaged direction is -1 here and its step does not reverse it)
+        sweep = max(abs(r - q0[2]) for r in roll)
+        assert bool(sweep > 0.8 * cfg.backoff[2]) is swept, (mm, sweep)
+        off = replace(cfg, release_translation_mm=0.0)
+        robot.command_position(q0)
+        roll.clear()
+        pose_stage(
+            robot,
+            q0,
+            saved,
+            _Offset(saved, mm),
+            config=off,
+            sleep=clock.advance,
+            arrival_direction=(1, 1, -1, 1),
+            on_command=lambda q: roll.append(float(q[2])),
+        )
+        assert max(abs(r - q0[2]) for r in roll) < 0.5 * cfg.backoff[2]

@@ -180,6 +180,13 @@ class PoseStageConfig:
     without one): the shaft's last slip, after which its end stays stuck to the breathing
     vessel wall, then happens at the same respiratory level at every arrival, so the
     translation's lost motion no longer depends on the breathing phase the move ended at."""
+    release_translation_mm: float = 0.0
+    """A correction whose translation step exceeds this (mm; 0: off) re-approaches every
+    engaged joint with a backoff, as ``approach_always``: the roll's backoff sweep makes the
+    shaft slip many times (roll and translation share one friction budget, so each slip
+    scales the stored axial load down), which releases the translation's stiction; a step
+    below it keeps the roll where it is (each roll approach is a new draw of its lost
+    motion)."""
     expiration_wait_s: float = 4.5
     """Longest wait for end-expiration before a last leg (s; about one breath): the leg goes
     anyway after it. The time budget counts it for every planned move."""
@@ -586,7 +593,9 @@ class PoseStageTask:
                     self._revisits += 1
                 else:
                     target = self._step(self._run.cmd.copy(), m.error)
-                    moves = self._approach(target, force=cfg.approach_always)
+                    axial = abs(target[3] - self._run.cmd[3])
+                    release = 0.0 < cfg.release_translation_mm < axial
+                    moves = self._approach(target, force=cfg.approach_always or release)
             else:
                 target = self._step(best.q.copy(), best.error, gain)
                 moves = self._approach(target, force=not np.array_equal(self._run.cmd, best.q))
