@@ -390,7 +390,7 @@ def test_a_state_within_the_dead_band_is_accepted_only_when_a_second_window_agre
 
 def test_every_last_leg_starts_at_end_expiration_and_waits_no_longer_than_its_cap() -> None:
     """``arrive_at_expiration``: the last leg of every move (here: the roll coming back from
-    its backoff) starts only while the gate is open (open 2 s of every 4); a gate that never
+    its backoff) starts only while the gate is open (open 1 s of every 2); a gate that never
     opens delays each last leg by ``expiration_wait_s`` exactly; without the flag the gate is
     never asked."""
     clock, plant, robot, _ = em_bench(110)
@@ -398,7 +398,7 @@ def test_every_last_leg_starts_at_end_expiration_and_waits_no_longer_than_its_ca
     cfg = PoseStageConfig(max_iterations=2, reapproach_first=False, hold_s=0.1,
                           step_from_last=True, approach_always=True, tolerance_mm=0.1,
                           undo_if_worse=False, arrive_at_expiration=True,
-                          expiration_wait_s=3.0, max_duration_s=60.0)  # fmt: skip
+                          expiration_wait_s=1.0, max_duration_s=60.0)  # fmt: skip
 
     def leg_starts(gate: object, config: PoseStageConfig, relative: bool = True) -> list[float]:
         robot.command_position(q0)
@@ -414,15 +414,15 @@ def test_every_last_leg_starts_at_end_expiration_and_waits_no_longer_than_its_ca
         return [sent[i][0] - t0 for i in range(2, len(sent))
                 if roll[i] > roll[i - 1] + 1e-12 and roll[i - 1] <= roll[i - 2]]  # fmt: skip
 
-    starts = leg_starts(lambda: clock.now() % 4.0 >= 2.0, cfg, relative=False)
+    starts = leg_starts(lambda: clock.now() % 2.0 >= 1.0, cfg, relative=False)
     assert len(starts) == 2  # two corrections, each with a last leg
-    assert all(t % 4.0 >= 1.98 for t in starts), starts  # one control cycle after it opened
+    assert all(t % 2.0 >= 0.98 for t in starts), starts  # one control cycle after it opened
     never = leg_starts(lambda: False, cfg)
     free = leg_starts(lambda: True, cfg)
     assert len(never) == len(free) == 2
-    # the first correction's last leg waits the cap (3 s); the second is shifted by both
-    assert never[0] - free[0] == pytest.approx(3.0, abs=0.05)
-    assert never[1] - free[1] == pytest.approx(6.0, abs=0.1)
+    # the first correction's last leg waits the cap (1 s); the second is shifted by both
+    assert never[0] - free[0] == pytest.approx(1.0, abs=0.05)
+    assert never[1] - free[1] == pytest.approx(2.0, abs=0.1)
     asked: list[float] = []
     leg_starts(lambda: asked.append(clock.now()) or True, replace(cfg, arrive_at_expiration=False))
     assert asked == []
