@@ -86,6 +86,7 @@ def test_a_restarted_session_keeps_the_forces_and_stops_a_return_into_a_moved_pa
         roadmap, views, forces = again.load_roadmap(), again.load_views(), load_forces(again)
     np.testing.assert_array_equal(forces.forces.at(ids), before)
     np.testing.assert_array_equal(forces.tips.samples(), tips_before)
+    assert forces.rest_tip is None  # the return moved the motors: the stored rest is gone
     robot.command_position(np.zeros(4))
     twin.shift_patient([0.0, 20.0, 0.0])  # the patient moved on the table
     restarted = Controller(robot, ControllerConfig(), roadmap=roadmap, views=views,
@@ -114,7 +115,10 @@ def test_a_return_does_not_start_after_the_patient_carried_the_tip_away(
         ctrl = Controller(robot, ControllerConfig(), clock=clock,
                           force_sensor=sensor, tracker=tracker)  # fmt: skip
         if not force_channel:
-            assert ctrl.snapshot().force_check.endswith("tip-drift check on (tracker)")
+            assert ctrl.snapshot().force_check.endswith(
+                "tip-drift check on (tracker, armed at your next drive: the last motion was "
+                "not yours)"
+            )
         q_view = np.asarray(twin.views["mitral_valve"], np.float64)
         ctrl.request_mode(Mode.KNOB)
         _jog_to(ctrl, clock, q_view, 1.2)
@@ -123,6 +127,8 @@ def test_a_return_does_not_start_after_the_patient_carried_the_tip_away(
         for _ in range(20):
             _cycle(ctrl, clock)
         q_left = np.asarray(robot.read_state().q).copy()
+        if not force_channel:  # where the operator left the tip: the check is armed
+            assert ctrl.snapshot().force_check.endswith("tip-drift check on (tracker)")
         if shift:
             twin.shift_patient([-10.0, 0.0, 0.0])
         ctrl.goto_view("mitral")
@@ -133,6 +139,102 @@ def test_a_return_does_not_start_after_the_patient_carried_the_tip_away(
         if shift:  # stopped in the path's first 0.2 s, still where the operator left it
             assert "as it started" in message and "motors still" in message, message
             assert ctrl.task is None and np.all(step < [0.05, 0.05, 0.05, 0.5])
+        else:
+            assert step.max() > 0.05 and "as it started" not in message, message
+
+
+@pytest.mark.parametrize("case", ["still", "patient moved", "motors moved"])
+def test_after_a_crash_the_stored_rest_pose_still_stops_a_return_into_a_moved_patient(
+    case: str, tmp_path: Path
+) -> None:
+    """Eq. (F5) across a crash: the session stores where the operator left the tip and the
+    motors; the process dies; the restarted controller keeps the rest pose only when the
+    robot's motors stand where they were left. Then a patient who moved meanwhile stops the
+    return as it starts; without a shift it goes; motors moved meanwhile (homed, driven by
+    hand) leave no reference and the return goes unchecked by Eq. (F5)."""
+    clock = Clock()
+    twin = build_twin("phantom", 100, 0, clock)
+    robot = SimulatedRobot(twin.plant, clock=clock)
+    tracker = DisturbedTracker(exact_tracker(twin.plant.inner, clock), twin.plant)
+    tracker.start()
+    path = tmp_path / "rest.icenav"
+    store = SessionStore(path, new_session=True, clock=clock)
+    ctrl = Controller(robot, ControllerConfig(), clock=clock, tracker=tracker)
+    recorder = StoreRecorder(store, ctrl.roadmap, threaded=True, forces=ctrl.forces)
+    ctrl.set_recorder(recorder)
+    q_view = np.asarray(twin.views["mitral_valve"], np.float64)
+    ctrl.request_mode(Mode.KNOB)
+    _jog_to(ctrl, clock, q_view, 1.2)
+    ctrl.save_view("mitral")
+    _jog_to(ctrl, clock, 0.5 * q_view, 0.6)
+    for _ in range(60):  # the jog's hold runs out and the motors stop
+        _cycle(ctrl, clock)
+    rest_tip, q_left = ctrl.forces.rest_tip, np.asarray(robot.read_state().q).copy()
+    assert rest_tip is not None
+    recorder.flush()  # committed; then the process dies
+    recorder.writer.close()  # type: ignore[union-attr]
+    store._db.close()  # noqa: SLF001 - a crash: no clean close
+    store._lock.release()  # type: ignore[union-attr]  # noqa: SLF001 - the OS releases it
+
+    with SessionStore(path, clock=clock) as again:
+        roadmap, views, forces = again.load_roadmap(), again.load_views(), load_forces(again)
+    np.testing.assert_array_equal(forces.rest_tip, rest_tip)
+    np.testing.assert_array_equal(forces.rest_q, q_left)
+    if case == "motors moved":
+        robot.command_position(q_left + np.array([0.0, 0.0, 0.1, 0.0]))
+    if case != "still":
+        twin.shift_patient([-10.0, 0.0, 0.0])
+    restarted = Controller(robot, ControllerConfig(), roadmap=roadmap, views=views,
+                           clock=clock, forces=forces, tracker=tracker)  # fmt: skip
+    assert (restarted.forces.rest_tip is None) == (case == "motors moved")
+    q_start = np.asarray(robot.read_state().q).copy()
+    restarted.goto_view("mitral")
+    for _ in range(50):
+        _cycle(restarted, clock)
+    step = np.abs(np.asarray(robot.read_state().q) - q_start)
+    message = restarted.snapshot().message
+    if case == "patient moved":
+        assert "as it started" in message and "motors still" in message, message
+        assert restarted.task is None and np.all(step < [0.05, 0.05, 0.05, 0.5])
+    else:
+        assert step.max() > 0.05 and "as it started" not in message, message
+
+
+def test_after_a_dwell_the_tip_drift_check_compares_like_phases_of_the_beat() -> None:
+    """Eq. (F5), phase-matched, in the controller (the phantom's ECG connected): the
+    operator stops and looks at the image for 3 s; the loop keeps the tip's readings with
+    their phases; a return then starts when nobody moved and refuses to start after a 10 mm
+    shift."""
+    for shift in (False, True):
+        clock = Clock()
+        twin = build_twin("phantom", 100, 0, clock)
+        robot = SimulatedRobot(twin.plant, clock=clock)
+        tracker = DisturbedTracker(exact_tracker(twin.plant.inner, clock), twin.plant)
+        tracker.start()
+        ctrl = Controller(robot, ControllerConfig(), clock=clock, tracker=tracker,
+                          cardiac_phase=twin.rhythm.phase)  # fmt: skip
+        q_view = np.asarray(twin.views["mitral_valve"], np.float64)
+        ctrl.request_mode(Mode.KNOB)
+        _jog_to(ctrl, clock, q_view, 1.2)
+        ctrl.save_view("mitral")
+        _jog_to(ctrl, clock, 0.5 * q_view, 0.6)
+        for _ in range(int(3.0 * ctrl.config.rate_hz)):  # the jog runs out; then still
+            _cycle(ctrl, clock)
+        rest = ctrl.forces.rest
+        assert rest is not None and rest.n_readings > 1.5 * ctrl.config.rate_hz
+        resp, phase = ctrl.signals(ctrl.now())
+        assert resp is None and phase is not None and 0.0 <= phase < 1.0
+        q_left = np.asarray(robot.read_state().q).copy()
+        if shift:
+            twin.shift_patient([-10.0, 0.0, 0.0])
+        ctrl.goto_view("mitral")
+        for _ in range(50):
+            _cycle(ctrl, clock)
+        step = np.abs(np.asarray(robot.read_state().q) - q_left)
+        message = ctrl.snapshot().message
+        if shift:
+            assert "as it started" in message, message
+            assert np.all(step < [0.05, 0.05, 0.05, 0.5])
         else:
             assert step.max() > 0.05 and "as it started" not in message, message
 

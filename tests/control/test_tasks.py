@@ -190,7 +190,7 @@ def test_a_return_does_not_start_when_the_tip_moved_with_the_motors_still() -> N
 def test_the_return_holds_at_its_start_while_it_checks_the_tip_drift() -> None:
     """Eq. (F5) is checked before the path moves: it holds at its first state for
     DRIFT_WINDOW_S (a tracker sample may be a frame old), then goes on."""
-    from icenav.recovery.force import DRIFT_WINDOW_S
+    from icenav.recovery.drift import DRIFT_WINDOW_S
 
     path = np.zeros((3, 4))
     path[:, 3] = [0.0, 1.0, 2.0]
@@ -205,6 +205,36 @@ def test_the_return_holds_at_its_start_while_it_checks_the_tip_drift() -> None:
     n = round(DRIFT_WINDOW_S / 0.01)
     assert n <= held <= n + 1  # 0.1 s of 0.01 s cycles (one more when the sum rounds below)
     assert isinstance(_run(task)[0], Done)
+
+
+def test_a_refused_start_tells_how_much_the_tip_strays_at_rest_and_matches_phases() -> None:
+    """Eq. (F5) through the task's signals and clock: a tip swinging 4 mm with the beat is
+    compared at its phase (no refusal at a like phase); moved 8 mm it is refused, and the
+    reason says how far the tip strays at rest, so the operator can weigh it."""
+    from icenav.recovery.drift import RestReference
+
+    NOW = 5.75  # noqa: N806 - the opposite phase to the stop: 8 mm from it when nobody moved
+
+    def at(t: float, shift: float = 0.0) -> np.ndarray:
+        pose = np.eye(4)
+        pose[:3, 3] = [shift + 4.0 * np.sin(2 * np.pi * t), 0.0, 40.0]
+        return pose
+
+    for shift in (0.0, 8.0):
+        rest = RestReference(0.25, at(0.25), None, None, 0.25)
+        for t in np.arange(0.27, 3.0, 0.02):
+            rest.add(float(t), at(float(t)), None, float(t % 1.0))
+        assert rest.drift(at(NOW)) > 5.0  # the instantaneous form would refuse
+        path = np.zeros((2, 4))
+        path[1, 3] = 1.0
+        task = PathTask(path, V_MAX, rest_tip=rest, drift_limit_mm=5.0,
+                        tip_pose=lambda s=shift: at(NOW, s), signals=lambda t: (None, t % 1.0),
+                        clock=lambda: NOW)  # fmt: skip
+        status = task.step(np.zeros(4), 0.01)
+        if shift:
+            assert isinstance(status, Failed) and "strayed up to" in status.reason, status
+        else:
+            assert isinstance(status, Running), getattr(status, "reason", status)
 
 
 class _ConstantForce:

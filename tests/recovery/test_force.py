@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from icenav.errors import ConfigurationError, ShapeError
+from icenav.recovery.drift import REST_Q_TOLERANCE, tip_drift
 from icenav.recovery.force import (
     ForceCheck,
     ForceMap,
@@ -17,7 +18,6 @@ from icenav.recovery.force import (
     force_excess,
     force_limit,
     shape_reference,
-    tip_drift,
 )
 from icenav.recovery.roadmap import Roadmap
 
@@ -188,3 +188,30 @@ def test_the_rest_tip_is_where_the_operator_last_moved_and_anything_else_forgets
     assert rec.rest_tip is None
     with pytest.raises(ShapeError):
         rec.note_motion(np.eye(3), operator=True)
+
+
+def test_a_restored_rest_pose_stands_only_while_the_motors_stand_where_it_was_left() -> None:
+    """After a restart (Eq. F5 across a crash): the stored rest tip is kept when the robot
+    reports the stored motor state within the tolerance, and forgotten otherwise or when it
+    was stored without one; a bad stored value is refused with its name."""
+    pose = np.eye(4)
+    pose[:3, 3] = [1.0, 2.0, 40.0]
+    q = np.array([0.1, -0.2, 0.3, 12.0])
+    rec = ForceRecord()
+    rec.note_motion(pose, operator=True, q=q)
+    np.testing.assert_array_equal(rec.rest_q, q)
+    back = ForceRecord.from_rows(
+        np.zeros((0, 2)), np.zeros((0, 7)), rest=(rec.rest_tip, rec.rest_q)
+    )
+    version = back.rest_version
+    assert back.keep_rest_if_at(q + 0.5 * REST_Q_TOLERANCE) and back.rest_version == version
+    np.testing.assert_array_equal(back.rest_tip, [1.0, 2.0, 40.0])
+    assert not back.keep_rest_if_at(q + [0.0, 0.0, 0.0, 2.0 * REST_Q_TOLERANCE])
+    assert back.rest_tip is None and back.rest_q is None and back.rest_version > version
+    no_q = ForceRecord()
+    no_q.note_motion(pose, operator=True)  # an older caller: no motor state
+    assert not no_q.keep_rest_if_at(q) and no_q.rest_tip is None
+    with pytest.raises(ShapeError, match="rest_q"):
+        ForceRecord().restore_rest([1.0, 2.0, 3.0], [0.0, 0.0, np.nan, 0.0])
+    with pytest.raises(ShapeError, match="rest_tip"):
+        ForceRecord().restore_rest([1.0, 2.0], q)

@@ -29,6 +29,9 @@ from tests.support.refinement import BlobImager, JitterBlobImager, TrackedPlant,
 
 Array = NDArray[np.float64]
 DEG = math.pi / 180
+SESSION7 = dict(joints=(True, True, True, True), beats=1, significance=0.0, verify_end=False,
+                noise_factor=1.5, search=True)  # fmt: skip
+"""The session-7 search (every joint, one beat per measurement, no z-test, no verified end)."""
 
 
 def test_never_leaves_its_neighbourhood_random_cases() -> None:
@@ -55,6 +58,11 @@ def test_never_leaves_its_neighbourhood_random_cases() -> None:
             min_improvement=float(rng.uniform(0.0, 0.01)),
             stop_within=0.0,
             confirm=bool(rng.integers(0, 2)),
+            joints=tuple(bool(x) for x in rng.permutation([1, *rng.integers(0, 2, 3)])),
+            beats=int(rng.integers(1, 3)),
+            significance=float(rng.choice([0.0, 2.0])),
+            verify_end=bool(rng.integers(0, 2)),
+            search=True,
         )
         plant = CatheterPlant(seed=100 + seed, vessel="moderate")
         robot = SimulatedRobot(plant)
@@ -82,7 +90,14 @@ def test_never_leaves_its_neighbourhood_random_cases() -> None:
         assert np.all(np.abs(res.q_final - q_view) <= radius * (1 + 1e-9) + 1e-12)
         assert len(res.trials) <= cfg.max_evaluations
         assert imager.calls == len(res.trials)
-        assert res.status in (RefinementStatus.CONVERGED, RefinementStatus.BUDGET)
+        assert res.status in (
+            RefinementStatus.CONVERGED,
+            RefinementStatus.BUDGET,
+            RefinementStatus.UNDONE,
+        )
+        # a joint not searched ends where it started (it only moves to take up its play)
+        fixed = ~np.array(cfg.joints)
+        np.testing.assert_allclose(res.q_final[fixed], q_start[fixed], atol=1e-12)
         # the robot ends at the incumbent
         np.testing.assert_allclose(robot.read_state().q, res.q_final)
 
@@ -95,7 +110,7 @@ def test_climbs_a_smooth_landscape_to_its_optimum() -> None:
     q_best = q_view + np.array([1.5 * DEG, -1.0 * DEG, 0.5 * DEG, -0.75])
     robot.command_position(q_view)
     imager = BlobImager(robot, q_best, noise=0.0, seed=0)
-    cfg = RefinementConfig(max_evaluations=200, min_improvement=0.0, stop_within=0.0)
+    cfg = RefinementConfig(max_evaluations=200, min_improvement=0.0, stop_within=0.0, **SESSION7)
     res = refine(robot, q_view, reference(imager), imager, config=cfg)
     assert res.status == RefinementStatus.CONVERGED
     assert res.best_score > res.start_score
@@ -137,8 +152,8 @@ def test_improves_similarity_on_a_perturbed_return(renderer: UltrasoundRenderer)
     robot.command_position(q_view + np.array([2.5 * DEG, -2.5 * DEG, 2.5 * DEG, 0.0]))
     start_pose = plant.state.tip2base.copy()
     before = fresh_score()
-    res = refine(robot, q_view, refs, imager, config=RefinementConfig(max_evaluations=40),
-                 sleep=clock.advance)  # fmt: skip
+    cfg = RefinementConfig(max_evaluations=40, search=True)
+    res = refine(robot, q_view, refs, imager, config=cfg, sleep=clock.advance)
     assert res.status in (RefinementStatus.CONVERGED, RefinementStatus.BUDGET)
     after = fresh_score()
     assert after > before + 0.01
@@ -190,7 +205,7 @@ def test_abort_stops_at_once() -> None:
         return len(polls) > 120
 
     sent: list[Array] = []
-    cfg = RefinementConfig(stop_within=0.0, max_evaluations=100)
+    cfg = RefinementConfig(stop_within=0.0, max_evaluations=100, search=True)
     res = refine(robot, q_view, reference(imager), imager, config=cfg, abort=abort,
                  on_command=sent.append)  # fmt: skip
     assert res.status == RefinementStatus.ABORTED
@@ -200,7 +215,7 @@ def test_abort_stops_at_once() -> None:
 
 def test_timeout_ends_at_the_incumbent_within_the_box() -> None:
     robot, imager, q_view = _blob_setup()
-    cfg = RefinementConfig(stop_within=0.0, max_evaluations=100, max_duration_s=3.0)
+    cfg = RefinementConfig(stop_within=0.0, max_evaluations=100, max_duration_s=3.0, **SESSION7)
     res = refine(robot, q_view, reference(imager), imager, config=cfg)
     assert res.status == RefinementStatus.TIMEOUT
     assert res.duration_s < 3.0 + 2.0  # the final move to the incumbent is short
@@ -211,7 +226,7 @@ def test_timeout_ends_at_the_incumbent_within_the_box() -> None:
 def test_task_protocol_and_progress() -> None:
     robot, imager, q_view = _blob_setup()
     task = RefinementTask(
-        q_view, reference(imager), imager, config=RefinementConfig(max_evaluations=5)
+        q_view, reference(imager), imager, config=RefinementConfig(max_evaluations=5, **SESSION7)
     )
     assert task.progress == 0.0
     n = 0
@@ -240,6 +255,9 @@ def test_start_outside_the_neighbourhood_is_refused() -> None:
         ({"max_duration_s": 0.0}, "max_duration_s"),
         ({"min_improvement": -0.1}, "min_improvement"),
         ({"blur_factor": 0}, "blur_factor"),
+        ({"beats": 0}, "beats"),
+        ({"joints": (False, False, False, False)}, "joints"),
+        ({"significance": -1.0}, "significance"),
     ],
 )
 def test_bad_config_is_rejected(kwargs: dict[str, object], match: str) -> None:
@@ -308,12 +326,14 @@ def test_thresholds_follow_the_noise_of_the_saved_beats() -> None:
     robot, _, q_view = _blob_setup()
     imager = JitterBlobImager(robot, q_view.copy(), noise=0.0, seed=1)
     refs = imager.saved_beats(4)
-    task = RefinementTask(q_view, refs, imager)
+    task = RefinementTask(q_view, refs, imager, config=RefinementConfig(**SESSION7))
     assert math.isfinite(task.noise) and task.noise > 0.0
     assert task.min_improvement == pytest.approx(max(0.003, 1.5 * task.noise))
     assert task.min_improvement > 0.003
     assert task.stop_within == pytest.approx(max(0.01, 1.5 * task.noise))
-    fixed = RefinementTask(q_view, refs, imager, config=RefinementConfig(noise_factor=0.0))
+    fixed = RefinementTask(
+        q_view, refs, imager, config=RefinementConfig(**{**SESSION7, "noise_factor": 0.0})
+    )
     assert (fixed.min_improvement, fixed.stop_within) == (0.003, 0.01)
     two = RefinementTask(q_view, refs[:2], imager)
     assert math.isnan(two.noise) and two.min_improvement == 0.003
@@ -324,8 +344,104 @@ def test_thresholds_follow_the_noise_of_the_saved_beats() -> None:
         for seed in range(6):
             robot, _, q_view = _blob_setup(seed)
             imager = JitterBlobImager(robot, q_view.copy(), noise=0.0, seed=seed)
-            cfg = RefinementConfig(noise_factor=factor, stop_within=0.0, max_evaluations=16)
+            cfg = RefinementConfig(
+                **{**SESSION7, "noise_factor": factor}, stop_within=0.0, max_evaluations=16
+            )
             res = refine(robot, q_view, imager.saved_beats(4), imager, config=cfg)
             d.append(float(np.linalg.norm((res.q_final - q_view) / scale)))
         drift[factor] = float(np.mean(d))
     assert drift[1.5] < 0.5 * drift[0.0]
+
+
+class _LuckyImager(BlobImager):
+    """A flat landscape (the blob at the view wherever the catheter is) whose beats are
+    noisy except the ones numbered in ``lucky`` (0-based), which match the saved beat."""
+
+    def __init__(self, robot: SimulatedRobot, q_view: Array, lucky: set[int]) -> None:
+        super().__init__(robot, q_view, noise=0.3, seed=3)
+        self.lucky = lucky
+
+    def acquire_beat(self) -> BeatClip:
+        k = self.calls
+        self.calls += 1
+        base = self.image_at(self.q_best)
+        sd = 0.0 if k in self.lucky else self.noise
+        imgs = np.stack([base + self.rng.normal(0, sd, base.shape) for _ in range(3)])
+        return BeatClip(imgs, np.array([0.0, 1 / 3, 2 / 3]))
+
+
+def test_verify_end_goes_back_to_the_start_when_fresh_beats_do_not_confirm() -> None:
+    """A trial accepted on lucky beats (a flat landscape: nothing to gain) is measured again
+    with fresh beats at the end; they do not beat the start's, so the stage goes back to
+    the start (UNDONE); without ``verify_end`` it would stay at the lucky state."""
+    ends = {}
+    for verify in (False, True):
+        robot, _, q_view = _blob_setup()
+        imager = _LuckyImager(robot, q_view, lucky={2, 3})  # the first trial and its confirm
+        cfg = RefinementConfig(stop_within=0.0, max_evaluations=8, beats=1, verify_end=verify,
+                               significance=2.0, search=True)  # fmt: skip
+        res = refine(robot, q_view, reference(imager), imager, config=cfg)
+        assert res.trials[1].accepted is False and res.trials[2].accepted is True
+        ends[verify] = res
+        np.testing.assert_allclose(robot.read_state().q, res.q_final)
+    assert not np.array_equal(ends[False].q_final, q_view)
+    assert ends[True].status == RefinementStatus.UNDONE
+    np.testing.assert_allclose(ends[True].q_final, q_view)
+    assert ends[True].best_score == ends[True].start_score
+
+
+def test_joints_beats_and_verify_keep_a_real_gain() -> None:
+    """Noise-free blob 2 deg off in phi1 and 1 mm in d4, translation not searched, two beats
+    per measurement, the end verified: the search moves phi1 towards the optimum, never d4,
+    keeps its end (the fresh beats confirm it) and measures in pairs of beats."""
+    robot, imager, q_view = _blob_setup()
+    cfg = RefinementConfig(stop_within=0.0, max_evaluations=40, max_duration_s=200.0,
+                           joints=(True, True, True, False), beats=2, significance=2.0,
+                           verify_end=True, search=True)  # fmt: skip
+    sent: list[Array] = []
+    res = refine(robot, q_view, reference(imager), imager, config=cfg, on_command=sent.append)
+    assert res.status in (RefinementStatus.CONVERGED, RefinementStatus.BUDGET)
+    assert np.all(np.array(sent)[:, 3] == q_view[3])
+    assert abs(res.q_final[0] - imager.q_best[0]) < 0.5 * DEG
+    assert res.best_score > res.start_score
+    assert imager.calls == len(res.trials) and len(res.trials) % 2 == 0
+
+
+def test_a_good_start_on_decorrelating_beats_is_left_alone() -> None:
+    """At the optimum, the saved beats alike but the live beats decorrelating (the blob
+    jitters 0.2 deg / mm between saved beats, 1.2 between live ones): the default stage
+    learns the noise per beat from its start's beats and does not search (AT_VIEW, no
+    move) in any seed, where the session-7 search, trusting the saved beats' scatter,
+    moves in most."""
+    moved = {}
+    for name, extra in (("default", {}), ("session7", SESSION7)):
+        n = 0
+        for seed in range(8):
+            robot, _, q_view = _blob_setup(seed)
+            imager = JitterBlobImager(robot, q_view.copy(), noise=0.0, seed=seed)
+            imager.jitter = 0.2
+            refs = imager.saved_beats(4)
+            imager.jitter = 1.2
+            cfg = RefinementConfig(max_evaluations=12, **extra)  # type: ignore[arg-type]
+            res = refine(robot, q_view, refs, imager, config=cfg)
+            if name == "default":
+                assert res.status == RefinementStatus.AT_VIEW and res.n_commands == 0
+            n += res.n_commands > 0
+        moved[name] = n
+    assert moved["default"] == 0 and moved["session7"] >= 4
+
+
+def test_by_default_it_reports_a_lost_view_and_never_moves() -> None:
+    """The default stage (``search`` off) measures the start: 2 deg and 1 mm off the
+    optimum it reports LOST, at the optimum AT_VIEW; it holds still either way."""
+    for off, status in ((np.array([2 * DEG, 0, 0, 1.0]), RefinementStatus.LOST),
+                        (np.zeros(4), RefinementStatus.AT_VIEW)):  # fmt: skip
+        robot, _, q_view = _blob_setup()
+        imager = JitterBlobImager(robot, q_view + off, noise=0.0, seed=2)
+        imager.jitter = 0.2
+        sent: list[Array] = []
+        res = refine(robot, q_view, imager.saved_beats(4), imager, on_command=sent.append)
+        assert res.status == status
+        # it only held still while it measured
+        assert res.n_commands == 0 and all(np.array_equal(q, q_view) for q in sent)
+        np.testing.assert_array_equal(res.q_final, q_view)

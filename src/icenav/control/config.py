@@ -10,12 +10,8 @@ import numpy as np
 from icenav._validation import check_finite, check_positive
 from icenav.errors import ConfigurationError
 from icenav.geometry.kinematics import DEFAULT_GEOMETRY, CatheterGeometry
-from icenav.recovery.force import (
-    CHECK_MARGIN_FRACTION,
-    CHECK_MARGIN_N,
-    DEFAULT_DRIFT_MM,
-    DEFAULT_HOLD_S,
-)
+from icenav.recovery.drift import DEFAULT_DRIFT_MM
+from icenav.recovery.force import CHECK_MARGIN_FRACTION, CHECK_MARGIN_N, DEFAULT_HOLD_S
 
 __all__ = ["ControllerConfig"]
 

@@ -66,6 +66,7 @@ from icenav.control.teleop import GamepadReader, InputSource, JogHold, JoystickM
 from icenav.devices.robot import JointState, RobotBackend, RobotStatus
 from icenav.devices.tracker import PoseSampleBuffer
 from icenav.errors import IcenavError
+from icenav.recovery.drift import Phases
 from icenav.recovery.force import ForceRecord, ForceSensor
 from icenav.recovery.roadmap import Roadmap, warm_up_planner
 from icenav.recovery.views import ViewLibrary
@@ -228,6 +229,7 @@ class Controller(CommandCalls):
         self._q_cmd = np.array(q0, dtype=np.float64)
         self._q = np.array(q0, dtype=np.float64)
         self._q_last = self._q.copy()
+        self.forces.keep_rest_if_at(self._q)  # a restored rest pose: only if nothing moved
         self.roadmap.add(self._q)
         self._state = self.publisher.make_state()
 
@@ -405,8 +407,12 @@ class Controller(CommandCalls):
             tip = self.tip_pose_now() if operator or buffered else None
             if buffered:
                 self.pose_buffer.push(self._clock(), tip)  # type: ignore[union-attr]
+            now = self._clock()
             if moved:  # where the operator left the tip (Eq. F5: a tracker is enough)
-                self.forces.note_motion(tip, driving)
+                phases = self.signals(now) if driving and tip is not None else (None, None)
+                self.forces.note_motion(tip, driving, self._q, now, phases)
+            elif tip is not None and self.forces.wants_still_readings(now):
+                self.forces.note_still(now, tip, self.signals(now))  # Eq. (F5)'s reference
             if operator:
                 self._record_force(tip)
             self.record("state", {"q": self._q, "t": self._time})
@@ -447,6 +453,19 @@ class Controller(CommandCalls):
     def cycle_pose(self, window_s: float = 9.0, rate_hz: float = 10.0) -> Any:
         """The refinement's EM pose sensor over the loop's buffer (:func:`sensing.cycle_pose`)."""
         return cycle_pose(self.pose_buffer, self.respiration, self.cardiac_phase, window_s, rate_hz)
+
+    def now(self) -> float:
+        """The loop's clock (s)."""
+        return float(self._clock())
+
+    def signals(self, t: float) -> Phases:
+        """The respiratory signal and the cardiac phase in [0, 1) at ``t`` (s), each None
+        without its channel (Eq. F5's phase match)."""
+        resp = None
+        if self.respiration is not None:
+            resp = float(np.asarray(self.respiration.signal(np.array([t])), np.float64)[0])
+        phase = None if self.cardiac_phase is None else float(self.cardiac_phase(t))
+        return resp, phase
 
     def tip_pose_now(self) -> Array | None:
         """(4, 4) the tracked tip pose now (mm), never waited for (:func:`sensing.tip_pose_now`)."""

@@ -307,6 +307,8 @@ class Handlers:
             roadmap=ctrl.roadmap,
             tip_pose=ctrl.tip_pose_now,
             tip_index=self._tip_index,
+            signals=ctrl.signals,
+            clock=ctrl.now,
         )
 
     def _refine(self, ticket: Ticket, at: float) -> None:

@@ -201,7 +201,12 @@ class Publisher:
 def force_check_text(has_channel: bool, forces: Any, has_tracker: bool = False) -> str:
     """What the operator is told of the returns' checks: the force check (a force channel)
     and the tip-drift check (a tracker, Eq. F5 of :mod:`icenav.recovery.force`)."""
-    drift = "; tip-drift check on (tracker)" if has_tracker else ""
+    drift = ""
+    if has_tracker:  # Eq. (F5) compares with where the operator's last drive left the tip
+        armed = getattr(forces, "rest_tip", None) is not None
+        drift = "; tip-drift check on (tracker" + (
+            ")" if armed else ", armed at your next drive: the last motion was not yours)"
+        )
     if not has_channel:
         return "off: no force channel" + drift
     n = forces.forces.n_recorded

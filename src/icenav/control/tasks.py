@@ -31,11 +31,10 @@ import numpy as np
 from icenav._typing import Array
 from icenav.control.modes import Mode
 from icenav.errors import IcenavError, InvalidValueError
+from icenav.recovery.drift import DEFAULT_DRIFT_MM, DRIFT_WINDOW_S, Phases, RestReference
 from icenav.recovery.force import (
-    DEFAULT_DRIFT_MM,
     DEFAULT_MARGIN_FRACTION,
     DEFAULT_MARGIN_N,
-    DRIFT_WINDOW_S,
     ForceCheck,
     ForceRecord,
     ForceSensor,
@@ -43,7 +42,6 @@ from icenav.recovery.force import (
     TipForceMap,
     TipIndex,
     force_limit,
-    tip_drift,
 )
 from icenav.recovery.roadmap import Roadmap
 from icenav.recovery.views import View
@@ -170,11 +168,17 @@ class PathTask:
     tip_pose: Callable[[], Array | None] | None = None
     """The measured tip pose now ((4, 4) mm, base frame; None when unknown), for
     :attr:`tip_forces`."""
-    rest_tip: Array | None = None
-    """(3,) where the tracked tip was when the operator last moved the motors (mm,
-    :attr:`icenav.recovery.force.ForceRecord.rest_tip`): the path holds at its first state
-    for :data:`~icenav.recovery.force.DRIFT_WINDOW_S` and stops when the tip has since moved
-    more than :attr:`drift_limit_mm` (Eq. F5); None: no such check (and no hold)."""
+    rest_tip: Array | RestReference | None = None
+    """Where the tracked tip was when the operator last moved the motors: the reference of
+    :attr:`icenav.recovery.force.ForceRecord.rest` or a (3,) position (mm). The path holds at
+    its first state for :data:`~icenav.recovery.drift.DRIFT_WINDOW_S` and stops when the tip
+    has since moved more than :attr:`drift_limit_mm` (Eq. F5 of
+    :mod:`icenav.recovery.drift`); None: no such check (and no hold)."""
+    signals: Callable[[float], Phases] | None = None
+    """The respiratory signal and the cardiac phase at a time (s; each None without its
+    channel), for Eq. (F5)'s phase match; None: its instantaneous form."""
+    clock: Callable[[], float] | None = None
+    """The loop's time (s), for :attr:`signals` and the reference's age."""
     drift_limit_mm: float = DEFAULT_DRIFT_MM
     """Eq. (F5)'s limit (mm)."""
     failure: str | None = field(default=None, init=False)
@@ -209,11 +213,11 @@ class PathTask:
             value = getattr(self, name)
             if not (math.isfinite(value) and value >= 0):
                 raise InvalidValueError(f"{name} must be finite and >= 0, got {value}")
-        if self.rest_tip is not None:
+        if self.rest_tip is not None and not isinstance(self.rest_tip, RestReference):
             rest = np.asarray(self.rest_tip, dtype=np.float64).reshape(-1)
             if rest.shape != (3,) or not np.all(np.isfinite(rest)):
                 raise InvalidValueError(f"rest_tip must be 3 finite mm, got {self.rest_tip}")
-            self.rest_tip = rest
+            self.rest_tip = RestReference(0.0, rest)
         self._check = ForceCheck(self.force_margin_n, self.force_margin_fraction,
                                  self.force_hold_s)  # fmt: skip
         seg = np.abs(np.diff(p, axis=0)) / v if len(p) > 1 else np.zeros((0, 4))
@@ -275,13 +279,25 @@ class PathTask:
         """Eq. (F5) before the path moves: Failed when the tracked tip has moved more than
         the limit since the operator last moved the motors."""
         tip = self.tip_pose() if self.tip_pose is not None else None
-        drift = tip_drift(self.rest_tip, tip)
-        if drift is None or drift <= self.drift_limit_mm:
+        rest = self.rest_tip
+        if tip is None or not isinstance(rest, RestReference):
             return None
+        now = self.clock() if self.clock is not None else None
+        phases = (None, None) if self.signals is None or now is None else self.signals(now)
+        drift = rest.drift(tip, *phases, t=now)
+        if drift <= self.drift_limit_mm:
+            return None
+        spread = rest.spread_mm()
+        at_rest = (
+            f"; at rest the tip strayed up to {spread:.1f} mm from its mean with the beat and "
+            "the breath: if the patient did not move, move the catheter a little and go again"
+            if spread > 0.5 * self.drift_limit_mm
+            else ""
+        )
         self.failure = (
             f"{self.label}: stopped as it started: the tracked tip moved {drift:.1f} mm with "
             f"the motors still since the operator last moved them (limit "
-            f"{self.drift_limit_mm:.1f} mm; "
+            f"{self.drift_limit_mm:.1f} mm{at_rest}; "
             "has the patient moved? the roadmap's states may no longer give the views); "
             "the robot holds"
         )
@@ -345,6 +361,8 @@ def goto_view_task(
     roadmap: Roadmap,
     tip_pose: Callable[[], Array | None] | None,
     tip_index: Callable[[], Future[Any] | None] | None = None,
+    signals: Callable[[float], Phases] | None = None,
+    clock: Callable[[], float] | None = None,
 ) -> PathTask:
     """The "go to view" path task with the product's force check (Eqs. F1, F2, F4 of
     :mod:`icenav.recovery.force`, the margins and hold of ``config``), checked only with a
@@ -356,7 +374,9 @@ def goto_view_task(
     ``path`` (n, 4) motor states; ``forces`` the operator's record (per vertex, per tip pose,
     the rest tip); ``tip_pose`` the tracked tip now ((4, 4) mm or None); ``tip_index`` starts
     the index of the operator's tip readings (on a worker in the controller) and returns its
-    future, None when there are none (without it the index is built here, on first use)."""
+    future, None when there are none (without it the index is built here, on first use);
+    ``signals`` the respiratory signal and the cardiac phase at a time of ``clock``, for Eq.
+    (F5)'s phase match (None: its instantaneous form)."""
     checked = force_sensor is not None and forces.forces.n_recorded > 0
     index = tip_index() if checked and tip_index is not None else None
     tips = forces.tips if checked and tip_index is None and forces.tips.n_samples else None
@@ -374,8 +394,10 @@ def goto_view_task(
         tip_pose=tip_pose,
         force_hold_s=config.force_hold_s,
         # Eq. (F5) needs the tracker only, not a force channel
-        rest_tip=forces.rest_tip if tip_pose is not None else None,
+        rest_tip=forces.rest if tip_pose is not None else None,
         drift_limit_mm=config.force_drift_mm,
+        signals=signals,
+        clock=clock,
     )
 
 

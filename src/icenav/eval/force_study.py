@@ -51,11 +51,11 @@ from icenav.control.controller import ControllerConfig, PathTask
 from icenav.errors import ConfigurationError
 from icenav.eval.recovery import TARGETS, RecoveryConfig
 from icenav.eval.recovery_bench import DT, Bench
+from icenav.recovery.drift import DEFAULT_DRIFT_MM, REST_WINDOW_S, RestReference
 from icenav.recovery.force import (
     CHECK_MARGIN_FRACTION,
     CHECK_MARGIN_N,
     DEFAULT_ANGLE_DEG,
-    DEFAULT_DRIFT_MM,
     DEFAULT_HOLD_S,
     DEFAULT_RADIUS_MM,
     ForceMap,
@@ -64,7 +64,6 @@ from icenav.recovery.force import (
     TipIndex,
     TipTrace,
     shape_reference,
-    tip_drift,
 )
 
 __all__ = [
@@ -78,6 +77,7 @@ __all__ = [
     "SWEEP",
     "check_returns",
     "choose_point",
+    "dwell_table",
     "main",
     "operating_point",
     "record_pair",
@@ -113,6 +113,9 @@ class ForceStudyConfig:
     moves_between: int = 2
     """Exploration moves of the operator before each return (a return starts where the
     operator left the catheter)."""
+    dwell_s: float = 0.0
+    """The operator's hands off before each return (s): the operator looks at the image, the
+    motors are still; a shift happens at the end of it, just before the return."""
     em_every: int = 4
     """Control cycles per EM reading (the twin's contact is solved at 25 Hz)."""
     tip_keys: tuple[tuple[float, float], ...] = ((2.0, 180.0), (4.0, 180.0), (8.0, 180.0),
@@ -338,6 +341,8 @@ def record_pair(cfg: ForceStudyConfig) -> dict[str, Any]:
     spans: list[tuple[int, int, int]] = []
     for k, shift in enumerate(plan):
         drive(b.operator.explore(cfg.moves_between))
+        if cfg.dwell_s > 0:
+            drive(b.operator.dwell(cfg.dwell_s))
         n_op = len(rows)
         if any(shift):
             twin.shift_patient(shift)
@@ -378,6 +383,8 @@ class CheckPoint:
     hold_s: float = DEFAULT_HOLD_S
     drift_mm: float = DEFAULT_DRIFT_MM
     """Eq. (F5)'s limit (mm; inf: no such check)."""
+    phase_match: bool = True
+    """Eq. (F5) phase-matched (the product's), else its instantaneous form."""
 
 
 @dataclass(frozen=True)
@@ -389,11 +396,15 @@ class ReturnCheck:
     needed_n: float
     """The absolute margin the force rule (F4) needed not to stop it (N)."""
     drift_mm: float
-    """The tip's motion with the motors still at the start, Eq. (F5) (mm; NaN: unknown)."""
+    """The tip's motion with the motors still at the start, Eq. (F5) phase-matched (mm;
+    NaN: unknown)."""
+    drift_instant_mm: float = math.nan
+    """The same in Eq. (F5)'s instantaneous form: against the reading at the stop (mm)."""
 
     def stopped(self, point: CheckPoint) -> bool:
         """Whether the check stops this return at ``point``."""
-        return self.needed_n > point.margin_n or self.drift_mm > point.drift_mm
+        drift = self.drift_mm if point.phase_match else self.drift_instant_mm
+        return self.needed_n > point.margin_n or drift > point.drift_mm
 
 
 def _pose(row: Array) -> Array:
@@ -403,10 +414,48 @@ def _pose(row: Array) -> Array:
     return t
 
 
-def check_returns(raw: dict[str, Array], point: CheckPoint) -> list[ReturnCheck]:
+def _rest_drift(op: Array, ret: Array, dwell_s: float | None, shifted: bool) -> tuple[float, float]:
+    """Eq. (F5) at a return's start, as the product computes it: the reference is the EM
+    readings from the operator's stop (the last motion of ``op``, the operator's rows) over
+    :data:`icenav.recovery.drift.REST_WINDOW_S` (at most ``dwell_s``); the tip now is the
+    return's first reading, or, for ``dwell_s`` shorter than the recorded dwell, the reading
+    that long after the stop (an undisturbed return started then). Returns (phase-matched,
+    instantaneous) (mm; NaN: no reading)."""
+    moved = np.flatnonzero(np.any(np.diff(op[:, 1:5], axis=0) != 0, axis=1))
+    stop = int(moved[-1]) + 1 if len(moved) else 0
+    em = np.flatnonzero(np.isfinite(op[:, 6]))
+    before = em[em <= stop]
+    first = int(before[-1]) if len(before) else (int(em[0]) if len(em) else -1)
+    if first < 0:
+        return math.nan, math.nan
+    t0 = op[stop, 0]
+    recorded = op[-1, 0] - t0
+    d = recorded if dwell_s is None else min(float(dwell_s), recorded)
+    window = min(d, REST_WINDOW_S)
+    keep = em >= first
+    keep &= op[em, 0] <= t0 + window + 1e-9 if math.isfinite(t0) else em == first
+    rows = op[em[keep]]
+    ref = RestReference(t0, rows[0, 6:9], None, rows[0, 13], rows[0, 12])
+    for r in rows[1:]:
+        ref.add(float(r[0]), r[6:9], float(r[13]), float(r[12]))
+    now = ret[0] if len(ret) else None
+    if dwell_s is not None and dwell_s < recorded and not shifted:
+        later = em[op[em, 0] >= t0 + dwell_s - 1e-9]
+        now = op[int(later[0])] if len(later) else now
+    if now is None or not np.isfinite(now[6]):
+        return math.nan, math.nan
+    t_now = float(now[0]) if math.isfinite(now[0]) else None
+    return ref.drift(now[6:9], float(now[13]), float(now[12]), t_now), ref.drift(now[6:9])
+
+
+def check_returns(
+    raw: dict[str, Array], point: CheckPoint, dwell_s: float | None = None
+) -> list[ReturnCheck]:
     """The product's check (:class:`icenav.recovery.force.TipIndex` for Eq. F2 over the
-    operator's readings before each return, :func:`icenav.recovery.force.tip_drift`) on
-    the returns of one pair recorded by :func:`record_pair`."""
+    operator's readings before each return, Eq. F5 of :mod:`icenav.recovery.drift`) on the
+    returns of one pair recorded by :func:`record_pair`; ``dwell_s`` evaluates Eq. (F5) as if
+    each return had started that long after the operator stopped (at most the recorded
+    dwell; a shifted return is checked at its start, the shift just before it)."""
     rows, spans, shifts = raw["rows"], raw["returns"], raw["shifts"]
     w = int(round(point.hold_s / DT)) + 1  # Eq. (F4): cycles above the limit in a row
     out: list[ReturnCheck] = []
@@ -430,10 +479,10 @@ def check_returns(raw: dict[str, Array], point: CheckPoint) -> list[ReturnCheck]
             sustained = np.lib.stride_tricks.sliding_window_view(excess, w).min(axis=1)
         else:
             sustained = np.full(1, -np.inf)
-        drift = math.nan  # Eq. (F5) at the return's first cycle (its set-point ~ at rest)
-        if len(em) and len(ret) and np.isfinite(ret[0, 6]):
-            drift = tip_drift(em[-1, 6:9], _pose(ret[0])) or 0.0
-        out.append(ReturnCheck(float(np.max(np.abs(shift))), float(sustained.max()), drift))
+        shifted = bool(np.any(shift))
+        drift, instant = _rest_drift(op, ret, dwell_s, shifted)  # Eq. (F5)
+        out.append(ReturnCheck(float(np.max(np.abs(shift))), float(sustained.max()), drift,
+                               instant))  # fmt: skip
     return out
 
 
@@ -516,7 +565,7 @@ def operating_point(
 SWEEP = {"radius_mm": (0.0, 4.0, 8.0), "margin_fraction": (0.5, 1.0), "hold_s": (0.0, 0.25, 0.5)}
 """The operating points :func:`choose_point` considers, with the absolute margins of
 :data:`MARGINS_N` from 0.05 N (a force channel's resolution) and Eq. (F5) at
-:data:`icenav.recovery.force.DEFAULT_DRIFT_MM`."""
+:data:`icenav.recovery.drift.DEFAULT_DRIFT_MM`."""
 
 
 def choose_point(
@@ -553,6 +602,19 @@ def choose_point(
     return [(pt, text) for _, pt, text in ranked]
 
 
+def dwell_table(raws: dict[str, list[dict[str, Array]]], dwells_s: Sequence[float]) -> str:
+    """Eq. (F5) alone (no force rule), phase-matched and instantaneous, at the product's
+    limit, per condition and dwell (s): false alarms and shifted returns stopped."""
+    lines = []
+    for form, match in (("phase-matched", True), ("instantaneous", False)):
+        pt = CheckPoint(margin_n=math.inf, phase_match=match)
+        for name, rs in raws.items():
+            for d in dwells_s:
+                checks = [x for r in rs for x in check_returns(r, pt, d)]
+                lines.append(f"  Eq. (F5) {form}, {name}, dwell {d:g} s: {tally(checks, pt)}")
+    return "\n".join(lines)
+
+
 def _load_raws(paths: Sequence[str]) -> dict[str, list[dict[str, Array]]]:
     """Raw records (``CONDITION_SEED_PATIENT.npz``) grouped by condition."""
     out: dict[str, list[dict[str, Array]]] = {}
@@ -585,6 +647,18 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--raw", default=None, help="record each pair's cycles into this folder")
     ap.add_argument("--score", nargs="+", default=None, help="raw records to score")
     ap.add_argument("--sweep", action="store_true", help="with --score: choose the point")
+    ap.add_argument(
+        "--dwell",
+        type=float,
+        default=0.0,
+        help="with --raw: the operator's hands off before each return (s)",
+    )
+    ap.add_argument(
+        "--dwell-eval",
+        default=None,
+        help="with --score: Eq. (F5) as if each return started this long after "
+        "the operator stopped, e.g. 0,1,3,6,10 (s; at most the recorded dwell)",
+    )
     args = ap.parse_args(argv)
     if args.score:
         raws = _load_raws(args.score)
@@ -599,6 +673,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             checks = [x for r in rs for x in check_returns(r, pt)]
             kept[name] = [asdict(x) for x in checks]
             print(f"  {name}: {tally(checks, pt)}")
+        if args.dwell_eval:
+            print(dwell_table(raws, [float(x) for x in args.dwell_eval.split(",")]))
         if args.json:  # per return: the shift, the margin F4 needed, the drift of F5
             with open(args.json, "w", encoding="utf-8") as fh:
                 json.dump({"point": asdict(pt), "returns": kept}, fh, indent=1)
@@ -626,7 +702,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         os.makedirs(args.raw, exist_ok=True)
         for s, p in zip(seeds, patients, strict=True):
             t0 = time.perf_counter()
-            cfg = ForceStudyConfig(condition=args.condition, seed=s, patient=p, rounds=args.rounds)
+            cfg = ForceStudyConfig(condition=args.condition, seed=s, patient=p,
+                                   rounds=args.rounds, dwell_s=args.dwell)  # fmt: skip
             raw = record_pair(cfg)
             np.savez_compressed(f"{args.raw}/{args.condition}_{s}_{p}.npz", **raw)
             print(f"catheter {s} / patient {p}: {time.perf_counter() - t0:.0f} s", flush=True)

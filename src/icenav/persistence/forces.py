@@ -1,12 +1,20 @@
 """The operator's contact forces in the session file (:class:`icenav.recovery.force.ForceRecord`):
 restored on reopen, so a return after a crash-restart is checked against the same trace.
 
-Two tables, added to a session file when it is first opened for writing by an icenav that
+Three tables, added to a session file when it is first opened for writing by an icenav that
 has them (the layout stays version 1: older files gain them, older icenav ignore them)::
 
     forces(vertex INTEGER PRIMARY KEY, force_n REAL)       Eq. (F1): largest force per vertex
     tip_forces(seq INTEGER PRIMARY KEY, x, y, z, ux, uy, uz, force_n)
                                                            Eq. (F2): tip (mm), axis, force (N)
+    rest_tip(id INTEGER PRIMARY KEY CHECK (id = 0), x, y, z, q1, q2, q3, q4)
+                                                           Eq. (F5): where the operator left
+                                                           the tip (mm) and the motors; no row:
+                                                           no rest pose
+
+A restarted session keeps the rest pose only while the robot's motors stand where the
+operator left them (:meth:`ForceRecord.keep_rest_if_at`, called by the controller when it
+starts), so a return after a crash still refuses to start into a patient who moved meanwhile.
 
 Rows land in the store's current batch (committed with the roadmap's rows). A lost batch
 (disk full) loses its force rows; the tip rows are rewritten from the count on disk.
@@ -22,20 +30,31 @@ from icenav.errors import FileFormatError
 from icenav.persistence.store import SessionStore
 from icenav.recovery.force import ForceRecord
 
-__all__ = ["ForceSync", "load_forces"]
+__all__ = ["ForceSync", "Rest", "load_forces", "rest_snapshot"]
 
 _TABLES = (
     "CREATE TABLE IF NOT EXISTS forces(vertex INTEGER PRIMARY KEY, force_n REAL NOT NULL)",
     "CREATE TABLE IF NOT EXISTS tip_forces(seq INTEGER PRIMARY KEY, x REAL NOT NULL, "
     "y REAL NOT NULL, z REAL NOT NULL, ux REAL NOT NULL, uy REAL NOT NULL, uz REAL NOT NULL, "
     "force_n REAL NOT NULL)",
+    "CREATE TABLE IF NOT EXISTS rest_tip(id INTEGER PRIMARY KEY CHECK (id = 0), "
+    "x REAL NOT NULL, y REAL NOT NULL, z REAL NOT NULL, q1 REAL NOT NULL, q2 REAL NOT NULL, "
+    "q3 REAL NOT NULL, q4 REAL NOT NULL)",
 )
+
+Rest = tuple[tuple[float, ...], tuple[float, ...]] | None
+"""A rest pose as the store writes it: (tip (3,) mm, motor state (4,)), or None."""
 
 
 def _has_tables(store: SessionStore) -> bool:
     db = store._db  # noqa: SLF001 - the store's connection, on the thread that owns it
     names = {r[0] for r in db.execute("SELECT name FROM sqlite_master WHERE type='table'")}
     return {"forces", "tip_forces"} <= names
+
+
+def _has_rest(store: SessionStore) -> bool:
+    db = store._db  # noqa: SLF001
+    return db.execute("SELECT 1 FROM sqlite_master WHERE name='rest_tip'").fetchone() is not None
 
 
 def load_forces(store: SessionStore) -> ForceRecord:
@@ -48,13 +67,26 @@ def load_forces(store: SessionStore) -> ForceRecord:
         tr = db.execute(
             "SELECT x, y, z, ux, uy, uz, force_n FROM tip_forces ORDER BY seq"
         ).fetchall()
+        rr = (
+            db.execute("SELECT x, y, z, q1, q2, q3, q4 FROM rest_tip").fetchall()
+            if _has_rest(store)
+            else []
+        )
     except sqlite3.Error as exc:
         raise FileFormatError(f"{store.path}: cannot read the stored forces: {exc}") from exc
     v = np.array(vr, np.float64).reshape(-1, 2)
     t = np.array(tr, np.float64).reshape(-1, 7)
     if not (np.all(np.isfinite(v)) and np.all(np.isfinite(t))) or (len(v) and v[:, 1].min() < 0):
         raise FileFormatError(f"{store.path}: a stored contact force is not finite and >= 0 N")
-    return ForceRecord.from_rows(v, t)
+    rest = None
+    if rr:
+        r = np.array(rr[0], np.float64)
+        if not np.all(np.isfinite(r)):
+            raise FileFormatError(
+                f"{store.path}: the stored rest pose (table rest_tip) is not finite"
+            )
+        rest = (r[:3], r[3:])
+    return ForceRecord.from_rows(v, t, rest=rest)
 
 
 class ForceSync:
@@ -72,11 +104,28 @@ class ForceSync:
         for sql in _TABLES:
             db.execute(sql)
         self._synced_tips = int(db.execute("SELECT COUNT(*) FROM tip_forces").fetchone()[0])
+        self._synced_rest = -1  # the rest pose is written at the first sync
 
-    def sync(self, record: ForceRecord, vertex_rows: list[tuple[int, float]], n_tips: int) -> None:
+    def sync(
+        self,
+        record: ForceRecord,
+        vertex_rows: list[tuple[int, float]],
+        n_tips: int,
+        rest: tuple[int, Rest] | None = None,
+    ) -> None:
         """Queue ``vertex_rows`` (taken on the control thread,
-        :meth:`ForceRecord.take_vertex_rows`) and the tip readings below ``n_tips``."""
+        :meth:`ForceRecord.take_vertex_rows`), the tip readings below ``n_tips`` and the rest
+        pose ``(version, rest)`` taken with them (:func:`rest_snapshot`; None: unchanged)."""
         st = self.store
+        if rest is not None and rest[0] != self._synced_rest:
+            st._exec_many("DELETE FROM rest_tip", [()])  # noqa: SLF001
+            if rest[1] is not None:
+                st._exec_many(  # noqa: SLF001
+                    "INSERT INTO rest_tip VALUES (0, ?, ?, ?, ?, ?, ?, ?)",
+                    [(*rest[1][0], *rest[1][1])],
+                )
+            st._queue(1)  # noqa: SLF001
+            self._synced_rest = rest[0]
         if vertex_rows:
             st._exec_many("INSERT OR REPLACE INTO forces VALUES (?, ?)", vertex_rows)  # noqa: SLF001
             st._queue(len(vertex_rows))  # noqa: SLF001
@@ -89,3 +138,12 @@ class ForceSync:
             )
             st._queue(len(rows))  # noqa: SLF001
             self._synced_tips = n_tips
+
+
+def rest_snapshot(record: ForceRecord) -> tuple[int, Rest]:
+    """``(version, rest)`` of ``record``'s rest pose, taken on the control thread (the thread
+    that changes it) for :meth:`ForceSync.sync`: tip (3,) mm and motor state (4,), or None
+    when there is none (or it has no motor state, which a restart could not check)."""
+    tip, q = record.rest_tip, record.rest_q
+    rest = None if tip is None or q is None else (tuple(tip.tolist()), tuple(q.tolist()))
+    return record.rest_version, rest

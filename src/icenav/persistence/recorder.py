@@ -12,7 +12,7 @@ import time
 from collections.abc import Callable
 from typing import Any
 
-from icenav.persistence.forces import ForceSync
+from icenav.persistence.forces import ForceSync, Rest, rest_snapshot
 from icenav.persistence.store import SessionStore, StoreWriter
 from icenav.recovery.force import ForceRecord
 from icenav.recovery.roadmap import Roadmap
@@ -78,7 +78,11 @@ class StoreRecorder:
         """The writer thread (None when not threaded)."""
         self._lock = threading.Lock()
         self._sync_queued = False
-        self._latest: tuple[tuple[int, int, int], int] = ((0, 0, 0), 0)
+        self._latest: tuple[tuple[int, int, int], int, tuple[int, Rest] | None] = (
+            (0, 0, 0),
+            0,
+            None,
+        )
         self._force_rows: list[tuple[int, float]] = []
         self._log_rows: list[tuple[float, str, dict[str, str]]] = []
         self._log_queued = False
@@ -163,8 +167,9 @@ class StoreRecorder:
         forces = self.forces
         rows = forces.take_vertex_rows() if forces is not None else []
         n_tips = forces.n_tip_rows if forces is not None else 0
+        rest = rest_snapshot(forces) if forces is not None else None
         with self._lock:
-            self._latest = (upto, n_tips)
+            self._latest = (upto, n_tips, rest)
             self._force_rows.extend(rows)
             if self._sync_queued:
                 self.coalesced += 1
@@ -174,11 +179,11 @@ class StoreRecorder:
 
     def _write_sync(self, st: SessionStore) -> None:
         with self._lock:
-            (upto, n_tips), rows = self._latest, self._force_rows
+            (upto, n_tips, rest), rows = self._latest, self._force_rows
             self._force_rows = []
             self._sync_queued = False
         if self._force_sync is not None and self.forces is not None:
-            self._force_sync.sync(self.forces, rows, n_tips)
+            self._force_sync.sync(self.forces, rows, n_tips, rest)
         st.sync_roadmap(self.roadmap, upto)
 
     def _write_log(self, st: SessionStore) -> None:

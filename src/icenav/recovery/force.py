@@ -22,8 +22,9 @@ channel there is no check at all (documented in ``docs/view-recovery.md``).
 With a tracker, the reference is also keyed by the measured tip pose (Eq. F2,
 :class:`TipForceMap`); a return stops only when the force has stayed above its limit for a
 hold time (Eq. F4, :class:`ForceCheck`), and it stops as it starts when the tracked tip has
-moved with the motors still since the operator last moved them (Eq. F5, :func:`tip_drift`,
-:attr:`ForceRecord.rest_tip`): the patient moved and carried the catheter.
+moved with the motors still since the operator last moved them (Eq. F5,
+:mod:`icenav.recovery.drift`, :attr:`ForceRecord.rest`): the patient moved and carried the
+catheter.
 """
 
 from __future__ import annotations
@@ -38,6 +39,7 @@ from numpy.typing import ArrayLike
 
 from icenav._typing import Array
 from icenav.errors import ConfigurationError, ShapeError
+from icenav.recovery.drift import REST_Q_TOLERANCE, RestReference, check_q
 from icenav.recovery.roadmap import IntArray, Roadmap
 
 __all__ = [
@@ -46,13 +48,12 @@ __all__ = [
     "DEFAULT_ANGLE_DEG",
     "DEFAULT_MARGIN_FRACTION",
     "DEFAULT_MARGIN_N",
-    "DEFAULT_DRIFT_MM",
     "DEFAULT_HOLD_S",
     "DEFAULT_MIN_SPACING_MM",
     "DEFAULT_RADIUS_MM",
-    "DRIFT_WINDOW_S",
     "ForceCheck",
     "ForceMap",
+    "ForceRecord",
     "ForceStop",
     "ForceSensor",
     "PathForces",
@@ -63,7 +64,6 @@ __all__ = [
     "force_excess",
     "force_limit",
     "shape_reference",
-    "tip_drift",
 ]
 
 DEFAULT_MARGIN_N = 0.1
@@ -495,25 +495,81 @@ class ForceRecord:
         self.tips = tips if tips is not None else TipForceMap(min_spacing_mm=DEFAULT_MIN_SPACING_MM)
         self._dirty: set[int] = set()
         self._lock = threading.Lock()
-        self._rest_tip: Array | None = None
+        self.rest: RestReference | None = None
+        """Where the operator's last motion left the tip (Eq. F5), None when unknown or
+        when anything else moved the motors since."""
+        self.rest_version = 0
+        """Counts the changes of the rest pose (a store writes it when this moved on)."""
 
     @property
     def rest_tip(self) -> Array | None:
         """(3,) where the tracked tip was (mm, base frame) when the operator last moved the
         motors, None when unknown or when anything else moved them since (Eq. F5)."""
-        return None if self._rest_tip is None else self._rest_tip.copy()
+        return None if self.rest is None else self.rest.tip
 
-    def note_motion(self, tip2base: ArrayLike | None, operator: bool) -> None:
-        """The motors moved this cycle: by the operator with the tip at ``tip2base`` (4, 4)
-        (mm; None: no pose read), or by anything else (a return, a refinement: the rest pose
-        is forgotten)."""
+    @property
+    def rest_q(self) -> Array | None:
+        """(4,) the motor state (rad, rad, rad, mm) the operator left with the tip at
+        :attr:`rest_tip`; None with it or when not known."""
+        return None if self.rest is None or self.rest.q is None else self.rest.q.copy()
+
+    def note_motion(
+        self,
+        tip2base: ArrayLike | None,
+        operator: bool,
+        q: ArrayLike | None = None,
+        t: float = 0.0,
+        phases: tuple[float | None, float | None] = (None, None),
+    ) -> None:
+        """The motors moved this cycle (time ``t``, s): by the operator to motor state ``q``
+        (4,) with the tip at ``tip2base`` (4, 4) (mm; None: no pose read), read with the
+        respiratory signal and the cardiac phase ``phases``; or by anything else (a return,
+        a refinement: the rest pose is forgotten)."""
+        self.rest_version += 1
         if not operator or tip2base is None:
-            self._rest_tip = None
+            self.rest = None
             return
-        t = np.asarray(tip2base, np.float64)
-        if t.shape != (4, 4) or not np.all(np.isfinite(t[:3, 3])):
-            raise ShapeError(f"tip2base must be a finite (4, 4) pose, got shape {t.shape}")
-        self._rest_tip = t[:3, 3].copy()
+        pose = np.asarray(tip2base, np.float64)
+        if pose.shape != (4, 4) or not np.all(np.isfinite(pose[:3, 3])):
+            raise ShapeError(f"tip2base must be a finite (4, 4) pose, got shape {pose.shape}")
+        self.rest = RestReference(t, pose, q, *phases)
+
+    def note_still(
+        self, t: float, tip2base: ArrayLike | None, phases: tuple[float | None, float | None]
+    ) -> None:
+        """A reading of the tip with the motors still at time ``t`` (s), with the
+        respiratory signal and the cardiac phase read with it: part of the rest reference
+        while its window lasts (Eq. F5, phase-matched)."""
+        if self.rest is not None and tip2base is not None and self.rest.wants(t):
+            self.rest.add(t, tip2base, *phases)
+
+    def wants_still_readings(self, t: float) -> bool:
+        """Whether :meth:`note_still` at ``t`` (s) would keep a reading."""
+        return self.rest is not None and self.rest.wants(t)
+
+    def restore_rest(self, rest_tip: ArrayLike, rest_q: ArrayLike) -> None:
+        """The rest pose read back from a session (``rest_tip`` (3,) mm, ``rest_q`` (4,)):
+        valid while the motors stand where the operator left them (:meth:`keep_rest_if_at`);
+        a single reading, so Eq. (F5) takes its instantaneous form."""
+        tip = np.asarray(rest_tip, np.float64).reshape(-1)
+        if tip.shape != (3,) or not np.all(np.isfinite(tip)):
+            raise ShapeError(f"rest_tip must be 3 finite mm, got {rest_tip!r}")
+        self.rest = RestReference(-math.inf, tip, check_q(rest_q, "rest_q"))
+        self.rest_version += 1
+
+    def keep_rest_if_at(self, q: ArrayLike, tolerance: float = REST_Q_TOLERANCE) -> bool:
+        """Keep the rest pose only if the motors stand at ``q`` (4,) within ``tolerance``
+        (rad or mm, per joint) of where the operator left them: after a restart, motors that
+        moved meanwhile (homed, power-cycled, driven by hand) leave the tip anywhere, so Eq.
+        (F5) has no reference until the operator drives again. Returns whether it is kept."""
+        if self.rest is None:
+            return False
+        rest_q = self.rest.q
+        if rest_q is not None and np.max(np.abs(check_q(q, "q") - rest_q)) <= tolerance:
+            return True
+        self.rest = None  # moved, or a rest without its motor state: not trusted
+        self.rest_version += 1
+        return False
 
     def record(self, vertex: int, force_n: float | None, tip2base: ArrayLike | None) -> None:
         """Note a reading of the operator's trace: the force (N) at ``vertex`` and, with a
@@ -545,9 +601,10 @@ class ForceRecord:
     @classmethod
     def from_rows(
         cls, vertex_rows: ArrayLike, tip_rows: ArrayLike, radius_mm: float = DEFAULT_RADIUS_MM,
-        angle_deg: float = DEFAULT_ANGLE_DEG,
+        angle_deg: float = DEFAULT_ANGLE_DEG, rest: tuple[ArrayLike, ArrayLike] | None = None,
     ) -> ForceRecord:  # fmt: skip
-        """A record restored from a session: (k, 2) vertex / force rows, (n, 7) tip rows."""
+        """A record restored from a session: (k, 2) vertex / force rows, (n, 7) tip rows and
+        the rest pose (tip (3,) mm, motor state (4,)) or None."""
         vr = np.asarray(vertex_rows, np.float64).reshape(-1, 2)
         tips = TipForceMap.from_samples(
             np.asarray(tip_rows, np.float64).reshape(-1, 7), radius_mm, angle_deg
@@ -556,6 +613,8 @@ class ForceRecord:
         out = cls(tips=tips)
         for v, f in vr.tolist():
             out.forces.record(int(v), f)
+        if rest is not None:
+            out.restore_rest(*rest)
         return out
 
 
@@ -622,17 +681,6 @@ class PathForces:
         vals = [v for v in (self._at(i), self._at(j)) if v is not None]
         return max(vals) if vals else None
 
-
-DEFAULT_DRIFT_MM = 5.0
-"""Largest distance the tracked tip may have moved, with the motors still, between the
-operator's last motion and the start of a return, Eq. (F5) (mm): chosen on the development
-pairs (``docs/view-recovery.md``)."""
-
-DRIFT_WINDOW_S = 0.1
-"""A return holds at its first state this long, checking Eq. (F5) at every control cycle,
-before it moves (s): a tracker's newest sample may be a frame old when the return starts
-(an NDI Aurora gives one every 25 ms), and once the motors move the shaft may slip and the
-tip jump with it (up to 16 mm in 40 ms on the twin)."""
 
 DEFAULT_HOLD_S = 0.5
 """Time the force must stay above the limit before a return stops, Eq. (F4) (s): chosen
@@ -718,20 +766,3 @@ class ForceCheck:
         if self._over_s + 1e-9 < self.hold_s:
             return None
         return ForceStop(float(force_n), float(recorded_n), limit, self._over_s)
-
-
-def tip_drift(rest_tip: ArrayLike | None, tip2base: ArrayLike | None) -> float | None:
-    """How far the tracked tip has moved (mm) since the operator last moved the motors,
-    Eq. (F5)::
-
-        D = | p_now - p_rest |                                                    (F5)
-
-    with the motors still since (``rest_tip`` (3,) from :attr:`ForceRecord.rest_tip`,
-    ``tip2base`` (4, 4) now, mm, base frame). The anatomy holds the catheter (the vessel
-    and the walls it lies against): when the patient moves, the tip moves with the motors
-    still; the heart beat, breathing and the shaft's settling move it a few millimetres.
-    None when either is unknown (no check)."""
-    if rest_tip is None or tip2base is None:
-        return None
-    p = np.asarray(tip2base, np.float64)[:3, 3]
-    return float(np.linalg.norm(p - np.asarray(rest_tip, np.float64).reshape(3)))

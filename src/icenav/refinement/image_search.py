@@ -10,8 +10,8 @@ Search
 ------
 A compass (pattern) search with halving steps over (phi1, phi2, phi3, d4):
 
-1. Measure the similarity ``s*`` at the start state ``q*`` (one beat; a second one if the
-   first looks off). If it is within ``stop_within`` of the *ceiling* (the saved beats
+1. Measure the similarity ``s*`` at the start state ``q*`` (``beats`` gated beats; as many
+   again if they look off). If it is within ``stop_within`` of the *ceiling* (the saved beats
    scored against each other), stop: the view is recovered as far as the images can tell,
    and every trial move would shift the transmission's play for nothing.
 2. Poll the trial states ``q* +- step_j e_j`` (the last successful direction first). A
@@ -22,7 +22,8 @@ A compass (pattern) search with halving steps over (phi1, phi2, phi3, d4):
 3. When no trial is accepted the steps halve and ``q*`` is measured again (its score is the
    running mean of its measurements, so a lucky beat does not hold the search).
 4. Stop when every step is below ``min_step``, after ``max_evaluations`` beats, after
-   ``max_duration_s`` of controller time, or when ``abort()`` returns True; end at ``q*``.
+   ``max_duration_s`` of controller time, or when ``abort()`` returns True; end at ``q*``
+   (``verify_end``: only if fresh beats there still beat the start's, else at the start).
 
 Safety
 ------
@@ -36,27 +37,26 @@ Safety
   as when the view was saved (the plant is history dependent).
 * Bounded time and evaluations; abortable between any two control cycles.
 
-Image similarity: blurred, down-sampled NCC (:func:`icenav.refinement.similarity.blurred_ncc`'s
-recipe, reference frames blurred once), averaged over the reference beat with frames
-matched by cardiac phase; it varies smoothly with pose where raw speckle NCC does not. With
-several saved beats the score is the best match over them, which makes it nearly
-independent of the respiratory phase (and, by the same token, blind to translation along
-the catheter axis within the respiratory excursion). A trial that looks better is measured
-a second time before it is accepted (``confirm``).
+Image similarity: blurred, down-sampled NCC (:func:`icenav.refinement.similarity.beat_score`'s
+recipe) over the reference beat, frames matched by cardiac phase (smooth in pose where raw
+speckle NCC is not); with several saved beats the best match over them. A trial that looks
+better is measured a second time before it is accepted (``confirm``).
 
-Limits (measured on the twin, see ``docs/results.md, Table II``): about 0.004-0.009 NCC per
-degree of knob or roll offset against a beat-to-beat noise of about 0.002; sub-millimetre
-translation is below the noise; a roll/twist play wider than the neighbourhood makes trial
-moves irreversible, hence the gate in step 1.
+The search is off by default (``search``): the stage then measures the start and reports
+whether the view looks recovered or lost, without moving. Options for images that
+decorrelate from beat to beat (``RefinementConfig``): search only
+the joints the image constrains (``joints``), average several gated beats per measurement
+(``beats``), accept a trial only when its gain passes a z-test against the score's noise per
+beat (``significance``), and re-measure the end state with fresh beats, going back to the
+start unless it still beats it (``verify_end``). What they reach: ``docs/view-recovery.md``.
 
 Two ways to run it: :class:`RefinementTask` (an ``AutomaticTask`` for the controller, one
 set-point per cycle) and :func:`refine` (blocking; drives a ``RobotBackend`` with the same
 task). Images come from a :class:`~icenav.recovery.beats.BeatImager`;
 :class:`icenav.sim.beat_imager.SimulatedBeatImager` renders them on the digital twin.
 
-The EM pose stage that runs before the image search is :mod:`icenav.refinement.pose_stage`, the
-respiratory gating of beats :mod:`icenav.refinement.gating`, and both stages as one controller task
-:class:`icenav.refinement.task.ViewRefinementTask`.
+The EM pose stage is :mod:`icenav.refinement.pose_stage`, the respiratory gating
+:mod:`icenav.refinement.gating`, both stages as one task :mod:`icenav.refinement.task`.
 """
 
 from __future__ import annotations
@@ -75,6 +75,7 @@ from icenav._validation import check_joint_state, check_positive
 from icenav.devices.robot import RobotBackend
 from icenav.errors import ConfigurationError, NeighbourhoodError, ShapeError
 from icenav.recovery.beats import BeatClip, BeatImager
+from icenav.refinement._stepper import _Measure, _Move, _Request, _Stepper
 from icenav.refinement.similarity import beat_score, blur_frames, match_by_phase, ncc_rows
 
 __all__ = [
@@ -126,12 +127,13 @@ class RefinementConfig:
     consecutive-beat score (the ceiling, measured on the saved beats; needs >= 2 of them):
     the view is already recovered as well as the images can tell, and every trial move
     would shift the transmission's play (hysteresis) for nothing. NCC units; 0 disables."""
-    noise_factor: float = 1.5
+    noise_factor: float = 3.0
     """``min_improvement`` and ``stop_within`` are at least this many times the score's
     beat-to-beat noise measured on the reference beats (the standard deviation of each
-    reference beat's score against the others; needs >= 3 of them): on images that
-    decorrelate from beat to beat a fixed threshold below that noise accepts lucky beats.
-    0: the fixed values only."""
+    reference beat's score against the others; needs >= 3 of them) and, with
+    ``significance``, ``stop_within`` at least this many times the start's own noise per
+    beat: the stage searches only when the start is clearly below the ceiling (a view
+    lost, not a view a little off). 0: the fixed values only."""
     confirm: bool = True
     """Measure a trial that looks better a second time and accept it only if the mean of
     both beats still beats the incumbent by ``min_improvement`` (fewer false accepts)."""
@@ -151,6 +153,27 @@ class RefinementConfig:
     """Gaussian blur of the similarity (pixels of the images)."""
     blur_factor: int = 2
     """Down-sampling of the similarity."""
+    search: bool = False
+    """Search at all. Off (the default): the stage measures the start and reports whether the
+    view looks recovered (``AT_VIEW``) or lost (``LOST``), and never moves. On the twin, in
+    vivo, a search from the images alone made returns worse, not better
+    (``docs/view-recovery.md``); a lost view is better returned to again."""
+    joints: tuple[bool, bool, bool, bool] = (True, True, True, False)
+    """Joints the search moves (phi1, phi2, phi3, d4); the others stay where they are."""
+    beats: int = 2
+    """Gated beats averaged per measurement (the start, every trial, every re-measurement):
+    the score's beat-to-beat noise falls as 1 / sqrt(beats); each beat counts against
+    ``max_evaluations``."""
+    significance: float = 2.0
+    """A trial (and the end state, ``verify_end``) must beat the incumbent (the start) by at
+    least ``significance * sigma * sqrt(1 / n_a + 1 / n_b)``: a z-test of two means of
+    ``n_a`` and ``n_b`` beats, ``sigma`` the score's noise per beat (the larger of the saved
+    beats' and the start's beats' standard deviation); 0: off (``min_improvement`` only)."""
+    verify_end: bool = True
+    """When the search ended away from its start, measure the end state again with fresh
+    beats (the accepted ones were selected for being high) and go back to the start unless
+    these beat the start's by the ``significance`` test (status ``UNDONE``): never farther
+    from the saved view than the start by the stage's own estimator."""
 
     def __post_init__(self) -> None:
         unit = "(rad, rad, rad, mm)"
@@ -184,9 +207,18 @@ class RefinementConfig:
         if not (math.isfinite(self.settle_s) and self.settle_s >= 0):
             raise ConfigurationError(f"settle_s must be finite and >= 0 s, got {self.settle_s}")
         check_positive(self.blur_sigma_px, "blur_sigma_px", "px")
-        f = self.blur_factor
-        if isinstance(f, bool) or not isinstance(f, int) or f < 1:
-            raise ConfigurationError(f"blur_factor must be an int >= 1, got {f!r}")
+        for name in ("blur_factor", "beats"):
+            f = getattr(self, name)
+            if isinstance(f, bool) or not isinstance(f, int) or f < 1:
+                raise ConfigurationError(f"{name} must be an int >= 1, got {f!r}")
+        joints = tuple(bool(x) for x in self.joints)
+        if len(joints) != 4 or not any(joints):
+            raise ConfigurationError(f"joints must be 4 flags, one True at least: {self.joints!r}")
+        object.__setattr__(self, "joints", joints)
+        if not (math.isfinite(self.significance) and self.significance >= 0):
+            raise ConfigurationError(
+                f"significance must be finite and >= 0, got {self.significance}"
+            )
 
 
 class RefinementStatus(enum.Enum):
@@ -202,6 +234,11 @@ class RefinementStatus(enum.Enum):
     """``max_duration_s`` of controller time passed."""
     ABORTED = "aborted"
     """``abort()`` returned True; the robot holds where it was."""
+    LOST = "lost"
+    """``search`` off: the start scored below the gate (or there is no gate); no move."""
+    UNDONE = "undone"
+    """``verify_end``: the end state's fresh beats did not beat the start's; back at the
+    start."""
     RUNNING = "running"
     """Not finished yet."""
 
@@ -229,7 +266,7 @@ class RefinementResult:
     q_final: Array
     """(4,) motor state at the end (the incumbent, unless aborted)."""
     start_score: float
-    """Blurred similarity of the first measurement at the start (NaN if none)."""
+    """Mean blurred similarity of the start measurement (NaN if none)."""
     best_score: float
     """Mean blurred similarity of the final incumbent over its measurements (NaN if none)."""
     trials: tuple[TrialRecord, ...]
@@ -242,78 +279,6 @@ class RefinementResult:
     """Set-points sent."""
     max_offset: Array = field(default_factory=lambda: np.zeros(4))
     """(4,) largest |set-point - q_view| per joint over the run (rad, rad, rad, mm)."""
-
-
-# --- the search as a generator of requests -------------------------------------------------
-
-
-@dataclass(frozen=True)
-class _Move:
-    q: Array
-
-
-@dataclass(frozen=True)
-class _Measure:
-    pass
-
-
-_Request = _Move | _Measure
-"""What the search asks for next: a move to a state, or one beat measured there."""
-
-
-class _Stepper:
-    """Runs a generator of move / measure requests one set-point per control cycle, inside a
-    box around ``q_view`` (shared mechanics of the refinement stages)."""
-
-    def __init__(
-        self,
-        q_view: Array,
-        q_start: Array,
-        radius: Array,
-        max_velocity: Array,
-        abort: Callable[[], bool] | None,
-        last_dir: Array | None = None,
-        label: str = "set-point",
-    ) -> None:
-        self.q_view = q_view
-        self.radius = radius
-        self.lo = q_view - radius
-        self.hi = q_view + radius
-        self.max_velocity = max_velocity
-        self.abort = abort
-        self.cmd = q_start.copy()
-        self.last_dir = np.zeros(4) if last_dir is None else last_dir.copy()
-        self.label = label
-        self.queue: list[Array] = []
-        self.elapsed = 0.0
-        self.n_cmd = 0
-        self.max_off = np.zeros(4)
-
-    def send(self, q: Array) -> Array:
-        off = np.abs(q - self.q_view)
-        if np.any(off > self.radius * (1 + 1e-9) + 1e-12):
-            j = int(np.argmax(off / self.radius))
-            raise NeighbourhoodError(
-                f"{self.label} {q.tolist()} is {off[j]:.4g} from the view on joint {j}, "
-                f"outside the radius {self.radius[j]:.4g} (rad, rad, rad, mm)"
-            )
-        moved = np.sign(q - self.cmd)
-        self.last_dir = np.where(moved != 0, moved, self.last_dir)
-        self.max_off = np.maximum(self.max_off, off)
-        self.cmd = q.copy()
-        self.n_cmd += 1
-        return q.copy()
-
-    def queue_moves(self, targets: Sequence[Array], dt: float) -> None:
-        v = self.max_velocity * dt
-        for target in targets:
-            base = self.queue[-1] if self.queue else self.cmd
-            delta = target - base
-            n = max(1, math.ceil(float(np.max(np.abs(delta) / v)) - 1e-9))
-            f = np.arange(1, n + 1)[:, None] / n
-            pts = base + f * delta
-            pts[-1] = target
-            self.queue.extend(list(pts))
 
 
 class RefinementTask:
@@ -416,6 +381,10 @@ class RefinementTask:
         self._best_score = math.nan
         self._start_score = math.nan
         self._n_eval = 0
+        self.sigma = self.noise
+        """The score's noise per beat for the ``significance`` test (NCC units): the saved
+        beats' (``noise``), raised to the start's own beats' standard deviation if larger."""
+        self._verified = False
 
     # --- scoring -------------------------------------------------------------------------
     def score(self, clip: BeatClip) -> float:
@@ -461,34 +430,88 @@ class RefinementTask:
         targets.append(trial)
         return targets
 
+    def _beats(self) -> Generator[_Request, float | None, list[float]]:
+        """One measurement here: ``config.beats`` gated beats (fewer if the budget ends)."""
+        out: list[float] = []
+        for _ in range(self.config.beats):
+            if self._n_eval >= self.config.max_evaluations:
+                break
+            s = yield _Measure()
+            assert s is not None
+            out.append(float(s))
+        return out
+
+    def _threshold(self, n_a: int, n_b: int) -> float:
+        """What a mean of ``n_a`` beats must gain on one of ``n_b`` (NCC units)."""
+        z = self.config.significance
+        if z <= 0 or not math.isfinite(self.sigma) or n_a < 1 or n_b < 1:
+            return self.min_improvement
+        return max(self.min_improvement, z * self.sigma * math.sqrt(1.0 / n_a + 1.0 / n_b))
+
+    def _learn_noise(self, start: list[float]) -> None:
+        """With ``significance``: the noise per beat is at least the start's beats' standard
+        deviation (the saved beats are few and taken at the saved state), and so is the gate
+        (``noise_factor`` times it)."""
+        if len(start) < 2 or self.config.significance <= 0:
+            return
+        self.sigma = float(np.nanmax([self.noise, np.std(start, ddof=1)]))
+        if self.stop_within > 0:
+            self.stop_within = max(self.stop_within, self.config.noise_factor * self.sigma)
+
+    def _fits(self, n_beats: int) -> bool:
+        """``n_beats`` more beats fit in the evaluation budget (and, with ``verify_end``, in
+        the time budget, with 2 s of moves)."""
+        cfg = self.config
+        if self._n_eval + n_beats > cfg.max_evaluations:
+            return False
+        if cfg.verify_end:
+            return self._elapsed + n_beats * self._hold_s + 2.0 <= cfg.max_duration_s
+        return True
+
     def _search(self) -> Generator[_Request, float | None, None]:
         cfg = self.config
         step = np.array(cfg.initial_step)
         min_step = np.array(cfg.min_step)
         best_q = self.q_start.copy()
-        s = yield _Measure()
-        assert s is not None
-        best, n_best = s, 1
-        self._start_score = s
-        self._record(best_q, s, True)
+        start = yield from self._beats()
+        for s in start:
+            self._record(best_q, s, True)
+        best, n_best = float(np.mean(start)), len(start)
+        self._start_score = best
         self._best_q, self._best_score = best_q.copy(), best
         gate = self.stop_within > 0 and math.isfinite(self.ceiling)
-        if gate and s < self.ceiling - self.stop_within and self._n_eval < cfg.max_evaluations:
-            # one beat may be unlucky (respiration): a second beat before moving anything
-            s2 = yield _Measure()
-            assert s2 is not None
-            best, n_best = 0.5 * (s + s2), 2
+        self._learn_noise(start)
+        if gate and best < self.ceiling - self.stop_within and self._fits(1):
+            # one measurement may be unlucky (respiration, the beat): another before moving
+            more = yield from self._beats()
+            for s in more:
+                self._record(best_q, s, True)
+            start += more
+            best, n_best = float(np.mean(start)), len(start)
             self._best_score = best
-            self._record(best_q, s2, True)
+            self._learn_noise(start)
+        start_mean, n_start = best, n_best
         if gate and best >= self.ceiling - self.stop_within:
             self._status = RefinementStatus.AT_VIEW
             return
+        if not cfg.search:
+            self._status = RefinementStatus.LOST
+            return
+        reserve = cfg.beats if cfg.verify_end else 0
         last_ok: tuple[int, float] | None = None
         while True:
             if np.all(step < min_step):
                 self._status = RefinementStatus.CONVERGED
                 break
-            polls = [(j, sg) for j in range(4) for sg in (1.0, -1.0) if step[j] >= min_step[j]]
+            polls = [
+                (j, sg)
+                for j in range(4)
+                for sg in (1.0, -1.0)
+                if cfg.joints[j] and step[j] >= min_step[j]
+            ]
+            if not polls:
+                self._status = RefinementStatus.CONVERGED
+                break
             if last_ok is not None and last_ok in polls:
                 polls.remove(last_ok)
                 polls.insert(0, last_ok)
@@ -499,33 +522,31 @@ class RefinementTask:
                 trial = np.clip(trial, self.lo, self.hi)
                 if np.array_equal(trial, best_q):
                     continue
-                if self._n_eval >= cfg.max_evaluations:
+                if not self._fits(1 + reserve):
                     break
                 for target in self._approach(self._cmd_target(), trial):
                     yield _Move(target)
-                s = yield _Measure()
-                assert s is not None
-                ok = s > best + self.min_improvement
-                if ok and cfg.confirm and self._n_eval < cfg.max_evaluations:
-                    self._record(trial, s, False)
-                    s2 = yield _Measure()  # a second beat, same place
-                    assert s2 is not None
-                    s = 0.5 * (s + s2)
-                    ok = s > best + self.min_improvement
-                    self._record(trial, s2, ok)
-                elif ok and cfg.confirm:
-                    ok = False  # no budget left to confirm it
-                    self._record(trial, s, ok)
+                vals = yield from self._beats()
+                ok = float(np.mean(vals)) > best + self._threshold(len(vals), n_best)
+                if ok and cfg.confirm and self._fits(1 + reserve):
+                    for s in vals:
+                        self._record(trial, s, False)
+                    more = yield from self._beats()  # a second measurement, same place
+                    vals += more
+                    ok = float(np.mean(vals)) > best + self._threshold(len(vals), n_best)
+                    for s in more:
+                        self._record(trial, s, ok)
                 else:
-                    self._record(trial, s, ok)
+                    ok = ok and not cfg.confirm  # no budget left to confirm it
+                    for s in vals:
+                        self._record(trial, s, ok)
                 if ok:
-                    best_q, best = trial, s
-                    n_best = 2 if cfg.confirm else 1
+                    best_q, best, n_best = trial, float(np.mean(vals)), len(vals)
                     self._best_q, self._best_score = best_q.copy(), best
                     last_ok = (j, sg)
                     improved = True
                     break
-            if self._n_eval >= cfg.max_evaluations:
+            if not self._fits(1 + reserve):
                 self._status = RefinementStatus.BUDGET
                 break
             if not improved:
@@ -534,18 +555,31 @@ class RefinementTask:
                 if np.all(step < min_step):
                     self._status = RefinementStatus.CONVERGED
                     break
-                if self._n_eval >= cfg.max_evaluations:
-                    self._status = RefinementStatus.BUDGET
-                    break
                 # re-measure the incumbent: its score becomes the mean of its beats
                 for target in self._approach(self._cmd_target(), best_q):
                     yield _Move(target)
-                s = yield _Measure()
-                assert s is not None
-                best = (best * n_best + s) / (n_best + 1)
-                n_best += 1
+                vals = yield from self._beats()
+                best = (best * n_best + float(np.sum(vals))) / (n_best + len(vals))
+                n_best += len(vals)
                 self._best_score = best
-                self._record(best_q, s, True)
+                for s in vals:
+                    self._record(best_q, s, True)
+        if cfg.verify_end and not np.array_equal(best_q, self.q_start):
+            # fresh beats at the end state (the accepted ones were the lucky ones)
+            for target in self._approach(self._cmd_target(), best_q):
+                yield _Move(target)
+            vals = yield from self._beats()
+            fresh = float(np.mean(vals)) if vals else -math.inf
+            ok = fresh > start_mean + self._threshold(len(vals), n_start)
+            for s in vals:
+                self._record(best_q, s, ok)
+            if ok:
+                self._best_score = fresh
+            else:
+                best_q = self.q_start.copy()
+                self._best_q, self._best_score = best_q.copy(), start_mean
+                self._status = RefinementStatus.UNDONE
+            self._verified = True
         # end at the incumbent, approached the same way
         for target in self._approach(self._cmd_target(), best_q):
             yield _Move(target)
@@ -590,6 +624,9 @@ class RefinementTask:
             self._gen_done = True
             self._measuring = False
             self._run.queue = []
+            if self.config.verify_end and not self._verified:
+                self._best_q = self.q_start.copy()  # an unverified end state is not kept
+                self._best_score = self._start_score
             self._run.queue_moves(self._approach(self._run.cmd, self._best_q), dt)
         while True:
             if self._run.queue:
