@@ -89,3 +89,45 @@ def test_the_sensor_estimates_the_static_pose() -> None:
 class _Resp:
     def signal(self, t: np.ndarray) -> np.ndarray:
         return _breath(np.asarray(t, np.float64))
+
+
+class _Clock:
+    def __init__(self) -> None:
+        self.t = 10.0
+
+    def __call__(self) -> float:
+        return self.t
+
+
+def test_the_expiration_gate_opens_in_the_end_expiratory_dwell_only() -> None:
+    """Eq. (R3) on the sin^4 level: open where the level is in its lowest tenth and not
+    rising (the dwell around the breath's start), closed through inspiration and its peak."""
+    from icenav.refinement.cycle_pose import ExpirationGate
+
+    class _Monitor:
+        def signal(self, t: np.ndarray) -> np.ndarray:
+            return _breath(np.asarray(t, np.float64))
+
+    clock = _Clock()
+    gate = ExpirationGate(_Monitor(), clock)
+    opened = []
+    for t in np.arange(20.0, 20.0 + 2 * BREATH_S, 0.05):
+        clock.t = float(t)
+        level = float(_breath(np.array(t)))
+        rising = level > float(_breath(np.array(t - 0.1))) + 1e-6
+        if gate():
+            opened.append(t)
+            assert level <= 0.1 and not rising
+        elif level <= 0.05 and not rising:
+            raise AssertionError(f"closed at t = {t:.2f} s in the dwell (level {level:.3f})")
+    assert opened  # it opens in every breath ...
+    phases = np.mod(np.asarray(opened), BREATH_S) / BREATH_S
+    assert np.all((phases > 0.75) | (phases < 0.05))  # ... at the end of expiration only
+
+    class _Flat:
+        def signal(self, t: np.ndarray) -> np.ndarray:
+            return np.zeros_like(np.asarray(t, np.float64))
+
+    assert ExpirationGate(_Flat(), clock)()  # no breathing: nothing to wait for
+    with pytest.raises(ConfigurationError, match="fraction"):
+        ExpirationGate(_Flat(), clock, fraction=0.7)

@@ -386,3 +386,95 @@ def test_a_state_within_the_dead_band_is_accepted_only_when_a_second_window_agre
                      config=replace(cfg, verify=False), sleep=clock.advance,
                      arrival_direction=(1, 1, 1, 1))  # fmt: skip
     assert res.status is PoseStageStatus.AT_VIEW and len(res.measurements) == 1
+
+
+def test_every_last_leg_starts_at_end_expiration_and_waits_no_longer_than_its_cap() -> None:
+    """``arrive_at_expiration``: the last leg of every move (here: the roll coming back from
+    its backoff) starts only while the gate is open (open 1 s of every 2); a gate that never
+    opens delays each last leg by ``expiration_wait_s`` exactly; without the flag the gate is
+    never asked."""
+    clock, plant, robot, _ = em_bench(110)
+    q0 = np.array([0.05, -0.05, 0.3, 2.0])
+    cfg = PoseStageConfig(max_iterations=2, reapproach_first=False, hold_s=0.1,
+                          step_from_last=True, approach_always=True, tolerance_mm=0.1,
+                          undo_if_worse=False, arrive_at_expiration=True,
+                          expiration_wait_s=1.0, max_duration_s=60.0)  # fmt: skip
+
+    def leg_starts(gate: object, config: PoseStageConfig, relative: bool = True) -> list[float]:
+        robot.command_position(q0)
+        clock.advance(0.5)
+        sent: list[tuple[float, float]] = []
+        t0 = clock.now() if relative else 0.0
+        pose_stage(robot, q0, np.eye(4), _Scripted(robot, [2.0, 1.5, 1.0]), config=config,
+                   sleep=clock.advance, arrival_direction=(1, 1, 1, 1),
+                   expiration=gate,  # type: ignore[arg-type]
+                   on_command=lambda q: sent.append((clock.now(), float(q[2]))))  # fmt: skip
+        # the roll's last leg starts where the commanded roll stops falling and rises
+        roll = [r for _, r in sent]
+        return [sent[i][0] - t0 for i in range(2, len(sent))
+                if roll[i] > roll[i - 1] + 1e-12 and roll[i - 1] <= roll[i - 2]]  # fmt: skip
+
+    starts = leg_starts(lambda: clock.now() % 2.0 >= 1.0, cfg, relative=False)
+    assert len(starts) == 2  # two corrections, each with a last leg
+    assert all(t % 2.0 >= 0.98 for t in starts), starts  # one control cycle after it opened
+    never = leg_starts(lambda: False, cfg)
+    free = leg_starts(lambda: True, cfg)
+    assert len(never) == len(free) == 2
+    # the first correction's last leg waits the cap (1 s); the second is shifted by both
+    assert never[0] - free[0] == pytest.approx(1.0, abs=0.05)
+    assert never[1] - free[1] == pytest.approx(2.0, abs=0.1)
+    asked: list[float] = []
+    leg_starts(lambda: asked.append(clock.now()) or True, replace(cfg, arrive_at_expiration=False))
+    assert asked == []
+
+
+class _Offset:
+    """EM 'tracker' reading the saved pose moved ``mm`` back along its own z axis (the
+    bending section's axis: a translation error) at every measurement."""
+
+    def __init__(self, saved: Array, mm: float) -> None:
+        self.saved, self.mm = saved, mm
+
+    def measure_tip2base(self, n_average: int = 1) -> Array:
+        back = np.eye(4)
+        back[2, 3] = -self.mm
+        out: Array = self.saved @ back
+        return out
+
+
+def test_a_translation_step_beyond_the_release_threshold_sweeps_the_roll() -> None:
+    """``release_translation_mm``: a correction that moves the translation by more than it
+    re-approaches the roll through its backoff (the sweep that releases the shaft's axial
+    stiction); a translation step below it leaves the roll alone."""
+    clock, plant, robot, _ = em_bench(110)
+    q0 = np.array([0.05, -0.05, 0.3, 2.0])
+    saved = forward(q0)
+    cfg = PoseStageConfig(max_iterations=1, reapproach_first=False, hold_s=0.1,
+                          step_from_last=True, tolerance_mm=0.1, undo_if_worse=False,
+                          release_translation_mm=0.3)  # fmt: skip
+    roll: list[float] = []
+    for mm, swept in ((1.5, True), (0.15, False)):
+        robot.command_position(q0)
+        clock.advance(0.5)
+        roll.clear()
+        res = pose_stage(robot, q0, saved, _Offset(saved, mm), config=cfg, sleep=clock.advance,
+                         arrival_direction=(1, 1, -1, 1),
+                         on_command=lambda q: roll.append(float(q[2])))  # fmt: skip
+        assert abs(res.q_final[3] - q0[3]) > (0.3 if swept else 0.0)
+        # (the roll's engaged direction is -1 here and its step does not reverse it)
+        sweep = max(abs(r - q0[2]) for r in roll)
+        assert bool(sweep > 0.8 * cfg.backoff[2]) is swept, (mm, sweep)
+        off = replace(cfg, release_translation_mm=0.0)
+        robot.command_position(q0)
+        roll.clear()
+        pose_stage(
+            robot,
+            q0,
+            saved,
+            _Offset(saved, mm),
+            config=off,
+            sleep=clock.advance,
+            arrival_direction=(1, 1, -1, 1),
+            on_command=lambda q: roll.append(float(q[2])),
+        )
+        assert max(abs(r - q0[2]) for r in roll) < 0.5 * cfg.backoff[2]

@@ -327,6 +327,12 @@ class Handlers:
                 "saving are needed)"
             )
         cfg = ctrl.config
+        gate = None
+        if ctrl.respiration is not None:
+            from icenav.refinement.cycle_pose import ExpirationGate
+
+            # the stage's moves arrive at end-expiration (its preset's arrive_at_expiration)
+            gate = ExpirationGate(ctrl.respiration, ctrl._clock)  # noqa: SLF001
         stage = PoseStageTask(
             view.q,
             saved,
@@ -334,6 +340,7 @@ class Handlers:
             q_start=ctrl._q_cmd,  # noqa: SLF001
             arrival_direction=view.arrival_direction,
             config=refine_stage_config(cfg.refine_window_s),
+            expiration=gate,
         )
         self._start(ticket, refinement_task(stage))
 

@@ -22,8 +22,10 @@ Protocol (the phantom study of Section IV, with the in-vivo metrics of Table II)
    breaths, or beats without breathing, :mod:`icenav.refinement.cycle_pose`, with the
    settings :data:`CYCLE_POSE_STAGE`; on today's twin 64 samples) and then, unless
    ``image_stage`` is off, the image stage (:func:`icenav.refinement.image_search.refine`,
-   centred where the pose stage ended, scoring respiratory-gated beats); without the pose
-   stage (``--no-em``) the image stage alone. Every set-point of both is recorded.
+   centred where the pose stage ended, scoring respiratory-gated beats; since session 8 it
+   measures and reports whether the view is held, ``at_view`` or ``lost``, and holds still
+   unless its search is switched on); without the pose stage (``--no-em``) the image stage
+   alone. Every set-point is recorded.
    Returns check the contact force against the operator's trace as the product's "go to
    view" does (:func:`icenav.control.tasks.goto_view_task`: Eqs. F1, F2, F4, F5) on a
    twin with contact; a stopped return is counted and finished without the check.
@@ -414,6 +416,7 @@ def _one_return(
                 arrival_direction=view.arrival_direction,
                 start_direction=tuple(int(d) for d in b.last_direction),
                 config=ps_cfg,
+                expiration=b.expiration,
                 dt=DT,
                 sleep=b.clock.advance,
                 on_command=b.record,

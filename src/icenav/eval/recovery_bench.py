@@ -19,7 +19,7 @@ from icenav.recovery.beats import BeatClip
 from icenav.recovery.force import ForceRecord, PathForces
 from icenav.recovery.roadmap import Roadmap
 from icenav.recovery.views import View
-from icenav.refinement.cycle_pose import CycleAveragedPose, complete_cycles
+from icenav.refinement.cycle_pose import CycleAveragedPose, ExpirationGate, complete_cycles
 from icenav.refinement.gating import GatedBeatImager, PhantomRespiration
 from icenav.sim.anatomy import EXAMPLE_VIEWS, default_phantom
 from icenav.sim.beat_imager import SimClock, SimulatedBeatImager
@@ -143,6 +143,11 @@ class Bench:
                     window_s=self.cycle_window_s,
                     rate_hz=cfg.cycle_rate_hz,
                 )
+        self.expiration: ExpirationGate | None = None
+        """End-expiration from the twin's respiratory monitor (Eq. R3), None without
+        breathing: the pose stage's moves arrive then (``arrive_at_expiration``)."""
+        if self.twin is not None and self.twin.breathing is not None:
+            self.expiration = ExpirationGate(self.twin.breathing, self.clock.now)
         self.refine_sensor: CycleAveragedPose | None = self.cycle_sensor
         """The pose stage's estimator: Eq. (R1) over ``cfg.refine_window_s`` when set (a
         shorter window, more corrections in the same time), else :attr:`cycle_sensor`."""

@@ -44,7 +44,7 @@ from icenav.errors import ConfigurationError, ShapeError
 from icenav.geometry.se3 import pose_mean
 from icenav.refinement.gating import RespiratoryMonitor
 
-__all__ = ["CycleAveragedPose", "CycleWindow", "PoseStream", "complete_cycles"]
+__all__ = ["CycleAveragedPose", "CycleWindow", "ExpirationGate", "PoseStream", "complete_cycles"]
 
 
 class PoseStream(Protocol):
@@ -191,3 +191,55 @@ class CycleAveragedPose:
         self.last_window = window
         out: Array = pose_mean(np.asarray(poses)[sel])
         return out
+
+
+class ExpirationGate:
+    """True at end-expiration, from the respiratory signal's recent past only (causal):
+    the signal now lies in the lowest ``fraction`` of its range over the last
+    ``lookback_s`` and is not rising (Eq. R3)::
+
+        r(t) <= min r + fraction (max r - min r)  and  r(t) <= r(t - 0.1 s)      (R3)
+
+    (the second up to 1e-6 of the range: a flat dwell is not rising)
+
+    (the minimum and maximum over ``[t - lookback_s, t]``). The pose stage waits for it
+    before the last leg of each move (``PoseStageConfig.arrive_at_expiration``), so the
+    shaft's last slip happens in the end-expiratory dwell, where the vessel wall that then
+    carries the stuck shaft stands nearly still, at the same level every time.
+
+    Parameters
+    ----------
+    respiration : RespiratoryMonitor
+        The respiratory signal (bellows, ventilator; never the catheter's pose).
+    clock : callable -> s
+        The time base of ``respiration``.
+    lookback_s : float
+        Past looked at (s): more than one breath.
+    fraction : float
+        Lowest part of the range counted as end-expiration, in (0, 0.5].
+    """
+
+    def __init__(
+        self,
+        respiration: RespiratoryMonitor,
+        clock: Callable[[], float],
+        *,
+        lookback_s: float = 6.0,
+        fraction: float = 0.1,
+    ) -> None:
+        self.respiration = respiration
+        self.clock = clock
+        self.lookback_s = check_positive(lookback_s, "lookback_s", "s")
+        if not 0.0 < fraction <= 0.5:
+            raise ConfigurationError(f"fraction must be in (0, 0.5], got {fraction}")
+        self.fraction = float(fraction)
+
+    def __call__(self) -> bool:
+        """Whether it is end-expiration now (Eq. R3)."""
+        now = float(self.clock())
+        times = now - np.arange(0.0, self.lookback_s, 0.05)
+        r = np.asarray(self.respiration.signal(times), np.float64)
+        lo, hi = float(r.min()), float(r.max())
+        if not hi - lo > 1e-9:
+            return True  # no breathing to wait for
+        return bool(r[0] <= lo + self.fraction * (hi - lo) and r[0] <= r[2] + 1e-6 * (hi - lo))

@@ -174,6 +174,22 @@ class PoseStageConfig:
     window at the same command (no move) is within it too (when the time allows): one
     window's estimate can be lucky, and a shaft that slips while the catheter is held moves
     the tip after it; otherwise the corrections go on from the second measurement."""
+    arrive_at_expiration: bool = False
+    """Every move of the stage makes its last leg at end-expiration (the task's
+    ``expiration`` gate, e.g. :class:`icenav.refinement.cycle_pose.ExpirationGate`; ignored
+    without one): the shaft's last slip, after which its end stays stuck to the breathing
+    vessel wall, then happens at the same respiratory level at every arrival, so the
+    translation's lost motion no longer depends on the breathing phase the move ended at."""
+    release_translation_mm: float = 0.0
+    """A correction whose translation step exceeds this (mm; 0: off) re-approaches every
+    engaged joint with a backoff, as ``approach_always``: the roll's backoff sweep makes the
+    shaft slip many times (roll and translation share one friction budget, so each slip
+    scales the stored axial load down), which releases the translation's stiction; a step
+    below it keeps the roll where it is (each roll approach is a new draw of its lost
+    motion)."""
+    expiration_wait_s: float = 4.5
+    """Longest wait for end-expiration before a last leg (s; about one breath): the leg goes
+    anyway after it. The time budget counts it for every planned move."""
 
     def __post_init__(self) -> None:
         unit = "(rad, rad, rad, mm)"
@@ -199,6 +215,7 @@ class PoseStageConfig:
             if isinstance(n, bool) or not isinstance(n, int) or n < 1:
                 raise ConfigurationError(f"{name} must be an int >= 1, got {n!r}")
         check_positive(self.sample_rate_hz, "sample_rate_hz", "Hz")
+        check_positive(self.expiration_wait_s, "expiration_wait_s", "s")
         if not (math.isfinite(self.undo_margin_mm) and self.undo_margin_mm >= 0.0):
             raise ConfigurationError(f"undo_margin_mm must be >= 0 mm, got {self.undo_margin_mm}")
         check_positive(self.tolerance_mm, "tolerance_mm", "mm")
@@ -295,6 +312,11 @@ class _MeasurePose:
     pass
 
 
+@dataclass(frozen=True)
+class _WaitExpiration:
+    pass
+
+
 class PoseStageTask:
     """EM pose stage as a controller task: servo the motors until the averaged EM-measured
     tip pose matches the one saved with the view.
@@ -349,6 +371,9 @@ class PoseStageTask:
     config : PoseStageConfig
     abort : callable, optional
         Polled every cycle; True ends the stage at once (status ABORTED).
+    expiration : callable, optional
+        True at end-expiration (``config.arrive_at_expiration``; polled every cycle while
+        a last leg waits for it); None: legs go at once.
     """
 
     label = "pose stage (EM)"
@@ -364,8 +389,13 @@ class PoseStageTask:
         start_direction: Sequence[int] | None = None,
         config: PoseStageConfig | None = None,
         abort: Callable[[], bool] | None = None,
+        expiration: Callable[[], bool] | None = None,
     ) -> None:
         self.config = cfg = config if config is not None else PoseStageConfig()
+        self._expiration = expiration if cfg.arrive_at_expiration else None
+        self._wait_left = -1.0
+        self.waited_s = 0.0
+        """Controller time spent waiting for end-expiration (s)."""
         self.q_view = np.array(check_joint_state(q_view, name="q_view"), np.float64)
         if self.q_view.shape != (4,):
             raise ShapeError(f"q_view must have shape (4,), got {self.q_view.shape}")
@@ -438,6 +468,13 @@ class PoseStageTask:
         pre = np.where(need, target - d * np.array(self.config.backoff), target)
         return [np.clip(pre, self._run.lo, self._run.hi), target]
 
+    def _legs(self, moves: list[Array]) -> Generator[_Move | _WaitExpiration, None, None]:
+        """``moves`` as requests, the last leg after end-expiration when gated."""
+        for i, t in enumerate(moves):
+            if i == len(moves) - 1 and self._expiration is not None:
+                yield _WaitExpiration()
+            yield _Move(t)
+
     def _step(self, q: Array, e: Array, gain: float = 1.0) -> Array:
         from icenav.geometry.kinematics import jacobian
 
@@ -486,12 +523,13 @@ class PoseStageTask:
                 q = target
             return t
 
-        need = travel(self._run.cmd, moves) + self._hold_s
+        wait = cfg.expiration_wait_s if self._expiration is not None else 0.0
+        need = travel(self._run.cmd, moves) + self._hold_s + (wait if moves else 0.0)
         if reserve and (cfg.undo_if_worse or cfg.end_at_best):
             end = moves[-1] if moves else self._run.cmd
             back = self._best_q if cfg.end_at_best else self.q_start
             need += travel(end, [end - self._engaged() * np.array(cfg.backoff), back])
-            need += self._hold_s
+            need += self._hold_s + wait
         return self._run.elapsed + need <= cfg.max_duration_s
 
     def _worse_than_best(self, m: PoseMeasurement, best: PoseMeasurement) -> bool:
@@ -501,7 +539,9 @@ class PoseStageTask:
         cfg = self.config
         return m.position_mm <= cfg.tolerance_mm and m.rotation_rad <= cfg.tolerance_rad
 
-    def _servo(self) -> Generator[_Move | _MeasurePose, PoseMeasurement | None, None]:
+    def _servo(
+        self,
+    ) -> Generator[_Move | _MeasurePose | _WaitExpiration, PoseMeasurement | None, None]:
         cfg = self.config
         m = yield _MeasurePose()
         if m is None:
@@ -527,8 +567,7 @@ class PoseStageTask:
         self._best_q = m.q.copy()
         q = self._run.cmd.copy()
         if cfg.reapproach_first and np.any(self._engaged() != 0):
-            for target in self._approach(q, force=True):
-                yield _Move(target)
+            yield from self._legs(self._approach(q, force=True))
             m = yield _MeasurePose()
             if m is None:
                 self._status = PoseStageStatus.NO_POSE
@@ -554,7 +593,9 @@ class PoseStageTask:
                     self._revisits += 1
                 else:
                     target = self._step(self._run.cmd.copy(), m.error)
-                    moves = self._approach(target, force=cfg.approach_always)
+                    axial = abs(target[3] - self._run.cmd[3])
+                    release = 0.0 < cfg.release_translation_mm < axial
+                    moves = self._approach(target, force=cfg.approach_always or release)
             else:
                 target = self._step(best.q.copy(), best.error, gain)
                 moves = self._approach(target, force=not np.array_equal(self._run.cmd, best.q))
@@ -563,8 +604,7 @@ class PoseStageTask:
                 # robot at an unmeasured new draw: stay at the last measured state
                 self._status = PoseStageStatus.BUDGET
                 break
-            for t in moves:
-                yield _Move(t)
+            yield from self._legs(moves)
             m2 = yield _MeasurePose()
             if m2 is None:
                 self._status = PoseStageStatus.NO_POSE
@@ -602,8 +642,7 @@ class PoseStageTask:
             # (the start's, when no correction did better: the stage undoes itself)
             self._revisits += 1
             self._undone = bool(np.array_equal(best.q, self.q_start))
-            for t in end_moves:
-                yield _Move(t)
+            yield from self._legs(end_moves)
             m5 = yield _MeasurePose()
             if m5 is not None:
                 self._final = m5
@@ -612,8 +651,7 @@ class PoseStageTask:
             and self._cost(m) > self._cost(best)
             and not np.array_equal(self._run.cmd, best.q)
         ):
-            for t in self._approach(best.q, force=True):
-                yield _Move(t)
+            yield from self._legs(self._approach(best.q, force=True))
             m3 = yield _MeasurePose()
             if m3 is not None:
                 self._final = m3
@@ -628,8 +666,7 @@ class PoseStageTask:
         ):
             # worse than at the start, as the same estimator tells: back to the start state
             self._undone = True
-            for t in self._approach(self.q_start, force=True):
-                yield _Move(t)
+            yield from self._legs(self._approach(self.q_start, force=True))
             m4 = yield _MeasurePose()
             if m4 is not None:
                 self._final = m4
@@ -677,6 +714,7 @@ class PoseStageTask:
             self._gen.close()
             self._gen_done = True
             self._measuring = False
+            self._wait_left = -1.0
             run.queue = []
             if not np.array_equal(run.cmd, self._best_q):
                 run.queue_moves(self._approach(self._best_q, force=True), dt)
@@ -686,7 +724,14 @@ class PoseStageTask:
             if self._gen_done:
                 return None
             value: PoseMeasurement | None = None
-            if self._measuring:
+            if self._wait_left >= 0.0:
+                gate = self._expiration
+                if gate is not None and self._wait_left > 0.0 and not gate():
+                    self._wait_left = max(0.0, self._wait_left - dt)
+                    self.waited_s += dt
+                    return run.cmd.copy()
+                self._wait_left = -1.0
+            elif self._measuring:
                 if self._hold_left > 0:
                     self._hold_left -= dt
                     return run.cmd.copy()
@@ -700,6 +745,8 @@ class PoseStageTask:
             if isinstance(req, _MeasurePose):
                 self._measuring = True
                 self._hold_left = self._hold_s
+            elif isinstance(req, _WaitExpiration):
+                self._wait_left = self.config.expiration_wait_s
             else:
                 run.queue_moves([req.q], dt)
 
@@ -730,6 +777,7 @@ def pose_stage(
     start_direction: Sequence[int] | None = None,
     config: PoseStageConfig | None = None,
     abort: Callable[[], bool] | None = None,
+    expiration: Callable[[], bool] | None = None,
     dt: float = 0.01,
     sleep: Callable[[float], None] | None = None,
     on_command: Callable[[Array], object] | None = None,
@@ -748,6 +796,7 @@ def pose_stage(
         start_direction=start_direction,
         config=config,
         abort=abort,
+        expiration=expiration,
     )
     drive_task(robot, task, dt, sleep=sleep, on_command=on_command, max_cycles=max_cycles)
     return task.result()

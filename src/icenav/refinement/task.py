@@ -1,6 +1,7 @@
 """The whole closed-loop refinement of a returned view as one controller task: the EM pose
-stage (:mod:`icenav.refinement.pose_stage`), then the image search
-(:mod:`icenav.refinement.image_search`).
+stage (:mod:`icenav.refinement.pose_stage`), then the image stage
+(:mod:`icenav.refinement.image_search`: it measures the gated beats and reports whether the
+view is held, moving the catheter only when its search is switched on).
 """
 
 from __future__ import annotations
@@ -30,7 +31,8 @@ __all__ = ["ViewRefinementTask"]
 class ViewRefinementTask:
     """The whole closed-loop refinement as one controller task: the EM pose stage
     (:class:`PoseStageTask`), then the image stage (:class:`RefinementTask`) centred where
-    the pose stage ended (its box ``+- RefinementConfig.radius`` around that state).
+    the pose stage ended (its box ``+- RefinementConfig.radius`` around that state; it
+    moves only when its search is switched on, else it measures and reports).
 
     Parameters
     ----------
