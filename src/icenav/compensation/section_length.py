@@ -35,7 +35,7 @@ offset is the tracker's, not the catheter's (docs/calibration.md, section 4f).
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from numpy.typing import ArrayLike
@@ -117,15 +117,7 @@ class SectionLength:
         """``calibration`` with its tips corrected as :meth:`correct_poses` does."""
         if self.scale == 1.0:
             return calibration
-        return CalibrationSet(
-            q_motor=calibration.q_motor,
-            tip2base=self.correct_poses(calibration.tip2base),
-            catheter_id=calibration.catheter_id,
-            vessel=calibration.vessel,
-            created=calibration.created,
-            method=calibration.method,
-            notes=calibration.notes,
-        )
+        return replace(calibration, tip2base=self.correct_poses(calibration.tip2base))
 
 
 def tracked_bends(tip2base: ArrayLike) -> Array:
