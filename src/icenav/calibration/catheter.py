@@ -2,10 +2,11 @@
 one fit (beyond the paper).
 
 :func:`catheter_plan` strings together, from rest at zeros: the paper's dense raster, the
-roll sweeps straight and at three bends (:func:`icenav.calibration.hysteresis.hysteresis_plan`),
+roll sweeps straight, at three bends and along three further bend directions
+(:func:`icenav.calibration.hysteresis.hysteresis_plan`),
 the roll circles that separate the tracker's field bias
 (:func:`icenav.calibration.tracker_bias.roll_circle_plan`) and the knob circles of the
-per-tendon model (:func:`icenav.calibration.transmission.circle_plan`): 1,071 states.
+per-tendon model (:func:`icenav.calibration.transmission.circle_plan`): 1,206 states.
 :func:`fit_catheter` turns its :class:`~icenav.calibration.plans.Recording` into
 :class:`CatheterCalibration` -- F, the roll's and the twist's plays, the tracker bias and the
 per-tendon transmission. :meth:`CatheterCalibration.knob_map` is the controller's compensation
