@@ -182,11 +182,9 @@ class PoseStageConfig:
     translation's lost motion no longer depends on the breathing phase the move ended at."""
     release_translation_mm: float = 0.0
     """A correction whose translation step exceeds this (mm; 0: off) re-approaches every
-    engaged joint with a backoff, as ``approach_always``: the roll's backoff sweep makes the
-    shaft slip many times (roll and translation share one friction budget, so each slip
-    scales the stored axial load down), which releases the translation's stiction; a step
-    below it keeps the roll where it is (each roll approach is a new draw of its lost
-    motion)."""
+    engaged joint with a backoff (``approach_always``): the roll's backoff sweep slips the
+    shaft many times (roll and translation share one friction budget), which releases the
+    translation's stiction; a smaller step keeps the roll (each approach is a new draw)."""
     expiration_wait_s: float = 4.5
     """Longest wait for end-expiration before a last leg (s; about one breath): the leg goes
     anyway after it. The time budget counts it for every planned move."""
@@ -309,12 +307,12 @@ class PoseStageResult:
 
 @dataclass(frozen=True)
 class _MeasurePose:
-    pass
+    """The stage's request: hold and measure."""
 
 
 @dataclass(frozen=True)
 class _WaitExpiration:
-    pass
+    """The stage's request: hold until end-expiration (Eq. R3)."""
 
 
 class PoseStageTask:
