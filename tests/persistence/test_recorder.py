@@ -51,3 +51,22 @@ def test_a_fast_loop_queues_at_most_one_sync_and_one_log_job_and_loses_nothing(
     np.testing.assert_array_equal(back.trace(), rm.trace())
     ids = np.arange(rm.n_vertices)
     np.testing.assert_array_equal(stored.forces.at(ids), forces.forces.at(ids))
+
+
+def test_the_force_tables_survive_a_batch_rolled_back_by_a_full_disk(tmp_path: Path) -> None:
+    """The recorder creates the force tables when it opens a session; a batch rolled back
+    later (a full disk) must not take them with it: the rest pose and the force rows are
+    still written and read back afterwards."""
+    with SessionStore(tmp_path / "s.icenav", new_session=True) as store:
+        forces = ForceRecord()
+        recorder = StoreRecorder(store, Roadmap(), threaded=False, forces=forces)
+        store._restart_batch()  # noqa: SLF001 - what a failed write does: ROLLBACK, BEGIN
+        pose = np.eye(4)
+        pose[:3, 3] = [1.0, 2.0, 40.0]
+        forces.note_motion(pose, operator=True, q=[0.1, 0.0, 0.2, 5.0])
+        forces.record(0, 0.4, pose)
+        recorder.flush()
+        back = load_forces(store)
+    np.testing.assert_array_equal(back.rest_tip, [1.0, 2.0, 40.0])
+    np.testing.assert_array_equal(back.rest_q, [0.1, 0.0, 0.2, 5.0])
+    assert back.tips.n_samples == 1

@@ -16,8 +16,10 @@ A restarted session keeps the rest pose only while the robot's motors stand wher
 operator left them (:meth:`ForceRecord.keep_rest_if_at`, called by the controller when it
 starts), so a return after a crash still refuses to start into a patient who moved meanwhile.
 
-Rows land in the store's current batch (committed with the roadmap's rows). A lost batch
-(disk full) loses its force rows; the tip rows are rewritten from the count on disk.
+The tables are committed when created; rows land in the store's current batch (committed
+with the roadmap's rows). A lost batch (disk full) loses its force rows, and its rest pose
+until the operator's next motion writes a new one (a restart keeps a stored rest pose only
+where the motors stand at its motor state).
 """
 
 from __future__ import annotations
@@ -103,6 +105,9 @@ class ForceSync:
         db = store._db  # noqa: SLF001
         for sql in _TABLES:
             db.execute(sql)
+        # committed at once: a batch rolled back later (a full disk) must not take the
+        # tables with it, or every later write of a force row would fail
+        store.commit()
         self._synced_tips = int(db.execute("SELECT COUNT(*) FROM tip_forces").fetchone()[0])
         self._synced_rest = -1  # the rest pose is written at the first sync
 
