@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
-from icenav.persistence.forces import load_forces
+from icenav.persistence.forces import ForceSync, load_forces, rest_snapshot
 from icenav.persistence.recorder import StoreRecorder
 from icenav.persistence.store import SessionStore
 from icenav.recovery.force import ForceRecord
@@ -53,19 +53,22 @@ def test_a_fast_loop_queues_at_most_one_sync_and_one_log_job_and_loses_nothing(
     np.testing.assert_array_equal(stored.forces.at(ids), forces.forces.at(ids))
 
 
-def test_the_force_tables_survive_a_batch_rolled_back_by_a_full_disk(tmp_path: Path) -> None:
-    """The recorder creates the force tables when it opens a session; a batch rolled back
-    later (a full disk) must not take them with it: the rest pose and the force rows are
-    still written and read back afterwards."""
+def test_the_force_rows_survive_a_batch_rolled_back_by_a_full_disk(tmp_path: Path) -> None:
+    """The force tables are committed when the recorder opens a session, and a batch rolled
+    back later (what a full disk does: ROLLBACK, BEGIN) loses no tip reading and no rest
+    pose for good: the next sync reads what the file holds and writes them again."""
     with SessionStore(tmp_path / "s.icenav", new_session=True) as store:
         forces = ForceRecord()
-        recorder = StoreRecorder(store, Roadmap(), threaded=False, forces=forces)
-        store._restart_batch()  # noqa: SLF001 - what a failed write does: ROLLBACK, BEGIN
+        sync = ForceSync(store)
+        store._restart_batch()  # noqa: SLF001 - a full disk before anything was written
         pose = np.eye(4)
         pose[:3, 3] = [1.0, 2.0, 40.0]
         forces.note_motion(pose, operator=True, q=[0.1, 0.0, 0.2, 5.0])
         forces.record(0, 0.4, pose)
-        recorder.flush()
+        sync.sync(forces, [], forces.n_tip_rows, rest_snapshot(forces))
+        store._restart_batch()  # noqa: SLF001 - the batch with those rows is lost
+        sync.sync(forces, [], forces.n_tip_rows, rest_snapshot(forces))
+        store.commit()
         back = load_forces(store)
     np.testing.assert_array_equal(back.rest_tip, [1.0, 2.0, 40.0])
     np.testing.assert_array_equal(back.rest_q, [0.1, 0.0, 0.2, 5.0])

@@ -17,9 +17,9 @@ operator left them (:meth:`ForceRecord.keep_rest_if_at`, called by the controlle
 starts), so a return after a crash still refuses to start into a patient who moved meanwhile.
 
 The tables are committed when created; rows land in the store's current batch (committed
-with the roadmap's rows). A lost batch (disk full) loses its force rows, and its rest pose
-until the operator's next motion writes a new one (a restart keeps a stored rest pose only
-where the motors stand at its motor state).
+with the roadmap's rows). After a lost batch (disk full) the next sync writes the tip
+readings and the rest pose again from what the file holds; the per-vertex forces of the lost
+batch stay lost (a return then takes the nearest recorded value along its path).
 """
 
 from __future__ import annotations
@@ -109,7 +109,13 @@ class ForceSync:
         # tables with it, or every later write of a force row would fail
         store.commit()
         self._synced_tips = int(db.execute("SELECT COUNT(*) FROM tip_forces").fetchone()[0])
-        self._synced_rest = -1  # the rest pose is written at the first sync
+
+    def _rest_on_disk(self) -> Rest:
+        """The rest row the file holds now (in the current batch), or None."""
+        row = self.store._db.execute(  # noqa: SLF001
+            "SELECT x, y, z, q1, q2, q3, q4 FROM rest_tip"
+        ).fetchone()
+        return None if row is None else (tuple(row[:3]), tuple(row[3:]))
 
     def sync(
         self,
@@ -120,9 +126,14 @@ class ForceSync:
     ) -> None:
         """Queue ``vertex_rows`` (taken on the control thread,
         :meth:`ForceRecord.take_vertex_rows`), the tip readings below ``n_tips`` and the rest
-        pose ``(version, rest)`` taken with them (:func:`rest_snapshot`; None: unchanged)."""
+        pose ``(version, rest)`` taken with them (:func:`rest_snapshot`; None: not kept). What
+        the file holds is read first, so rows a rolled-back batch (a full disk) took with it
+        are written again rather than left as a gap."""
         st = self.store
-        if rest is not None and rest[0] != self._synced_rest:
+        db = st._db  # noqa: SLF001
+        on_disk = int(db.execute("SELECT COALESCE(MAX(seq) + 1, 0) FROM tip_forces").fetchone()[0])
+        self._synced_tips = min(self._synced_tips, on_disk)
+        if rest is not None and self._rest_on_disk() != rest[1]:
             st._exec_many("DELETE FROM rest_tip", [()])  # noqa: SLF001
             if rest[1] is not None:
                 st._exec_many(  # noqa: SLF001
@@ -130,7 +141,6 @@ class ForceSync:
                     [(*rest[1][0], *rest[1][1])],
                 )
             st._queue(1)  # noqa: SLF001
-            self._synced_rest = rest[0]
         if vertex_rows:
             st._exec_many("INSERT OR REPLACE INTO forces VALUES (?, ?)", vertex_rows)  # noqa: SLF001
             st._queue(len(vertex_rows))  # noqa: SLF001
