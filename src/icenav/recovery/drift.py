@@ -138,28 +138,26 @@ class RestReference:
     ) -> None:
         self.t0 = float(t)
         self.q = None if q is None else check_q(q, "q")
-        self._t: list[float] = []
-        self._p: list[Array] = []
-        self._r: list[float] = []
-        self._c: list[float] = []
+        self._rows = np.empty((64, 6))  # t, x, y, z (mm), respiratory signal, cardiac phase
+        self._n = 0
         self._append(self.t0, tip, resp, cardiac)
 
     @property
     def tip(self) -> Array:
         """(3,) the reading at the stop (mm)."""
-        return self._p[0].copy()
+        return self._rows[0, 1:4].copy()
 
     @property
     def n_readings(self) -> int:
-        return len(self._p)
+        return self._n
 
     def spread_mm(self) -> float:
         """How far the still tip strayed from its mean over the reference (mm, the 90th
         percentile of the readings' distances; 0 with one reading): what the beat, the
         breath and the shaft do at rest here, for the operator to weigh a refusal."""
-        if len(self._p) < 2:
+        if self._n < 2:
             return 0.0
-        ps = np.asarray(self._p)
+        ps = self._rows[: self._n, 1:4]
         return float(np.percentile(np.linalg.norm(ps - ps.mean(axis=0), axis=1), 90))
 
     def wants(self, t: float) -> bool:
@@ -173,10 +171,13 @@ class RestReference:
             self._append(t, tip, resp, cardiac)
 
     def _append(self, t: float, tip: ArrayLike, resp: float | None, cardiac: float | None) -> None:
-        self._p.append(_position(tip, "tip"))
-        self._t.append(float(t))
-        self._r.append(np.nan if resp is None else float(resp))
-        self._c.append(np.nan if cardiac is None else float(cardiac))
+        p = _position(tip, "tip")
+        if self._n == len(self._rows):  # grown by doubling: appends stay O(1) on the loop
+            self._rows = np.concatenate([self._rows, np.empty_like(self._rows)])
+        r = np.nan if resp is None else float(resp)
+        c = np.nan if cardiac is None else float(cardiac)
+        self._rows[self._n] = (float(t), p[0], p[1], p[2], r, c)
+        self._n += 1
 
     def drift(
         self,
@@ -189,17 +190,18 @@ class RestReference:
         ``t`` (s; None: every reading counts) with the respiratory signal ``resp`` and the
         cardiac phase ``cardiac`` (mm)."""
         p = _position(tip2base, "tip2base")
-        n = len(self._p)
+        n = self._n
+        rows = self._rows[:n]
         if t is not None:  # readings older than the guard (the stop's always counts)
-            n = max(1, int(np.searchsorted(self._t, float(t) - GUARD_S, side="right")))
-        ps = np.asarray(self._p[:n])
+            n = max(1, int(np.searchsorted(rows[:, 0], float(t) - GUARD_S, side="right")))
+        ps = rows[:n, 1:4]
         d2 = np.zeros(n)
         used = False
-        c = np.asarray(self._c[:n])
+        c = rows[:n, 5]
         if cardiac is not None and np.all(np.isfinite(c)) and n > 1:
             d2 += ((c - float(cardiac) + 0.5) % 1.0 - 0.5) ** 2
             used = True
-        r = np.asarray(self._r[:n])
+        r = rows[:n, 4]
         if resp is not None and np.all(np.isfinite(r)) and np.ptp(r) > 1e-12:
             d2 += ((r - float(resp)) / np.ptp(r)) ** 2
             used = True
