@@ -397,22 +397,21 @@ class Controller(CommandCalls):
                     self.handlers.send(q_next, dt)
             if self.machine.mode is not Mode.CALIBRATING:  # the roadmap: what was driven
                 self.roadmap.add(self._q, check=False)
+            now = self._clock()
             moved = not np.array_equal(self._q, self._q_last)
             if moved:
-                self._still_since, self._q_last = self._clock(), self._q.copy()
+                self._still_since, self._q_last = now, self._q.copy()
             mode = self.machine.mode
             driving = mode in _OPERATOR_MODES
             operator = self.force_sensor is not None and driving
             buffered = self.pose_buffer is not None and mode not in _UNBUFFERED_MODES
             tip = self.tip_pose_now() if operator or buffered else None
             if buffered:
-                self.pose_buffer.push(self._clock(), tip)  # type: ignore[union-attr]
-            now = self._clock()
+                self.pose_buffer.push(now, tip)  # type: ignore[union-attr]
             if moved:  # where the operator left the tip (Eq. F5: a tracker is enough)
-                phases = self.signals(now) if driving and tip is not None else (None, None)
-                self.forces.note_motion(tip, driving, self._q, now, phases)
+                self.forces.note_motion(tip, driving, self._q, now)
             elif tip is not None and self.forces.wants_still_readings(now):
-                self.forces.note_still(now, tip, self.signals(now))  # Eq. (F5)'s reference
+                self.forces.note_still(now, tip, self.signals)  # Eq. (F5)'s reference
             if operator:
                 self._record_force(tip)
             self.record("state", {"q": self._q, "t": self._time})

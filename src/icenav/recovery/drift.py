@@ -138,7 +138,7 @@ class RestReference:
     ) -> None:
         self.t0 = float(t)
         self.q = None if q is None else check_q(q, "q")
-        self._rows = np.empty((64, 6))  # t, x, y, z (mm), respiratory signal, cardiac phase
+        self._rows = np.empty((16, 6))  # t, x, y, z (mm), respiratory signal, cardiac phase
         self._n = 0
         self._append(self.t0, tip, resp, cardiac)
 
@@ -159,6 +159,12 @@ class RestReference:
             return 0.0
         ps = self._rows[: self._n, 1:4]
         return float(np.percentile(np.linalg.norm(ps - ps.mean(axis=0), axis=1), 90))
+
+    def set_stop_phases(self, resp: float | None, cardiac: float | None) -> None:
+        """The phases read with the stop's reading, when they are read after it (the loop
+        reads them once the motors have stopped instead of at every moving cycle)."""
+        self._rows[0, 4] = np.nan if resp is None else float(resp)
+        self._rows[0, 5] = np.nan if cardiac is None else float(cardiac)
 
     def wants(self, t: float) -> bool:
         """Whether a reading at ``t`` (s) still belongs to the reference window."""

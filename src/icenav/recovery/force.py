@@ -31,6 +31,7 @@ from __future__ import annotations
 
 import math
 import threading
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Protocol
 
@@ -39,7 +40,7 @@ from numpy.typing import ArrayLike
 
 from icenav._typing import Array
 from icenav.errors import ConfigurationError, ShapeError
-from icenav.recovery.drift import REST_Q_TOLERANCE, RestReference, check_q
+from icenav.recovery.drift import REST_Q_TOLERANCE, Phases, RestReference, check_q
 from icenav.recovery.roadmap import IntArray, Roadmap
 
 __all__ = [
@@ -500,6 +501,7 @@ class ForceRecord:
         when anything else moved the motors since."""
         self.rest_version = 0
         """Counts the changes of the rest pose (a store writes it when this moved on)."""
+        self._stop_phases_due = False
 
     @property
     def rest_tip(self) -> Array | None:
@@ -514,34 +516,38 @@ class ForceRecord:
         return None if self.rest is None or self.rest.q is None else self.rest.q.copy()
 
     def note_motion(
-        self,
-        tip2base: ArrayLike | None,
-        operator: bool,
-        q: ArrayLike | None = None,
+        self, tip2base: ArrayLike | None, operator: bool, q: ArrayLike | None = None,
         t: float = 0.0,
-        phases: tuple[float | None, float | None] = (None, None),
-    ) -> None:
+    ) -> None:  # fmt: skip
         """The motors moved this cycle (time ``t``, s): by the operator to motor state ``q``
-        (4,) with the tip at ``tip2base`` (4, 4) (mm; None: no pose read), read with the
-        respiratory signal and the cardiac phase ``phases``; or by anything else (a return,
-        a refinement: the rest pose is forgotten)."""
+        (4,) with the tip at ``tip2base`` (4, 4) (mm; None: no pose read), or by anything
+        else (a return, a refinement: the rest pose is forgotten). The phases of this
+        reading are read at the first still reading (:meth:`note_still`), not at every
+        moving cycle."""
         self.rest_version += 1
+        self._stop_phases_due = False
         if not operator or tip2base is None:
             self.rest = None
             return
         pose = np.asarray(tip2base, np.float64)
         if pose.shape != (4, 4) or not np.all(np.isfinite(pose[:3, 3])):
             raise ShapeError(f"tip2base must be a finite (4, 4) pose, got shape {pose.shape}")
-        self.rest = RestReference(t, pose, q, *phases)
+        self.rest = RestReference(t, pose, q)
+        self._stop_phases_due = True
 
     def note_still(
-        self, t: float, tip2base: ArrayLike | None, phases: tuple[float | None, float | None]
+        self, t: float, tip2base: ArrayLike | None, signals: Callable[[float], Phases]
     ) -> None:
-        """A reading of the tip with the motors still at time ``t`` (s), with the
-        respiratory signal and the cardiac phase read with it: part of the rest reference
-        while its window lasts (Eq. F5, phase-matched)."""
-        if self.rest is not None and tip2base is not None and self.rest.wants(t):
-            self.rest.add(t, tip2base, *phases)
+        """A reading of the tip with the motors still at time ``t`` (s); ``signals(t)`` the
+        respiratory signal and the cardiac phase at a time: part of the rest reference while
+        its window lasts (Eq. F5, phase-matched), the stop's phases read with the first."""
+        rest = self.rest
+        if rest is None or tip2base is None or not rest.wants(t):
+            return
+        if self._stop_phases_due:
+            rest.set_stop_phases(*signals(rest.t0))
+            self._stop_phases_due = False
+        rest.add(t, tip2base, *signals(t))
 
     def wants_still_readings(self, t: float) -> bool:
         """Whether :meth:`note_still` at ``t`` (s) would keep a reading."""
