@@ -279,3 +279,44 @@ def test_goto_view_task_is_the_products_check_with_the_controllers_settings() ->
                                 roadmap=roadmap, tip_pose=lambda: tip)  # fmt: skip
     assert drift_only.force_sensor is None and drift_only.force_path is None
     assert drift_only.rest_tip is not None and drift_only.drift_limit_mm == 4.0
+
+
+def test_where_the_check_cannot_tell_the_return_asks_and_a_second_press_runs_it() -> None:
+    """Eqs. (F5, F6): a still tip that wanders as far as a shift would move it is 8 mm from
+    its reference: the first press holds with a question (no refusal), a second press
+    within CONFIRM_S runs the return under the force check alone, a later one asks again;
+    a fresh reference (the operator drove) asks anew."""
+    from icenav.recovery.drift import CONFIRM_S, REST_WINDOW_S, RestReference
+
+    rng = np.random.default_rng(3)
+    rest = RestReference(0.0, [0.0, 0.0, 40.0], None, None, 0.0)
+    p = np.array([0.0, 0.0, 40.0])
+    for t in np.arange(0.02, REST_WINDOW_S, 0.02):
+        p = p + rng.normal(0.0, 0.6, 3)
+        rest.add(float(t), p, None, float(t % 1.0))
+    tip = np.eye(4)
+    tip[:3, 3] = [8.0, 0.0, 40.0]
+    path = np.zeros((2, 4))
+    path[1, 3] = 1.0
+    now = [20.0]
+
+    def press(reference: RestReference) -> PathTask:
+        return PathTask(path, V_MAX, rest_tip=reference, drift_limit_mm=5.0, tip_pose=lambda: tip,
+                        signals=lambda t: (None, t % 1.0), clock=lambda: now[0])  # fmt: skip
+
+    first = press(rest)
+    status = first.step(np.zeros(4), 0.01)
+    assert isinstance(status, Failed) and "cannot tell here" in status.reason, status
+    assert "press again within 30 s" in status.reason and first.progress == 0.0
+    now[0] += CONFIRM_S - 1.0
+    second = press(rest)
+    assert isinstance(_run(second)[0], Done) and second.drift_unchecked
+    now[0] += 2.0  # more than CONFIRM_S after the question: asked again
+    third = press(rest)
+    assert isinstance(third.step(np.zeros(4), 0.01), Failed) and not third.drift_unchecked
+    moved = RestReference(now[0], rest.tip, None, None, 0.0)  # the operator drove: a new one
+    for t in np.arange(0.02, REST_WINDOW_S, 0.02):
+        moved.add(now[0] + float(t), rest.tip + rng.normal(0.0, 4.0, 3), None, float(t % 1.0))
+    now[0] += REST_WINDOW_S + 1.0
+    status = press(moved).step(np.zeros(4), 0.01)
+    assert isinstance(status, Failed) and "cannot tell here" in status.reason

@@ -104,3 +104,50 @@ def test_readings_younger_than_the_guard_are_not_the_reference() -> None:
     assert ref.drift(moved, *_signals(now), t=now) > 5.0
     assert ref.drift(moved, *_signals(now)) < 3.0  # what the guard prevents
     assert GUARD_S <= 2.0
+
+
+def _wandering(seed: int = 0, dt: float = 0.025) -> RestReference:
+    """A still tip pushed about by a wall it touches: a random walk of about 8 mm over the
+    window that no phase explains (mm)."""
+    rng = np.random.default_rng(seed)
+    p = np.array([0.0, 0.0, 40.0])
+    ref = RestReference(0.0, p, None, *_signals(0.0))
+    for t in np.arange(dt, REST_WINDOW_S, dt):
+        p = p + rng.normal(0.0, 0.6, 3)
+        ref.add(float(t), p, *_signals(float(t)))
+    return ref
+
+
+def test_the_resolution_is_small_where_the_phase_explains_the_motion_and_not_elsewhere() -> None:
+    """Eq. (F6): for the tip swung 5 mm by the beat and 5 mm by the breath, the reference's
+    own scatter is close to what Eq. (F5) sees at later times (a 90th percentile of 2 mm,
+    against 7 mm of spread); the same tip judged without its phases, or a tip that wanders
+    where no phase explains it, cannot be told apart from a 5 mm shift."""
+    periodic = _reference()
+    times = np.linspace(10.0, 60.0, 400)
+    later = np.percentile([periodic.drift(_tip(t), *_signals(t)) for t in times], 90)
+    assert 0.8 * later < periodic.resolution_mm() < min(1.5 * later, 3.0)
+    assert periodic.spread_mm() > 4.0
+    plain = RestReference(0.0, _tip(0.0))
+    for t in np.arange(0.025, REST_WINDOW_S, 0.025):
+        plain.add(float(t), _tip(float(t)), None, None)
+    assert plain.resolution_mm() > 5.0  # the instantaneous form: against the stop
+    wandering = _wandering()
+    assert wandering.resolution_mm() > 5.0
+    assert wandering.resolution_mm() == wandering.resolution_mm()  # cached, unchanged
+    # too few readings, or none GUARD_S apart: unknown, the check applies as it is
+    short = RestReference(0.0, _tip(0.0), None, *_signals(0.0))
+    for t in (0.1, 0.2, 0.3, 0.4):
+        short.add(t, _tip(t) + 20.0, *_signals(t))
+    assert short.resolution_mm() == 0.0
+
+
+def test_a_question_is_confirmed_only_by_a_second_press_soon_after_it() -> None:
+    from icenav.recovery.drift import CONFIRM_S
+
+    ref = _wandering()
+    assert ref.asked_at is None and not ref.confirmed(10.0)
+    ref.ask(10.0)
+    assert ref.confirmed(10.0 + CONFIRM_S) and not ref.confirmed(10.0 + CONFIRM_S + 0.1)
+    ref.ask(None)  # no clock: any later press confirms
+    assert ref.confirmed(1e6) and ref.confirmed(None)

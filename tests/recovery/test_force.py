@@ -215,3 +215,20 @@ def test_a_restored_rest_pose_stands_only_while_the_motors_stand_where_it_was_le
         ForceRecord().restore_rest([1.0, 2.0, 3.0], [0.0, 0.0, np.nan, 0.0])
     with pytest.raises(ShapeError, match="rest_tip"):
         ForceRecord().restore_rest([1.0, 2.0], q)
+
+
+def test_a_question_of_the_drift_check_lasts_only_while_the_operator_leaves_the_motors() -> None:
+    """Eq. (F6)'s question belongs to the reference it was asked from: the operator's next
+    drive makes a new reference that asks anew; any other motion (the return itself)
+    forgets the reference, so the check is armed again only by the operator."""
+    record = ForceRecord()
+    pose = np.eye(4)
+    record.note_motion(pose, True, np.zeros(4), 0.0)
+    assert record.rest is not None
+    record.rest.ask(1.0)
+    assert record.rest.confirmed(2.0)
+    record.note_motion(pose, True, np.zeros(4), 3.0)
+    assert record.rest is not None and not record.rest.confirmed(4.0)
+    record.rest.ask(4.0)
+    record.note_motion(pose, False, None, 5.0)
+    assert record.rest is None

@@ -23,6 +23,7 @@ from icenav._typing import Array
 from icenav.control.modes import HALTED
 from icenav.control.state import ControllerState, ImageFrame, ViewSummary
 from icenav.geometry.kinematics import CatheterGeometry, backbone, forward
+from icenav.recovery.drift import DEFAULT_DRIFT_MM, RESOLUTION_FRACTION
 
 if TYPE_CHECKING:
     from icenav.control.controller import Controller
@@ -118,7 +119,10 @@ class Publisher:
             sensor2base=sensor,
             tracker_status=tracker_status,
             force_check=force_check_text(
-                ctrl.force_sensor is not None, ctrl.forces, ctrl.tracker is not None
+                ctrl.force_sensor is not None,
+                ctrl.forces,
+                ctrl.tracker is not None,
+                ctrl.config.force_drift_mm,
             ),
             message=self.operator_message(),
             progress=None if task is None else task.progress,
@@ -198,15 +202,28 @@ class Publisher:
         self._image_error = f"imaging error: {type(exc).__name__}: {exc}"
 
 
-def force_check_text(has_channel: bool, forces: Any, has_tracker: bool = False) -> str:
+def force_check_text(
+    has_channel: bool,
+    forces: Any,
+    has_tracker: bool = False,
+    drift_limit_mm: float = DEFAULT_DRIFT_MM,
+) -> str:
     """What the operator is told of the returns' checks: the force check (a force channel)
-    and the tip-drift check (a tracker, Eq. F5 of :mod:`icenav.recovery.force`)."""
+    and the tip-drift check (a tracker, Eqs. F5 and F6 of :mod:`icenav.recovery.drift`),
+    including where it cannot tell a moved patient from the still tip's own motion."""
     drift = ""
     if has_tracker:  # Eq. (F5) compares with where the operator's last drive left the tip
-        armed = getattr(forces, "rest_tip", None) is not None
-        drift = "; tip-drift check on (tracker" + (
-            ")" if armed else ", armed at your next drive: the last motion was not yours)"
-        )
+        rest = getattr(forces, "rest", None)
+        if rest is None:
+            drift = "; tip-drift check on (tracker, armed at your next drive: the last motion "
+            drift += "was not yours)"
+        elif (r := rest.resolution_mm()) > RESOLUTION_FRACTION * drift_limit_mm:  # Eq. (F6)
+            drift = (
+                f"; tip-drift check on (tracker; cannot tell here: the still tip strays "
+                f"{r:.1f} mm by itself, so a return that finds it moved asks you to confirm)"
+            )
+        else:
+            drift = "; tip-drift check on (tracker)"
     if not has_channel:
         return "off: no force channel" + drift
     n = forces.forces.n_recorded

@@ -31,7 +31,14 @@ import numpy as np
 from icenav._typing import Array
 from icenav.control.modes import Mode
 from icenav.errors import IcenavError, InvalidValueError
-from icenav.recovery.drift import DEFAULT_DRIFT_MM, DRIFT_WINDOW_S, Phases, RestReference
+from icenav.recovery.drift import (
+    CONFIRM_S,
+    DEFAULT_DRIFT_MM,
+    DRIFT_WINDOW_S,
+    RESOLUTION_FRACTION,
+    Phases,
+    RestReference,
+)
 from icenav.recovery.force import (
     DEFAULT_MARGIN_FRACTION,
     DEFAULT_MARGIN_N,
@@ -183,6 +190,9 @@ class PathTask:
     """Eq. (F5)'s limit (mm)."""
     failure: str | None = field(default=None, init=False)
     """Why the task stopped early (the force check), None while it has not."""
+    drift_unchecked: bool = field(default=False, init=False)
+    """Whether the operator confirmed this return where the tip-drift check could not tell
+    (Eq. F6): it runs under the force check alone."""
     _check: ForceCheck = field(init=False, repr=False)
     _cum_time: Array = field(init=False, repr=False)
     _t: float = field(default=0.0, init=False, repr=False)
@@ -276,8 +286,10 @@ class PathTask:
         return Running(np.asarray(self.path[i] + s * (self.path[i + 1] - self.path[i])))
 
     def _drift_check(self) -> Failed | None:
-        """Eq. (F5) before the path moves: Failed when the tracked tip has moved more than
-        the limit since the operator last moved the motors."""
+        """Eqs. (F5, F6) before the path moves: Failed when the tracked tip has moved more
+        than the limit since the operator last moved the motors; where the still tip itself
+        strays that far (Eq. F6), Failed once with a question instead, and the operator's
+        second press runs the return under the force limit alone."""
         tip = self.tip_pose() if self.tip_pose is not None else None
         rest = self.rest_tip
         if tip is None or not isinstance(rest, RestReference):
@@ -287,6 +299,22 @@ class PathTask:
         drift = rest.drift(tip, *phases, t=now)
         if drift <= self.drift_limit_mm:
             return None
+        resolution = rest.resolution_mm()
+        if resolution > RESOLUTION_FRACTION * self.drift_limit_mm:  # Eq. (F6): cannot tell
+            if rest.confirmed(now):
+                self.drift_unchecked = True
+                return None
+            rest.ask(now)
+            self.failure = (
+                f"{self.label}: holds before it starts: the tip-drift check cannot tell here "
+                f"whether the patient has moved: the tracked tip is {drift:.1f} mm from where "
+                f"you left it (limit {self.drift_limit_mm:.1f} mm), but with the motors still "
+                f"it strays {resolution:.1f} mm by itself here (the beat and the breath move "
+                "a wall it touches). Look at the image: if the patient has not moved, press "
+                f"again within {CONFIRM_S:.0f} s to return with the force check alone; else "
+                "drive to the view by hand"
+            )
+            return Failed(self.failure)
         spread = rest.spread_mm()
         at_rest = (
             f"; at rest the tip strayed up to {spread:.1f} mm from its mean with the beat and "

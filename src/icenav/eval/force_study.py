@@ -51,7 +51,12 @@ from icenav.control.controller import ControllerConfig, PathTask
 from icenav.errors import ConfigurationError
 from icenav.eval.recovery import TARGETS, RecoveryConfig
 from icenav.eval.recovery_bench import DT, Bench
-from icenav.recovery.drift import DEFAULT_DRIFT_MM, REST_WINDOW_S, RestReference
+from icenav.recovery.drift import (
+    DEFAULT_DRIFT_MM,
+    RESOLUTION_FRACTION,
+    REST_WINDOW_S,
+    RestReference,
+)
 from icenav.recovery.force import (
     CHECK_MARGIN_FRACTION,
     CHECK_MARGIN_N,
@@ -385,6 +390,9 @@ class CheckPoint:
     """Eq. (F5)'s limit (mm; inf: no such check)."""
     phase_match: bool = True
     """Eq. (F5) phase-matched (the product's), else its instantaneous form."""
+    resolution_fraction: float = RESOLUTION_FRACTION
+    """Eq. (F6): beyond this fraction of the limit the check asks instead of refusing (inf:
+    it always refuses, session 8's check)."""
 
 
 @dataclass(frozen=True)
@@ -400,11 +408,26 @@ class ReturnCheck:
     NaN: unknown)."""
     drift_instant_mm: float = math.nan
     """The same in Eq. (F5)'s instantaneous form: against the reading at the stop (mm)."""
+    resolution_mm: float = 0.0
+    """Eq. (F6) over the reference (mm; phase-matched, or instantaneous as ``point``)."""
+    resolution_instant_mm: float = 0.0
+
+    def _drifted(self, point: CheckPoint) -> tuple[bool, bool]:
+        """(beyond the limit, the check cannot tell here) of Eqs. (F5, F6)."""
+        drift = self.drift_mm if point.phase_match else self.drift_instant_mm
+        res = self.resolution_mm if point.phase_match else self.resolution_instant_mm
+        return drift > point.drift_mm, res > point.resolution_fraction * point.drift_mm
 
     def stopped(self, point: CheckPoint) -> bool:
-        """Whether the check stops this return at ``point``."""
-        drift = self.drift_mm if point.phase_match else self.drift_instant_mm
-        return self.needed_n > point.margin_n or drift > point.drift_mm
+        """Whether the check stops this return at ``point`` (refuses, or asks the operator
+        to confirm where Eq. F6 cannot tell)."""
+        return self.needed_n > point.margin_n or self._drifted(point)[0]
+
+    def asked(self, point: CheckPoint) -> bool:
+        """Whether the return holds for the operator's confirmation: stopped by Eq. (F5)
+        alone where Eq. (F6) says the check cannot tell (a second press runs it)."""
+        beyond, cannot = self._drifted(point)
+        return beyond and cannot and self.needed_n <= point.margin_n
 
 
 def _pose(row: Array) -> Array:
@@ -414,20 +437,22 @@ def _pose(row: Array) -> Array:
     return t
 
 
-def _rest_drift(op: Array, ret: Array, dwell_s: float | None, shifted: bool) -> tuple[float, float]:
+def _rest_drift(
+    op: Array, ret: Array, dwell_s: float | None, shifted: bool
+) -> tuple[float, float, float, float]:
     """Eq. (F5) at a return's start, as the product computes it: the reference is the EM
     readings from the operator's stop (the last motion of ``op``, the operator's rows) over
     :data:`icenav.recovery.drift.REST_WINDOW_S` (at most ``dwell_s``); the tip now is the
     return's first reading, or, for ``dwell_s`` shorter than the recorded dwell, the reading
     that long after the stop (an undisturbed return started then). Returns (phase-matched,
-    instantaneous) (mm; NaN: no reading)."""
+    instantaneous) ``D`` and ``R`` of Eqs. (F5, F6) (mm; NaN: no reading)."""
     moved = np.flatnonzero(np.any(np.diff(op[:, 1:5], axis=0) != 0, axis=1))
     stop = int(moved[-1]) + 1 if len(moved) else 0
     em = np.flatnonzero(np.isfinite(op[:, 6]))
     before = em[em <= stop]
     first = int(before[-1]) if len(before) else (int(em[0]) if len(em) else -1)
     if first < 0:
-        return math.nan, math.nan
+        return math.nan, math.nan, math.nan, math.nan
     t0 = op[stop, 0]
     recorded = op[-1, 0] - t0
     d = recorded if dwell_s is None else min(float(dwell_s), recorded)
@@ -443,9 +468,13 @@ def _rest_drift(op: Array, ret: Array, dwell_s: float | None, shifted: bool) -> 
         later = em[op[em, 0] >= t0 + dwell_s - 1e-9]
         now = op[int(later[0])] if len(later) else now
     if now is None or not np.isfinite(now[6]):
-        return math.nan, math.nan
+        return math.nan, math.nan, math.nan, math.nan
     t_now = float(now[0]) if math.isfinite(now[0]) else None
-    return ref.drift(now[6:9], float(now[13]), float(now[12]), t_now), ref.drift(now[6:9])
+    plain = RestReference(t0, rows[0, 6:9])  # no phases: Eq. (F6)'s instantaneous form
+    for r in rows[1:]:
+        plain.add(float(r[0]), r[6:9], None, None)
+    return (ref.drift(now[6:9], float(now[13]), float(now[12]), t_now), ref.drift(now[6:9]),
+            ref.resolution_mm(), plain.resolution_mm())  # fmt: skip
 
 
 def check_returns(
@@ -480,19 +509,25 @@ def check_returns(
         else:
             sustained = np.full(1, -np.inf)
         shifted = bool(np.any(shift))
-        drift, instant = _rest_drift(op, ret, dwell_s, shifted)  # Eq. (F5)
+        drift, instant, res, res_instant = _rest_drift(op, ret, dwell_s, shifted)  # F5, F6
         out.append(ReturnCheck(float(np.max(np.abs(shift))), float(sustained.max()), drift,
-                               instant))  # fmt: skip
+                               instant, res, res_instant))  # fmt: skip
     return out
 
 
 def tally(checks: Sequence[ReturnCheck], point: CheckPoint) -> str:
     """False alarms and shifted returns stopped per shift (mm), as a line."""
     still = [c for c in checks if c.shift_mm == 0]
-    parts = [f"false alarms {sum(c.stopped(point) for c in still)}/{len(still)}"]
+
+    def count(cs: list[ReturnCheck]) -> str:
+        asked = sum(c.asked(point) for c in cs)
+        return f"{sum(c.stopped(point) for c in cs)}/{len(cs)}" + (
+            f" ({asked} of them asked)" if asked else ""
+        )
+
+    parts = [f"false alarms {count(still)}"]
     for s in sorted({c.shift_mm for c in checks if c.shift_mm > 0}):
-        moved = [c for c in checks if c.shift_mm == s]
-        parts.append(f"{s:g} mm stopped {sum(c.stopped(point) for c in moved)}/{len(moved)}")
+        parts.append(f"{s:g} mm stopped {count([c for c in checks if c.shift_mm == s])}")
     return ", ".join(parts)
 
 

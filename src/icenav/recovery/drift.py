@@ -26,6 +26,21 @@ reading at the stop, the instantaneous form. A shift during the reference window
 before the stop, or after the window, or within :data:`GUARD_S` of the return, is seen at
 its full size. What it reaches on the twin, by how long the operator looked before the
 return: ``docs/view-recovery.md`` (session 8) and ``docs/results.md`` (the force check).
+
+Where the still tip itself strays as far as a shift would move it (in vivo, a tip resting
+against a wall that the beat and the breath move), no limit separates the two. The check
+then says so instead of refusing: its resolution here is Eq. (F5) applied to each reading
+of the reference against the others at least ``E`` = :data:`RESOLUTION_EXCLUDE_S` away
+from it in time (not its own stretch of the beat)::
+
+    R = P90_k | p_k - mean{ p_j : the NEIGHBOURS nearest in phase to k, |t_j - t_k| >= E } |
+                                                                                      (F6)
+
+(the instantaneous form: ``| p_k - p_stop |``). When ``D`` exceeds the limit and ``R``
+exceeds :data:`RESOLUTION_FRACTION` of it, the check *cannot tell*: the return holds and
+asks the operator to confirm (a second press within :data:`CONFIRM_S`), and then runs under
+the force limit alone;
+any drive of the operator makes a new reference and a new question.
 """
 
 from __future__ import annotations
@@ -37,12 +52,14 @@ from icenav._typing import Array
 from icenav.errors import ShapeError
 
 __all__ = [
+    "CONFIRM_S",
     "DEFAULT_DRIFT_MM",
     "DRIFT_WINDOW_S",
     "GUARD_S",
     "NEIGHBOURS",
     "Phases",
     "REST_Q_TOLERANCE",
+    "RESOLUTION_FRACTION",
     "REST_WINDOW_S",
     "RestReference",
     "check_q",
@@ -65,6 +82,30 @@ breath (a ventilated patient breathes about every 4 s) and several beats."""
 
 NEIGHBOURS = 3
 """Reference readings averaged at the nearest phase (Eq. F5)."""
+
+RESOLUTION_FRACTION = 0.5
+"""The check can tell where its resolution ``R`` (Eq. F6, the 90th percentile of the still
+tip's own ``D``) is at most this fraction of the limit ``L``: nine in ten still readings then
+lie within ``L / 2`` of their phase-matched reference, so a tip beyond ``L`` is at least
+``L / 2`` beyond what it does by itself. Above it a tip beyond ``L`` may be its own motion:
+the check cannot tell (it asks instead of refusing). Chosen from that argument and looked at
+on the development pairs (``docs/results.md``, the force check, session 9), not fitted."""
+
+CONFIRM_S = 30.0
+"""A second press within this time (s) of the question confirms a return the check could
+not judge (Eq. F6); later, the return asks again (the patient may have moved since)."""
+
+RESOLUTION_EXCLUDE_S = 0.3
+"""Readings this close in time to the one judged are left out of its reference in Eq. (F6)
+(s): its own stretch of the beat (a systole lasts about 0.3 s), which would match it
+trivially. A longer exclusion leaves the window's edges poorly covered and overstates
+``R`` against what Eq. (F5) then sees (a tip swung 5 mm by the beat and 5 mm by the breath:
+``R`` 2.5 mm at 0.3 s, 5.6 mm at 1 s, against a 90th percentile of 2.0 mm of ``D`` at later
+times; ``tests/recovery/test_drift.py``)."""
+
+RESOLUTION_QUERIES = 64
+"""Readings of the reference at which Eq. (F6) is evaluated (evenly spaced; all when
+fewer): its cost stays about 0.3 ms whatever the tracker's rate."""
 
 GUARD_S = 1.0
 """Readings younger than this at the check (s) are not used as the reference: a patient who
@@ -140,6 +181,11 @@ class RestReference:
         self.q = None if q is None else check_q(q, "q")
         self._rows = np.empty((16, 6))  # t, x, y, z (mm), respiratory signal, cardiac phase
         self._n = 0
+        self._resolution: tuple[int, float] = (-1, 0.0)
+        self.asked_at: float | None = None
+        """When a return asked the operator to confirm because the check could not tell
+        from this reference (Eq. F6; s of the loop's clock, -inf without one), None if
+        none has."""
         self._append(self.t0, tip, resp, cardiac)
 
     @property
@@ -159,6 +205,33 @@ class RestReference:
             return 0.0
         ps = self._rows[: self._n, 1:4]
         return float(np.percentile(np.linalg.norm(ps - ps.mean(axis=0), axis=1), 90))
+
+    def resolution_mm(self) -> float:
+        """``R`` of Eq. (F6) (mm): how far Eq. (F5) puts the still tip from itself over the
+        reference; 0 while no reading has :data:`NEIGHBOURS` others
+        :data:`RESOLUTION_EXCLUDE_S` away (the check applies as it is). Safe to call from
+        another thread than the one adding readings (the count is read before the rows,
+        which only grow)."""
+        n = self._n
+        cached = self._resolution
+        if cached[0] == n:
+            return cached[1]
+        rows = self._rows[:n]
+        value = _resolution(rows)
+        self._resolution = (n, value)
+        return value
+
+    def ask(self, t: float | None) -> None:
+        """A return asked the operator to confirm at ``t`` (s; None: no clock)."""
+        self.asked_at = -np.inf if t is None else float(t)
+
+    def confirmed(self, t: float | None) -> bool:
+        """Whether a return at ``t`` (s; None: no clock) is the operator's confirmation:
+        one asked from this reference at most :data:`CONFIRM_S` before (without a clock,
+        any one asked before)."""
+        if self.asked_at is None:
+            return False
+        return t is None or self.asked_at == -np.inf or t - self.asked_at <= CONFIRM_S
 
     def set_stop_phases(self, resp: float | None, cardiac: float | None) -> None:
         """The phases read with the stop's reading, when they are read after it (the loop
@@ -215,3 +288,40 @@ class RestReference:
             return float(np.linalg.norm(p - ps[0]))
         near = np.argsort(d2, kind="stable")[:NEIGHBOURS]
         return float(np.linalg.norm(p - ps[near].mean(axis=0)))
+
+
+def _phase_distances(rows: Array, k: Array) -> Array | None:
+    """Squared phase distances (len(k), n) of Eq. (F5) between the readings ``k`` and all
+    ``rows`` (n, 6); None when neither signal is usable (the instantaneous form)."""
+    d2 = np.zeros((len(k), len(rows)))
+    used = False
+    c = rows[:, 5]
+    if np.all(np.isfinite(c)):
+        d2 += ((c[None, :] - c[k, None] + 0.5) % 1.0 - 0.5) ** 2
+        used = True
+    r = rows[:, 4]
+    if np.all(np.isfinite(r)) and np.ptp(r) > 1e-12:
+        d2 += ((r[None, :] - r[k, None]) / np.ptp(r)) ** 2
+        used = True
+    return d2 if used else None
+
+
+def _resolution(rows: Array) -> float:
+    """Eq. (F6) over reference rows (n, 6): t, x, y, z, respiratory signal, cardiac phase."""
+    n = len(rows)
+    if n < NEIGHBOURS + 1:
+        return 0.0
+    k = np.unique(np.linspace(0, n - 1, min(n, RESOLUTION_QUERIES)).round().astype(int))
+    t, ps = rows[:, 0], rows[:, 1:4]
+    far = np.abs(t[None, :] - t[k, None]) >= RESOLUTION_EXCLUDE_S  # (len(k), n)
+    k_ok = far.sum(axis=1) >= NEIGHBOURS
+    if not np.any(k_ok):
+        return 0.0
+    k, far = k[k_ok], far[k_ok]
+    d2 = _phase_distances(rows, k)
+    if d2 is None:  # the instantaneous form: against the reading at the stop
+        return float(np.percentile(np.linalg.norm(ps[k] - ps[0], axis=1), 90))
+    d2 = np.where(far, d2, np.inf)
+    near = np.argsort(d2, axis=1, kind="stable")[:, :NEIGHBOURS]
+    d = np.linalg.norm(ps[k] - ps[near].mean(axis=1), axis=1)
+    return float(np.percentile(d, 90))
