@@ -203,11 +203,11 @@ def test_a_restored_rest_pose_stands_only_while_the_motors_stand_where_it_was_le
     back = ForceRecord.from_rows(
         np.zeros((0, 2)), np.zeros((0, 7)), rest=(rec.rest_tip, rec.rest_q)
     )
-    version = back.rest_version
-    assert back.keep_rest_if_at(q + 0.5 * REST_Q_TOLERANCE) and back.rest_version == version
+    kept = back.rest
+    assert back.keep_rest_if_at(q + 0.5 * REST_Q_TOLERANCE) and back.rest is kept
     np.testing.assert_array_equal(back.rest_tip, [1.0, 2.0, 40.0])
     assert not back.keep_rest_if_at(q + [0.0, 0.0, 0.0, 2.0 * REST_Q_TOLERANCE])
-    assert back.rest_tip is None and back.rest_q is None and back.rest_version > version
+    assert back.rest_tip is None and back.rest_q is None and back.rest is None
     no_q = ForceRecord()
     no_q.note_motion(pose, operator=True)  # an older caller: no motor state
     assert not no_q.keep_rest_if_at(q) and no_q.rest_tip is None

@@ -122,23 +122,23 @@ class ForceSync:
         record: ForceRecord,
         vertex_rows: list[tuple[int, float]],
         n_tips: int,
-        rest: tuple[int, Rest] | None = None,
+        rest: Rest,
     ) -> None:
         """Queue ``vertex_rows`` (taken on the control thread,
         :meth:`ForceRecord.take_vertex_rows`), the tip readings below ``n_tips`` and the rest
-        pose ``(version, rest)`` taken with them (:func:`rest_snapshot`; None: not kept). What
+        pose taken with them (:func:`rest_snapshot`; None: there is none). What
         the file holds is read first, so rows a rolled-back batch (a full disk) took with it
         are written again rather than left as a gap."""
         st = self.store
         db = st._db  # noqa: SLF001
         on_disk = int(db.execute("SELECT COALESCE(MAX(seq) + 1, 0) FROM tip_forces").fetchone()[0])
         self._synced_tips = min(self._synced_tips, on_disk)
-        if rest is not None and self._rest_on_disk() != rest[1]:
+        if self._rest_on_disk() != rest:
             st._exec_many("DELETE FROM rest_tip", [()])  # noqa: SLF001
-            if rest[1] is not None:
+            if rest is not None:
                 st._exec_many(  # noqa: SLF001
                     "INSERT INTO rest_tip VALUES (0, ?, ?, ?, ?, ?, ?, ?)",
-                    [(*rest[1][0], *rest[1][1])],
+                    [(*rest[0], *rest[1])],
                 )
             st._queue(1)  # noqa: SLF001
         if vertex_rows:
@@ -155,10 +155,9 @@ class ForceSync:
             self._synced_tips = n_tips
 
 
-def rest_snapshot(record: ForceRecord) -> tuple[int, Rest]:
-    """``(version, rest)`` of ``record``'s rest pose, taken on the control thread (the thread
-    that changes it) for :meth:`ForceSync.sync`: tip (3,) mm and motor state (4,), or None
-    when there is none (or it has no motor state, which a restart could not check)."""
+def rest_snapshot(record: ForceRecord) -> Rest:
+    """``record``'s rest pose, taken on the control thread (the thread that changes it) for
+    :meth:`ForceSync.sync`: tip (3,) mm and motor state (4,), or None when there is none (or
+    it has no motor state, which a restart could not check)."""
     tip, q = record.rest_tip, record.rest_q
-    rest = None if tip is None or q is None else (tuple(tip.tolist()), tuple(q.tolist()))
-    return record.rest_version, rest
+    return None if tip is None or q is None else (tuple(tip.tolist()), tuple(q.tolist()))

@@ -78,7 +78,7 @@ class StoreRecorder:
         """The writer thread (None when not threaded)."""
         self._lock = threading.Lock()
         self._sync_queued = False
-        self._latest: tuple[tuple[int, int, int], int, tuple[int, Rest] | None] = (
+        self._latest: tuple[tuple[int, int, int], int, Rest] = (
             (0, 0, 0),
             0,
             None,

@@ -499,8 +499,6 @@ class ForceRecord:
         self.rest: RestReference | None = None
         """Where the operator's last motion left the tip (Eq. F5), None when unknown or
         when anything else moved the motors since."""
-        self.rest_version = 0
-        """Counts the changes of the rest pose (a store writes it when this moved on)."""
         self._stop_phases_due = False
 
     @property
@@ -524,7 +522,6 @@ class ForceRecord:
         else (a return, a refinement: the rest pose is forgotten). The phases of this
         reading are read at the first still reading (:meth:`note_still`), not at every
         moving cycle."""
-        self.rest_version += 1
         self._stop_phases_due = False
         if not operator or tip2base is None:
             self.rest = None
@@ -561,7 +558,6 @@ class ForceRecord:
         if tip.shape != (3,) or not np.all(np.isfinite(tip)):
             raise ShapeError(f"rest_tip must be 3 finite mm, got {rest_tip!r}")
         self.rest = RestReference(-math.inf, tip, check_q(rest_q, "rest_q"))
-        self.rest_version += 1
 
     def keep_rest_if_at(self, q: ArrayLike, tolerance: float = REST_Q_TOLERANCE) -> bool:
         """Keep the rest pose only if the motors stand at ``q`` (4,) within ``tolerance``
@@ -574,7 +570,6 @@ class ForceRecord:
         if rest_q is not None and np.max(np.abs(check_q(q, "q") - rest_q)) <= tolerance:
             return True
         self.rest = None  # moved, or a rest without its motor state: not trusted
-        self.rest_version += 1
         return False
 
     def record(self, vertex: int, force_n: float | None, tip2base: ArrayLike | None) -> None:
