@@ -121,6 +121,11 @@ class ForceStudyConfig:
     dwell_s: float = 0.0
     """The operator's hands off before each return (s): the operator looks at the image, the
     motors are still; a shift happens at the end of it, just before the return."""
+    rest_force_n: float | None = None
+    """With a value (N): the operator looks at the force readout before letting go, and
+    while the mean force over a second exceeds it backs off halfway towards where the
+    exploration started (at most 6 times; a cardiologist does not leave an ICE catheter
+    pushing a wall). None: session 8's blind operator (``docs/results.md``)."""
     em_every: int = 4
     """Control cycles per EM reading (the twin's contact is solved at 25 Hz)."""
     tip_keys: tuple[tuple[float, float], ...] = ((2.0, 180.0), (4.0, 180.0), (8.0, 180.0),
@@ -341,11 +346,23 @@ def record_pair(cfg: ForceStudyConfig) -> dict[str, Any]:
             row(k, q, f, math.nan, -1)
             b.clock.advance(DT)
 
+    def back_off(q_free: Array) -> None:  # the operator looks at the force readout
+        for _ in range(6 if cfg.rest_force_n is not None else 0):
+            n0 = len(rows)
+            drive(b.operator.dwell(1.0))
+            if np.mean([r[5] for r in rows[n0:]]) <= float(cfg.rest_force_n or 0.0):
+                return
+            drive(b.operator.move_to(0.5 * (b.operator.state + q_free)))
+
     views = _save_views(b, cfg, drive)
     plan = _shift_plan(cfg)
     spans: list[tuple[int, int, int]] = []
     for k, shift in enumerate(plan):
+        if cfg.rest_force_n is not None:  # the operator goes on from where the robot is
+            b.operator.state = np.asarray(b.robot.read_state().q, np.float64).copy()
+        q_free = b.operator.state.copy()
         drive(b.operator.explore(cfg.moves_between))
+        back_off(q_free)
         if cfg.dwell_s > 0:
             drive(b.operator.dwell(cfg.dwell_s))
         n_op = len(rows)
@@ -689,6 +706,12 @@ def main(argv: Sequence[str] | None = None) -> int:
         help="with --raw: the operator's hands off before each return (s)",
     )
     ap.add_argument(
+        "--rest-force",
+        type=float,
+        default=None,
+        help="with --raw: the operator backs off until the force at rest is below this (N)",
+    )
+    ap.add_argument(
         "--dwell-eval",
         default=None,
         help="with --score: Eq. (F5) as if each return started this long after "
@@ -738,7 +761,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         for s, p in zip(seeds, patients, strict=True):
             t0 = time.perf_counter()
             cfg = ForceStudyConfig(condition=args.condition, seed=s, patient=p,
-                                   rounds=args.rounds, dwell_s=args.dwell)  # fmt: skip
+                                   rounds=args.rounds, dwell_s=args.dwell,
+                                   rest_force_n=args.rest_force)  # fmt: skip
             raw = record_pair(cfg)
             np.savez_compressed(f"{args.raw}/{args.condition}_{s}_{p}.npz", **raw)
             print(f"catheter {s} / patient {p}: {time.perf_counter() - t0:.0f} s", flush=True)
