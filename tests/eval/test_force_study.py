@@ -71,3 +71,20 @@ def test_the_study_scores_a_recorded_return_as_the_product_checks_it() -> None:
     assert checks[1].needed_n == pytest.approx(1.5 - 1.5 * 0.2)
     assert checks[3].drift_mm == pytest.approx(8.0) and checks[3].needed_n < 0
     assert "false alarms 2/4" in tally(checks, pt)
+
+
+def test_a_drift_beyond_the_limit_where_the_check_cannot_tell_is_asked_not_refused() -> None:
+    """Eq. (F6) in the study's scoring: the same 8 mm drift is refused where the still tip
+    scatters 1 mm by itself and asked where it scatters 4 mm (above half the 5 mm limit);
+    a force stop is never counted as a question."""
+    from icenav.eval.force_study import ReturnCheck
+
+    pt = CheckPoint(drift_mm=5.0, margin_n=0.1)
+    sharp = ReturnCheck(0.0, -1.0, 8.0, 8.0, 1.0, 1.0)
+    blurred = ReturnCheck(0.0, -1.0, 8.0, 8.0, 4.0, 4.0)
+    pushed = ReturnCheck(0.0, 0.5, 8.0, 8.0, 4.0, 4.0)
+    assert sharp.stopped(pt) and not sharp.asked(pt)
+    assert blurred.stopped(pt) and blurred.asked(pt)
+    assert pushed.stopped(pt) and not pushed.asked(pt)
+    assert not blurred.asked(CheckPoint(drift_mm=5.0, resolution_fraction=math.inf))
+    assert "false alarms 3/3 (1 of them asked)" in tally([sharp, blurred, pushed], pt)
