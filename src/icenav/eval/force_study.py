@@ -428,6 +428,8 @@ class ReturnCheck:
     resolution_mm: float = 0.0
     """Eq. (F6) over the reference (mm; phase-matched, or instantaneous as ``point``)."""
     resolution_instant_mm: float = 0.0
+    rest_force_n: float = math.nan
+    """Median force (N) over the operator's still cycles before the return."""
 
     def _drifted(self, point: CheckPoint) -> tuple[bool, bool]:
         """(beyond the limit, the check cannot tell here) of Eqs. (F5, F6)."""
@@ -527,8 +529,11 @@ def check_returns(
             sustained = np.full(1, -np.inf)
         shifted = bool(np.any(shift))
         drift, instant, res, res_instant = _rest_drift(op, ret, dwell_s, shifted)  # F5, F6
+        moved = np.flatnonzero(np.any(np.diff(op[:, 1:5], axis=0) != 0, axis=1))
+        still = op[int(moved[-1]) + 1 if len(moved) else 0 :, 5]
+        rest_f = float(np.median(still)) if len(still) else math.nan
         out.append(ReturnCheck(float(np.max(np.abs(shift))), float(sustained.max()), drift,
-                               instant, res, res_instant))  # fmt: skip
+                               instant, res, res_instant, rest_f))  # fmt: skip
     return out
 
 
