@@ -5,6 +5,7 @@ contact forces, the session stores them, a restarted session checks its returns 
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -308,3 +309,75 @@ def test_refine_view_runs_the_pose_stage_on_the_breath_averaged_pose() -> None:
     q_saved = ctrl.views.get("still").q
     assert np.all(np.abs(robot.read_state().q - q_saved) <= box + 1e-9)
     assert em_error_mm() <= before + 0.3  # never farther than it started (the scatter)
+
+
+class _Wandering:
+    """The twin's tracker with the tip carried about by a wall the operator cannot see
+    move: offsets (base frame, mm) of periods no ECG phase explains, and ``jump`` (mm,
+    along base x) from time ``t_jump`` on, as a moved patient would carry it."""
+
+    def __init__(self, inner: DisturbedTracker) -> None:
+        self.inner = inner
+        self.t_jump = float("inf")
+        self.jump = 8.0
+
+    def _offset(self, t: float) -> np.ndarray:
+        w = 2.0 * np.pi * t
+        wander = 4.0 * np.array([np.sin(w / 1.7), np.sin(w / 2.9 + 1.0), np.sin(w / 5.3 + 2.0)])
+        return wander + ([self.jump, 0.0, 0.0] if t >= self.t_jump else 0.0)
+
+    def get_frame(self) -> Any:
+        from icenav.devices.tracker import TrackerFrame
+
+        frame = self.inner.get_frame()
+        if frame.sensor2tracker is None:
+            return frame
+        t2b = np.asarray(self.inner.inner.config.tracker2base, np.float64)
+        shift = np.eye(4)
+        shift[:3, 3] = self._offset(float(frame.timestamp))
+        s2t = np.linalg.inv(t2b) @ shift @ t2b @ np.asarray(frame.sensor2tracker)
+        return TrackerFrame(frame.timestamp, s2t, frame.status, frame.quality)
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self.inner, name)
+
+
+@pytest.mark.parametrize("between", ["nothing", "the operator drives"])
+def test_where_the_drift_check_cannot_tell_a_return_asks_and_the_second_press_runs_it(
+    between: str,
+) -> None:
+    """Eq. (F6) in the controller: the still tip wanders 4 mm about (no phase explains it)
+    and is then carried 8 mm: the console says the check cannot tell here, the first press
+    holds with a question, and a second press runs the return (the robot moves). When the
+    operator drives between the presses, the new rest asks again."""
+    clock = Clock()
+    twin = build_twin("phantom", 100, 0, clock)
+    robot = SimulatedRobot(twin.plant, clock=clock)
+    tracker = _Wandering(DisturbedTracker(exact_tracker(twin.plant.inner, clock), twin.plant))
+    tracker.start()
+    ctrl = Controller(robot, ControllerConfig(), clock=clock, tracker=tracker,
+                      cardiac_phase=twin.rhythm.phase)  # fmt: skip
+    q_view = np.asarray(twin.views["mitral_valve"], np.float64)
+    ctrl.request_mode(Mode.KNOB)
+    _jog_to(ctrl, clock, q_view, 1.2)
+    ctrl.save_view("mitral")
+    _jog_to(ctrl, clock, 0.5 * q_view, 0.6)
+    for _ in range(int(7.0 * ctrl.config.rate_hz)):  # the jog runs out; the operator looks
+        _cycle(ctrl, clock)
+    assert "cannot tell here" in ctrl.snapshot().force_check, ctrl.snapshot().force_check
+    tracker.t_jump = clock.t
+    q_left = np.asarray(robot.read_state().q).copy()
+    message = _go(ctrl, clock, "mitral")
+    assert "cannot tell here" in message and "press again" in message, message
+    assert np.all(np.abs(np.asarray(robot.read_state().q) - q_left) < [0.05, 0.05, 0.05, 0.5])
+    if between == "the operator drives":
+        ctrl.request_mode(Mode.KNOB)
+        _jog_to(ctrl, clock, 0.45 * q_view, 0.3)
+        for _ in range(int(7.0 * ctrl.config.rate_hz)):
+            _cycle(ctrl, clock)
+        q_left = np.asarray(robot.read_state().q).copy()
+        message = _go(ctrl, clock, "mitral")
+        assert "cannot tell here" in message, message
+    else:
+        _go(ctrl, clock, "mitral")
+        assert np.abs(np.asarray(robot.read_state().q) - q_left).max() > 0.05
