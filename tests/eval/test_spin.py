@@ -265,3 +265,18 @@ def test_a_version_3_calibration_file_reproduces_our_condition(
         # stream, read in turn): 0.04 mm and 0.06 deg measured
         assert file.position_rmse_mm == pytest.approx(ours.position_rmse_mm, abs=0.15)
         assert file.rotation_rmse_deg == pytest.approx(ours.rotation_rmse_deg, abs=0.15)
+
+
+def test_every_family_has_a_play_prior_and_a_plug_in_has_none() -> None:
+    """Condition ``short+rings+prior`` reads the product line's prior (package data made by
+    docs/figures/make_play_priors.py from development catheters 215-217); a plant without
+    one is refused by name."""
+    from icenav.errors import InvalidValueError
+    from icenav.eval.spin import family_play_prior
+    from icenav.sim.families import FAMILIES
+
+    for name in FAMILIES:
+        prior = family_play_prior(name)
+        assert prior.product == name and len(prior.catheters) == 3
+    with pytest.raises(InvalidValueError, match="no play prior"):
+        family_play_prior(lambda seed, vessel: (None, None))

@@ -44,6 +44,7 @@ from numpy.typing import ArrayLike
 from icenav._typing import Array
 from icenav.calibration.hysteresis import HysteresisPlan, fit_hysteresis, hysteresis_plan
 from icenav.calibration.plans import MotionPlan, Recording
+from icenav.calibration.play_prior import PlayPrior
 from icenav.compensation.elasticity import CalibrationSet, ElasticityMap
 from icenav.compensation.hysteresis import HysteresisCompensator
 from icenav.compensation.section_length import SectionLength, fit_section_length
@@ -57,6 +58,7 @@ __all__ = [
     "SWEEP_STEP",
     "ShortRingCalibration",
     "ShortRingPlan",
+    "fit_short_plays",
     "fit_short_rings",
     "ring_path",
     "short_ring_plan",
@@ -134,11 +136,16 @@ def short_ring_plan(
     direction: int = 1,
     both_ways: bool = True,
     roll_step: float = SWEEP_STEP,
+    play_directions: Sequence[float] = (),
+    direction_step: float | None = None,
 ) -> ShortRingPlan:
     """Roll sweeps straight (+-30 deg) and with the AP knob at 50 deg (+-50 deg) in
     ``roll_step``, then :func:`ring_path`: 100 moves with the defaults (both ways,
     :data:`BOTH_WAYS_STOPS` stops; one way: 12 stops, 76 moves), the 5-point search's 11
-    before them."""
+    before them. ``play_directions`` (rad in (0, pi), ascending) add one bent roll sweep
+    each, the knobs at 50 deg along that direction, in ``direction_step`` (default
+    ``roll_step``): the plays over the knob plane
+    (:func:`~icenav.calibration.hysteresis.hysteresis_plan`); fewer stops keep the budget."""
     stops = (BOTH_WAYS_STOPS if both_ways else 12) if n_stops is None else int(n_stops)
     sweeps = hysteresis_plan(
         joints=(2,),
@@ -146,6 +153,8 @@ def short_ring_plan(
         roll_step=roll_step,
         roll_widening=0.4,
         more_roll_bends=(),
+        play_directions=tuple(float(p) for p in play_directions),
+        direction_step=roll_step if direction_step is None else float(direction_step),
     )
     path = ring_path(radii, stops, direction, both_ways)
     rings = MotionPlan.make(path, KNOB_RINGS, 1, retries=0)
@@ -195,6 +204,8 @@ class ShortRingCalibration:
     """The section's length, fitted on every tracked pose of the calibration (the five
     points, the sweeps, the ring stops): F is built on tips with its axial excess removed,
     and :meth:`model_to_motor_path` sends it to the translation."""
+    prior: PlayPrior | None = None
+    """The play prior the roll's and the twist's plays were scaled from (None: lines)."""
 
     def model_to_motor_path(self, q_model: ArrayLike) -> Array:
         """Motor joint states (n, 4) of a path of model joint states (n, 4) in the order
@@ -221,18 +232,18 @@ def fit_short_rings(
     geometry: CatheterGeometry = DEFAULT_GEOMETRY,
     *,
     fit_length: bool = True,
+    prior: PlayPrior | None = None,
 ) -> ShortRingCalibration:
     """F on the five points (``five_point``, the paper's search) and the tracked ring stops,
     and the roll's plays from the sweeps, of a recording of ``splan``; with ``fit_length``
     the section's length (:func:`~icenav.compensation.section_length.fit_section_length`
-    over every tracked pose), its axial excess removed from F's samples."""
+    over every tracked pose), its axial excess removed from F's samples. With ``prior`` (an
+    explicit option: the catheter model's play shapes from full calibrations of other
+    catheters, :mod:`icenav.calibration.play_prior`) the roll's and the twist's plays are
+    the prior's shapes scaled to the bent sweep's readings (P1) instead of lines."""
     if recording.plan is not splan.plan and recording.plan.segments != splan.plan.segments:
         raise ConfigurationError("the recording is not of this short calibration's plan")
-    n = splan.sweeps.plan.n
-    sweeps = Recording(
-        plan=splan.sweeps.plan, tip2base=recording.tip2base[:n], attempts=recording.attempts[:n]
-    )
-    roll = fit_hysteresis(splan.sweeps, sweeps, geometry).compensator
+    roll = fit_short_plays(splan, recording, prior, geometry)
     section = _fit_section(recording, five_point, geometry) if fit_length else SectionLength()
     q, poses = recording.part(KNOB_RINGS)
     tracked = np.all(np.isfinite(poses.reshape(len(q), -1)), axis=1)
@@ -270,6 +281,60 @@ def fit_short_rings(
         n_moves=splan.plan.n,
         reverse_map=rev,
         section=section,
+        prior=prior,
+    )
+
+
+def fit_short_plays(
+    splan: ShortRingPlan,
+    recording: Recording,
+    prior: PlayPrior | None = None,
+    geometry: CatheterGeometry = DEFAULT_GEOMETRY,
+) -> HysteresisCompensator:
+    """The roll's and the twist's plays of the short calibration's sweeps (the first
+    ``splan.sweeps.plan.n`` visits of ``recording``; the rings may follow or not): lines
+    through the bent sweep's reading (:func:`~icenav.calibration.hysteresis.fit_hysteresis`;
+    laws over the knob plane when the plan sweeps further directions), or with ``prior``
+    the prior's shapes scaled to that reading (P1)."""
+    n = splan.sweeps.plan.n
+    if recording.plan.n < n or recording.plan.segments[: len(splan.sweeps.plan.segments)] != (
+        splan.sweeps.plan.segments
+    ):
+        raise ConfigurationError("the recording does not start with the short plan's sweeps")
+    sweeps = Recording(
+        plan=splan.sweeps.plan, tip2base=recording.tip2base[:n], attempts=recording.attempts[:n]
+    )
+    roll = fit_hysteresis(splan.sweeps, sweeps, geometry).compensator
+    if prior is not None:
+        roll = _with_prior(roll, prior, _bent_check(sweeps, splan.sweeps.bend))
+    return roll
+
+
+def _bent_check(recording: Recording, knob: float) -> float:
+    """The tracked bend (rad) of the sweeps' 5-sample ``bend check`` (the AP knob's angle
+    ``knob`` when it was not tracked), as the sweeps' fit reads it."""
+    _, check = recording.part("bend check")
+    pose = check[0]
+    if not np.all(np.isfinite(pose)):
+        return max(knob, math.radians(1.0))
+    return max(math.acos(max(-1.0, min(1.0, float(pose[2, 2])))), math.radians(1.0))
+
+
+def _with_prior(
+    comp: HysteresisCompensator, prior: PlayPrior, bend: float
+) -> HysteresisCompensator:
+    """The sweeps' compensator with the roll's and the twist's plays of (P1): the readings
+    at the bent sweep (``*_per_bend`` x the tracked ``bend``) set the prior's levels; a play
+    the prior cannot scale keeps its line."""
+    roll = prior.law("roll", bend, comp.roll_play_per_bend * bend)
+    twist = prior.law("twist", bend, comp.twist_play_per_bend * bend)
+    return HysteresisCompensator(
+        list(comp.joints),
+        roll_play_per_bend=comp.roll_play_per_bend,
+        knob_play_per_bend=comp.knob_play_per_bend,
+        twist_play_per_bend=comp.twist_play_per_bend,
+        roll_play=roll,
+        twist_play=twist,
     )
 
 

@@ -48,6 +48,7 @@ import math
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from importlib import resources
 from typing import Any
 
 import numpy as np
@@ -61,6 +62,7 @@ from icenav.calibration.hysteresis import (
     short_hysteresis_plan,
 )
 from icenav.calibration.plans import raster_grid
+from icenav.calibration.play_prior import PlayPrior, load_play_prior
 from icenav.calibration.procedure import CalibrationOutcome, run_procedure, run_visits
 from icenav.calibration.procedures import make_procedure, plan_visits
 from icenav.calibration.short import ShortRingCalibration, fit_short_rings, short_ring_plan
@@ -93,6 +95,7 @@ __all__ = [
     "SpinRecord",
     "calibrate",
     "evaluate_catheter",
+    "family_play_prior",
     "identify_in_situ",
     "knob_map_commands",
     "make_rig",
@@ -119,7 +122,12 @@ SHORT_RINGS = "short+rings"
 """A development condition (not in the default set): the 5-point search, coarse roll sweeps
 and stops on three knob rings turned the spin's way, F over the five points and the ring
 stops (:mod:`icenav.calibration.short`; 105 moves in all)."""
-ALL_CONDITIONS = (*CONDITIONS, SHORT, SHORT_RINGS)
+SHORT_PRIOR = "short+rings+prior"
+"""``short+rings`` with the play prior of the catheter's product line (an explicit option:
+the roll's and the twist's play shapes from full calibrations of other catheters of the
+same family, :mod:`icenav.calibration.play_prior`, file ``eval/data/play_prior_<family>.json``;
+the same moves as ``short+rings``, fitted from the same recording)."""
+ALL_CONDITIONS = (*CONDITIONS, SHORT, SHORT_RINGS, SHORT_PRIOR)
 """Every condition ``--conditions`` accepts."""
 FILE = "file"
 """The compensation of a calibration file (``--calibration CAL.json``: a file ``icenav
@@ -193,6 +201,8 @@ class Calibrations:
     """The short calibration's roll and twist plays (with ``simplified``'s F), if run."""
     short_rings: ShortRingCalibration | None = None
     """The ``short+rings`` calibration, if run."""
+    short_prior: ShortRingCalibration | None = None
+    """The ``short+rings+prior`` calibration (the same recording), if run."""
 
     @property
     def catheter(self) -> CatheterCalibration:
@@ -286,14 +296,35 @@ def run_calibration(kind: str, plant: Any, tracker: Any) -> CalibrationOutcome:
     return procedure.fit(run_procedure(procedure, plant.move, tracker))
 
 
+def family_play_prior(plant: PlantSpec) -> PlayPrior:
+    """The play prior of ``plant``'s product line (``eval/data/play_prior_<name>.json``,
+    made by ``docs/figures/make_play_priors.py``); raises InvalidValueError when there is
+    none (a plug-in plant has none)."""
+    name = plant_name(plant)
+    res = resources.files("icenav.eval") / "data" / f"play_prior_{name}.json"
+    if not res.is_file():
+        raise InvalidValueError(
+            f"condition {SHORT_PRIOR!r}: no play prior for plant {name!r} "
+            "(docs/figures/make_play_priors.py makes the families')"
+        )
+    with resources.as_file(res) as path:
+        return load_play_prior(path)
+
+
 def calibrate(
-    seed: int, plant: PlantSpec = None, *, short: bool = False, short_rings: bool = False
+    seed: int,
+    plant: PlantSpec = None,
+    *,
+    short: bool = False,
+    short_rings: bool = False,
+    short_prior: bool = False,
 ) -> Calibrations:
     """Calibrate catheter ``seed`` of ``plant`` in the straight vessel with the console's
     procedures: ``dense``, ``five_point`` and ``dense+hysteresis``, one after the other on one
     robot and tracker (each from rest); with ``short`` also the short calibration's roll
     sweeps (:func:`short_hysteresis_plan`), with ``short_rings`` the ``short+rings`` one
-    (:func:`icenav.calibration.short.short_ring_plan` after the 5-point search's)."""
+    (:func:`icenav.calibration.short.short_ring_plan` after the 5-point search's), with
+    ``short_prior`` the same recording fitted with the family's play prior."""
     t0 = time.perf_counter()
     rig, tracker = make_rig(seed, "straight", plant)
     dense = run_calibration("dense", rig, tracker)
@@ -305,12 +336,16 @@ def calibrate(
         splan = short_hysteresis_plan()
         rec = run_visits(plan_visits(splan.plan), rig.move, tracker)
         short_comp = fit_hysteresis(splan, rec).compensator
-    rings = None
-    if short_rings:
+    rings = with_prior = None
+    if short_rings or short_prior:
         rig.reset()
         rplan = short_ring_plan()
         rec = run_visits(plan_visits(rplan.plan), rig.move, tracker)
-        rings = fit_short_rings(rplan, rec, five.calibration_set)
+        if short_rings:
+            rings = fit_short_rings(rplan, rec, five.calibration_set)
+        if short_prior:
+            prior = family_play_prior(plant)
+            with_prior = fit_short_rings(rplan, rec, five.calibration_set, prior=prior)
     cat: CatheterCalibration = ours.details
     # the ablation: the knobs' own sweeps (not in our calibration), the roll's plays of ours
     rig.reset()
@@ -344,6 +379,7 @@ def calibrate(
         seconds=time.perf_counter() - t0,
         short=short_comp,
         short_rings=rings,
+        short_prior=with_prior,
     )
 
 
@@ -411,17 +447,21 @@ def _effective_path(q_model: Array, cal: Calibrations) -> tuple[Array, Array]:
     return eff, bends
 
 
-def _short_commands(q_model: Array, cal: Calibrations, rings: bool = False) -> Array:
+def _short_commands(
+    q_model: Array, cal: Calibrations, rings: bool = False, prior: bool = False
+) -> Array:
     """The short calibration's commands (APPROACH_STEPS + n, 4): the twist pre-shaped, the
     5-point F (with ``rings``: F over the five points and the ring stops), the roll's play
     inverse at the intended bend (knobs without play model). The rings turned both ways
     command through F+ / F- by the sense the path turns (icenav.calibration.short, S1)."""
     to_motor: Callable[[ArrayLike], Array]
     if rings:
-        if cal.short_rings is None:
-            raise InvalidValueError(f"condition {SHORT_RINGS!r} needs its calibration")
-        comp = cal.short_rings.hysteresis
-        to_motor = cal.short_rings.model_to_motor_path  # F+ / F- by the sense turned
+        sr = cal.short_prior if prior else cal.short_rings
+        if sr is None:
+            name = SHORT_PRIOR if prior else SHORT_RINGS
+            raise InvalidValueError(f"condition {name!r} needs its calibration")
+        comp = sr.hysteresis
+        to_motor = sr.model_to_motor_path  # F+ / F- by the sense turned
     elif cal.short is None:
         raise InvalidValueError(f"condition {SHORT!r} needs the short calibration")
     else:
@@ -475,6 +515,8 @@ def _commands(
         return _short_commands(q_model, cal)
     if condition == SHORT_RINGS:
         return _short_commands(q_model, cal, rings=True)
+    if condition == SHORT_PRIOR:
+        return _short_commands(q_model, cal, rings=True, prior=True)
     if condition == KNOB_HYSTERESIS:
         eff, bends = _effective_path(q_model, cal)
         comp = cal.compensator
@@ -714,7 +756,13 @@ def evaluate_catheter(
         raise InvalidValueError("condition 'file' needs calibration_file")
     needs_calibration = any(c not in ("none", FILE) for c in conditions)
     cal = (
-        calibrate(seed, plant, short=SHORT in conditions, short_rings=SHORT_RINGS in conditions)
+        calibrate(
+            seed,
+            plant,
+            short=SHORT in conditions,
+            short_rings=SHORT_RINGS in conditions,
+            short_prior=SHORT_PRIOR in conditions,
+        )
         if needs_calibration
         else None
     )

@@ -57,6 +57,7 @@ _CONDITION_ORDER = (
     "dense+hysteresis+em",
     "short",
     "short+rings",
+    "short+rings+prior",
     "file",
 )
 
