@@ -1,16 +1,19 @@
 """Markdown tables of docs/results.md (plant families) from the records of ``icenav eval spin``.
 
-The held-out records are made by ONE run each. Catheters 315-319 (round 4, session 8; the
-freeze commit is in docs/results.md; on the busy 2-core machine shared by five engineers):
+The held-out records are made by ONE run each. Catheters 320-324 (round 5, session 9; the
+freeze commit is in docs/results.md; on the busy 2-core machine shared by four engineers),
+as two commands so that a late finish could be cut after 322, their records merged into
+``families_seeds320-324.json``:
 
-    nice -n 10 icenav eval spin --plant-family all --seeds 315-319 --jobs 2 \\
-        --conditions none,dense,dense+hysteresis,short+rings \\
-        --json docs/figures/families_seeds315-319.json
+    nice -n 10 icenav eval spin --plant-family all --seeds 320-322 --jobs 2 \\
+        --conditions none,dense,dense+hysteresis,short+rings,short+rings+prior \\
+        --json docs/figures/families_seeds320-322.json
+    (the same with --seeds 323-324 --json docs/figures/families_seeds323-324.json)
 
-and, the rounds before (now spent): ``--seeds 310-314`` (round 3, at 2bf7dc3, the same
-conditions), ``--seeds 305-309`` (methods frozen at 899b631,
-without ``short+rings``) and ``--seeds 300-304`` (at b41cbd4), their records in
-``docs/figures/families_seeds305-309.json`` and ``..._seeds300-304.json``.
+and, the rounds before (now spent): ``--seeds 315-319`` (round 4, at bcf73ae, without
+``short+rings+prior``), ``--seeds 310-314`` (round 3, at 2bf7dc3, the same conditions),
+``--seeds 305-309`` (methods frozen at 899b631, without ``short+rings``) and ``--seeds
+300-304`` (at b41cbd4), their records in ``docs/figures/families_seeds3*.json``.
 
 This script only reads them and prints the tables and the issue's targets
 (run: python docs/figures/make_family_tables.py [records.json]); with ``--compare
@@ -20,7 +23,9 @@ and bend, e.g. on the development catheters 210-212
 with ``--seeds 210-212 --conditions dense+hysteresis`` at bcf97b2 and at 899b631; round 3:
 ``families_dev210-214_before.json`` / ``..._after.json`` on 210-214; session 8:
 ``families_dev210-212_s8_{before,after}.json``, ours with the AP knob's plays only and with
-the plays over the knob plane); with
+the plays over the knob plane; session 9's map before / after are in
+``families_dev210-212_s9_diagnosis_{before,after}.json``, made by
+``diagnose_family_spins.py``); with
 ``--short FULL.json SHORT.json`` the short calibrations against ours on the same catheters
 (and how many family x bend cells are within 25 % of ours).
 """
@@ -156,7 +161,7 @@ def main() -> None:
             print(f"ours (EM mean over catheters {seeds}), before -> after\n")
             compare(before, after)
         return
-    path = Path(sys.argv[1]) if len(sys.argv) > 1 else HERE / "families_seeds315-319.json"
+    path = Path(sys.argv[1]) if len(sys.argv) > 1 else HERE / "families_seeds320-324.json"
     records = load(path)
     if records:
         seeds = sorted({r.seed for r in records})

@@ -25,6 +25,7 @@ from icenav.compensation.transmission import (
 )
 from icenav.errors import ConfigurationError, NonFiniteError, ShapeError
 from icenav.geometry.kinematics import DEFAULT_GEOMETRY, forward
+from icenav.geometry.trajectories import spin_trajectory
 
 DEG = math.pi / 180
 TRUTH = TendonTransmission(
@@ -254,3 +255,29 @@ def test_a_longer_section_is_taken_by_the_translation(
     assert cmd[3] == pytest.approx(2.0 - excess)
     back = TendonKnobMap(longer).motor_to_model(cmd)
     assert back[3] == pytest.approx(2.0, abs=0.02)
+
+
+def test_a_spin_with_plays_over_the_knob_plane_does_not_chatter(
+    calibration: TransmissionCalibration,
+) -> None:
+    """A twist play twice as wide along the diagonal as along the knobs: in a one-way spin
+    the roll command never reverses and the image lands on the wanted roll each sample
+    (the command looks the plays up by the section's plane, as the state advances them;
+    looked up by the image frame's, the image overshot and the command swung across the
+    whole play every sample)."""
+    narrow, wide = BendPlay.linear(TWIST_PER_BEND), BendPlay.linear(2 * TWIST_PER_BEND)
+    twist = KnobPlanePlay((0.0, math.pi / 4, math.pi / 2, 3 * math.pi / 4), (narrow, wide) * 2)
+    roll = HysteresisCompensator(
+        [None, None, ROLL, None], roll_play=BendPlay.linear(ROLL_PER_BEND), twist_play=twist
+    )
+    cal = dataclasses.replace(calibration, compensator=TendonCompensator(TRUTH, roll))
+    cmap = TendonKnobMap(cal)
+    path = spin_trajectory([50 * DEG, 0.0, 0.0, 0.0], 180).q_model
+    rolls = []
+    for q in np.vstack([np.linspace(np.zeros(4), path[0], 20), path]):
+        cmd = cmap.model_to_motor(q)
+        cmap.observe(cmd)
+        rolls.append(cmd[2])
+        assert cmap.motor_to_model(cmd)[2] == pytest.approx(q[2], abs=0.2 * DEG)
+    steps = np.diff(rolls[20:])
+    assert np.all(steps <= 1e-9)  # the spin turns phi3 one way: so does the motor

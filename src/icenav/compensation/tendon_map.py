@@ -166,7 +166,9 @@ class TendonKnobMap:
         """The motor command (4,) for model state q from the present state (not advanced)."""
         a, b, phi3 = float(q[0]), float(q[1]), float(q[2])
         bend = self.geometry.knob_ratio * math.hypot(a, b)
-        psi = math.atan2(b, a)  # the intended bend's direction in the knob plane
+        # the plays are looked up by the direction of the *section's* plane, as the state
+        # advances them (_model_bend): the image frame's direction turned by the twist t
+        psi = math.atan2(b, a)
         # (SL1): the translation takes what the section's length adds along the shaft
         out = np.array([0.0, 0.0, phi3, float(q[3]) - float(self._section.axial_excess(bend))])
         if self._roll is None:
@@ -174,14 +176,16 @@ class TendonKnobMap:
         else:
             # the image must move: the section leads it by the twist play (it pushes at the
             # play's edge); else the twist stays as it is
-            h = self._twist_extra(bend, psi)
-            t = (
-                -h
-                if phi3 > self._i + 1e-12
-                else h
-                if phi3 < self._i - 1e-12
-                else self._i - self._p3
-            )
+            side = 1.0 if phi3 < self._i - 1e-12 else -1.0 if phi3 > self._i + 1e-12 else 0.0
+            if side == 0.0:
+                t = self._i - self._p3
+            else:
+                # t = side h(bend, psi + t): a fixed point (h changes slowly with the
+                # direction), so the image lands where the advance will put it
+                t = side * self._twist_extra(bend, psi)
+                for _ in range(3):
+                    t = side * self._twist_extra(bend, psi + t)
+            psi = psi + t
         sa, sb = self._turn(a, b, -t)  # the section's model state: phi3 - t, turned back
         lim = self.geometry.knob_limit
         section = np.array([min(max(sa, -lim), lim), min(max(sb, -lim), lim), phi3 - t, 0.0])

@@ -1,0 +1,195 @@
+"""Where ours' spin error comes from (session 9's diagnosis, docs/results.md "Plant families").
+
+Reads the plant's *true* state (the method never does): for each catheter it runs the console's
+``dense+hysteresis`` calibration, then the spins of ``icenav eval spin`` through the
+controller's map, and splits the true position error into what each part of the plant's state
+alone would give on the intended state: the bend's size, its direction in the base frame (knob
+direction plus roll), the section's length, the translation. It also counts the reversals of
+the knob commands (a chattering map) and gives the EM and true RMSE as the eval does.
+
+    python docs/figures/diagnose_family_spins.py --families default,rate-dependent \
+        --seeds 210-212 [--bends 20,40,60] [--map-from bcf73ae] [--cache /tmp/cal] [--json F]
+
+``--map-from REV`` spins through ``TendonKnobMap`` as it was at git revision REV (the same
+calibration), for a before / after of the map alone. Development seeds only.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib.util
+import json
+import math
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from icenav.calibration.model_files import decode_model, encode_model
+from icenav.eval.spin import (
+    APPROACH_STEPS,
+    _approach_path,
+    _rmse,
+    knob_map_commands,
+    make_rig,
+    run_calibration,
+)
+from icenav.geometry.kinematics import DEFAULT_GEOMETRY, forward
+from icenav.geometry.trajectories import spin_trajectory
+
+G = DEFAULT_GEOMETRY
+MAP_PATH = "src/icenav/compensation/tendon_map.py"
+
+
+def calibrated(family: str, seed: int, cache: Path | None) -> Any:
+    """Ours' CatheterCalibration of the catheter (cached as a model file in ``cache``)."""
+    f = None if cache is None else cache / f"cal_{family}_{seed}.json"
+    if f is not None and f.exists():
+        return decode_model("dense+hysteresis", json.loads(f.read_text()), str(f))
+    rig, tracker = make_rig(seed, "straight", family)
+    cat = run_calibration("dense+hysteresis", rig, tracker).details
+    if f is not None:
+        f.write_text(json.dumps(encode_model("dense+hysteresis", cat)))
+    return cat
+
+
+def map_class(rev: str | None) -> Any:
+    """TendonKnobMap now, or as it was at git revision ``rev``."""
+    if rev is None:
+        from icenav.compensation.tendon_map import TendonKnobMap
+
+        return TendonKnobMap
+    text = subprocess.run(
+        ["git", "show", f"{rev}:{MAP_PATH}"], check=True, capture_output=True, text=True
+    ).stdout
+    path = Path(tempfile.mkdtemp()) / "tendon_map_at_rev.py"
+    path.write_text(text)
+    spec = importlib.util.spec_from_file_location("tendon_map_at_rev", path)
+    assert spec is not None and spec.loader is not None
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod.TendonKnobMap
+
+
+def pose_of(knobs: Any, roll: float, scale: float, trans: float) -> Any:
+    """Eq. (T10) of the twin (twist left out: it does not move the tip)."""
+    pose = forward(np.array([knobs[0], knobs[1], roll, 0.0]), G, check=False)
+    z = pose[:3, 2]
+    arc = pose[:3, 3] - G.us_offset * z
+    pose[:3, 3] = scale * arc + G.us_offset * z
+    pose[2, 3] += trans
+    return pose
+
+
+def reversals(cmd: Any) -> int:
+    """Sign changes of the knob commands' steps (both knobs)."""
+    n = 0
+    for j in (0, 1):
+        d = np.diff(cmd[:, j])
+        s = np.sign(d[np.abs(d) > 1e-9])
+        n += int(np.sum(s[1:] != s[:-1]))
+    return n
+
+
+def spin(cat: Any, cls: Any, family: str, seed: int, bend: int) -> dict[str, Any]:
+    """One spin: EM / true RMSE, reversals and the decomposition of the true position error."""
+    sp = spin_trajectory([math.radians(bend), 0.0, 0.0, 0.0], 360, include_end=True)
+    q = sp.q_model
+    cmd = knob_map_commands(cls(cat.transmission), _approach_path(q))
+    rig, tracker = make_rig(seed, "straight", family)
+    plant = rig.robot.plant
+    rig.reset()
+    eff, roll, trans, true, em = [], [], [], [], []
+    for i, c in enumerate(cmd):
+        rig.move(c)
+        if i < APPROACH_STEPS:
+            continue
+        s = plant.state
+        eff.append(s.effective_knobs)
+        roll.append(s.roll)
+        trans.append(s.translation_mm)
+        true.append(s.tip2base)
+        m = tracker.measure_tip2base()
+        em.append(np.full((4, 4), np.nan) if m is None else m)
+    eff_a, roll_a, trans_a = np.array(eff), np.array(roll), np.array(trans)
+    true_a, em_a = np.array(true), np.array(em)
+    scale = plant._length / G.bending_length  # the plant's own (the diagnosis reads it)
+    intended = forward(q, G, check=False)
+    p0 = intended[0, :3, 3]
+    ok = np.all(np.isfinite(em_a.reshape(len(em_a), -1)), axis=1)
+    ep, er = _rmse(em_a[ok], intended[ok])
+    tp, tr = _rmse(true_a, intended)
+
+    def err(knobs: Any, rl: Any, sc: float, tz: Any) -> float:
+        p = np.array([pose_of(knobs[i], rl[i], sc, tz[i])[:3, 3] for i in range(len(rl))])
+        return float(np.sqrt(np.mean(np.sum((p - p0) ** 2, axis=1))))
+
+    size = np.hypot(q[:, 0], q[:, 1])
+    size_eff = np.hypot(eff_a[:, 0], eff_a[:, 1])
+    az = np.arctan2(eff_a[:, 1], eff_a[:, 0]) + roll_a - q[:, 2]  # base-frame direction
+    d_size = np.degrees(size_eff - size)
+    d_az = np.degrees((az - np.arctan2(q[:, 1], q[:, 0]) + np.pi) % (2 * np.pi) - np.pi)
+    qk = q[:, :2]
+    return {
+        "family": family,
+        "seed": seed,
+        "bend_deg": bend,
+        "em_mm": ep,
+        "em_deg": er,
+        "true_mm": tp,
+        "true_deg": tr,
+        "reversals": reversals(cmd[APPROACH_STEPS:]),
+        "max_knob_step_deg": float(np.degrees(np.abs(np.diff(cmd[:, :2], axis=0)).max())),
+        # each part of the plant's state alone on the intended state (true position RMSE, mm)
+        "alone_bend_size_mm": err(qk * (size_eff / size)[:, None], q[:, 2], 1.0, q[:, 3]),
+        "alone_bend_direction_mm": err(
+            np.column_stack([size * np.cos(az), size * np.sin(az)]), q[:, 2], 1.0, q[:, 3]
+        ),
+        "alone_length_mm": err(qk, q[:, 2], scale, q[:, 3]),
+        "alone_translation_mm": err(qk, q[:, 2], 1.0, trans_a),
+        "bend_size_err_rms_deg": float(np.sqrt(np.mean(d_size**2))),
+        "bend_size_err_mean_deg": float(np.mean(d_size)),
+        "bend_direction_err_rms_deg": float(np.sqrt(np.mean(d_az**2))),
+        "translation_err_mean_mm": float(np.mean(trans_a - q[:, 3])),
+    }
+
+
+def main(argv: list[str] | None = None) -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--families", required=True)
+    ap.add_argument("--seeds", required=True, help="e.g. 210-212 or 210,212")
+    ap.add_argument("--bends", default="20,40,60")
+    ap.add_argument("--map-from", default=None, help="git revision of TendonKnobMap")
+    ap.add_argument("--cache", type=Path, default=None)
+    ap.add_argument("--json", type=Path, default=None)
+    a = ap.parse_args(argv)
+    if "-" in a.seeds:
+        lo, hi = (int(x) for x in a.seeds.split("-"))
+        seeds = list(range(lo, hi + 1))
+    else:
+        seeds = [int(x) for x in a.seeds.split(",")]
+    if a.cache is not None:
+        a.cache.mkdir(parents=True, exist_ok=True)
+    cls = map_class(a.map_from)
+    rows = []
+    for family in a.families.split(","):
+        for seed in seeds:
+            cat = calibrated(family, seed, a.cache)
+            for bend in (int(b) for b in a.bends.split(",")):
+                r = spin(cat, cls, family, seed, bend)
+                rows.append(r)
+                print(
+                    json.dumps(
+                        {k: round(v, 3) if isinstance(v, float) else v for k, v in r.items()}
+                    )
+                )
+                sys.stdout.flush()
+    if a.json is not None:
+        a.json.write_text(json.dumps(rows, indent=1))
+
+
+if __name__ == "__main__":
+    main()
