@@ -30,13 +30,14 @@ from dataclasses import replace
 from typing import Any
 
 import numpy as np
+from ablation_rows import error_row
 
 from icenav.calibration.plans import Recording
 from icenav.calibration.procedure import run_visits
 from icenav.calibration.procedures import plan_visits
 from icenav.calibration.short import ShortRingCalibration, fit_short_rings, short_ring_plan
 from icenav.eval import spin as S
-from icenav.geometry.kinematics import DEFAULT_GEOMETRY, forward
+from icenav.geometry.kinematics import forward
 from icenav.geometry.trajectories import spin_trajectory
 
 fam, seed = sys.argv[1], int(sys.argv[2])
@@ -76,19 +77,9 @@ print(
 )
 
 
-def short_commands(sr: ShortRingCalibration, q_model: Any) -> Any:
-    """As ``icenav.eval.spin`` commands ``short+rings`` (its ``_short_commands``)."""
-    comp = sr.hysteresis
-    path = S._approach_path(q_model)
-    lim = DEFAULT_GEOMETRY.knob_limit
-    model = comp.preshape_model(path)
-    model[:, :2] = np.clip(model[:, :2], -lim, lim)
-    eff = sr.model_to_motor_path(model)
-    bends = DEFAULT_GEOMETRY.knob_ratio * np.hypot(path[:, 0], path[:, 1])
-    comp.reset(np.zeros(4))
-    cmd = comp.command_path(eff, bends=bends)
-    cmd[:, :2] = np.clip(cmd[:, :2], -lim, lim)
-    return cmd
+def short_commands(sr: Any, q_model: Any) -> Any:
+    """As ``icenav.eval.spin`` commands ``short+rings``."""
+    return S.short_ring_commands(sr, q_model)
 
 
 rows: dict[str, list[float]] = {}
@@ -108,18 +99,7 @@ for name in [*variants, "ours"]:
         errs += [ep, er, tp, tr]
     rows[name] = errs
     e = errs
-    print(
-        f"{name:12s} EM "
-        + " / ".join(f"{e[4 * i]:.2f}" for i in range(3))
-        + " mm, "
-        + " / ".join(f"{e[4 * i + 1]:.2f}" for i in range(3))
-        + " deg | true "
-        + " / ".join(f"{e[4 * i + 2]:.2f}" for i in range(3))
-        + " mm, "
-        + " / ".join(f"{e[4 * i + 3]:.2f}" for i in range(3))
-        + " deg",
-        flush=True,
-    )
+    print(f"{name:12s} " + error_row(e), flush=True)
 if out_path:
     with open(out_path, "w") as fh:
         json.dump({"family": fam, "seed": seed, "rows": rows}, fh, indent=1)

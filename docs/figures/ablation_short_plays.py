@@ -26,13 +26,14 @@ from dataclasses import replace
 from typing import Any
 
 import numpy as np
+from ablation_rows import error_row
 
 from icenav.calibration.hysteresis import fit_hysteresis, hysteresis_plan
 from icenav.calibration.procedure import run_visits
 from icenav.calibration.procedures import plan_visits
 from icenav.calibration.short import fit_short_plays, fit_short_rings, short_ring_plan
 from icenav.eval import spin as S
-from icenav.geometry.kinematics import DEFAULT_GEOMETRY, forward
+from icenav.geometry.kinematics import forward
 from icenav.geometry.trajectories import spin_trajectory
 
 fam, seed = sys.argv[1], int(sys.argv[2])
@@ -67,18 +68,8 @@ if "prior" in wanted:
 
 
 def short_commands(sr: Any, q_model: Any) -> Any:
-    """As ``icenav.eval.spin`` commands ``short+rings`` (its ``_short_commands``)."""
-    comp = sr.hysteresis
-    path = S._approach_path(q_model)
-    lim = DEFAULT_GEOMETRY.knob_limit
-    model = comp.preshape_model(path)
-    model[:, :2] = np.clip(model[:, :2], -lim, lim)
-    eff = sr.model_to_motor_path(model)
-    bends = DEFAULT_GEOMETRY.knob_ratio * np.hypot(path[:, 0], path[:, 1])
-    comp.reset(np.zeros(4))
-    cmd = comp.command_path(eff, bends=bends)
-    cmd[:, :2] = np.clip(cmd[:, :2], -lim, lim)
-    return cmd
+    """As ``icenav.eval.spin`` commands ``short+rings``."""
+    return S.short_ring_commands(sr, q_model)
 
 
 rows: dict[str, list[float]] = {}
@@ -91,17 +82,6 @@ for name, sr in variants.items():
         ok = np.all(np.isfinite(em.reshape(len(em), -1)), axis=1)
         e += [*S._rmse(em[ok], intended[ok]), *S._rmse(true, intended)]
     rows[name] = e
-    print(
-        f"{fam} {seed} {name:7s} EM "
-        + " / ".join(f"{e[4 * i]:.2f}" for i in range(3))
-        + " mm, "
-        + " / ".join(f"{e[4 * i + 1]:.2f}" for i in range(3))
-        + " deg | true "
-        + " / ".join(f"{e[4 * i + 2]:.2f}" for i in range(3))
-        + " mm, "
-        + " / ".join(f"{e[4 * i + 3]:.2f}" for i in range(3))
-        + " deg",
-        flush=True,
-    )
+    print(f"{fam} {seed} {name:7s} " + error_row(e), flush=True)
 with open(f"short_plays_{fam}_{seed}.json", "w") as fh:
     json.dump({"family": fam, "seed": seed, "rows": rows}, fh, indent=1)

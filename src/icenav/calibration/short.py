@@ -328,14 +328,7 @@ def _with_prior(
     the prior cannot scale keeps its line."""
     roll = prior.law("roll", bend, comp.roll_play_per_bend * bend)
     twist = prior.law("twist", bend, comp.twist_play_per_bend * bend)
-    return HysteresisCompensator(
-        list(comp.joints),
-        roll_play_per_bend=comp.roll_play_per_bend,
-        knob_play_per_bend=comp.knob_play_per_bend,
-        twist_play_per_bend=comp.twist_play_per_bend,
-        roll_play=roll,
-        twist_play=twist,
-    )
+    return comp.with_plays(roll, twist)
 
 
 def _fit_section(

@@ -35,6 +35,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike
@@ -224,15 +225,25 @@ class HysteresisCompensator:
     def with_reversal_threshold(self, delta: float) -> HysteresisCompensator:
         """A fresh compensator (state reset) with the same models and ``reversal_threshold``
         = ``delta`` (rad)."""
-        return HysteresisCompensator(
-            list(self.joints),
-            roll_play_per_bend=self.roll_play_per_bend,
-            knob_play_per_bend=self.knob_play_per_bend,
-            twist_play_per_bend=self.twist_play_per_bend,
-            reversal_threshold=delta,
-            roll_play=self.roll_play,
-            twist_play=self.twist_play,
-        )
+        return self._fresh(reversal_threshold=delta)
+
+    def with_plays(
+        self, roll_play: PlayLaw | None, twist_play: PlayLaw | None
+    ) -> HysteresisCompensator:
+        """A fresh compensator (state reset) with the same models but the roll's and the
+        twist's play laws (``roll_play`` / ``twist_play`` as the constructor takes them)."""
+        return self._fresh(roll_play=roll_play, twist_play=twist_play)
+
+    def _fresh(self, **changes: Any) -> HysteresisCompensator:
+        kwargs: dict[str, Any] = {
+            "roll_play_per_bend": self.roll_play_per_bend,
+            "knob_play_per_bend": self.knob_play_per_bend,
+            "twist_play_per_bend": self.twist_play_per_bend,
+            "reversal_threshold": self.reversal_threshold,
+            "roll_play": self.roll_play,
+            "twist_play": self.twist_play,
+        }
+        return HysteresisCompensator(list(self.joints), **{**kwargs, **changes})
 
     def roll_extra(self, bend: ArrayLike, direction: ArrayLike | None = None) -> Array:
         """Extra half-width of the roll's play (rad) at ``bend`` (rad, any shape) in

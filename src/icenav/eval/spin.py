@@ -44,6 +44,7 @@ the command line (options, many catheters, printing) :mod:`icenav.eval.spin_cli`
 
 from __future__ import annotations
 
+import functools
 import math
 import time
 from collections.abc import Callable, Sequence
@@ -104,6 +105,7 @@ __all__ = [
     "run_spin",
     "run_spin_closed_loop",
     "run_vessel",
+    "short_ring_commands",
 ]
 
 OURS = "dense+hysteresis"
@@ -119,14 +121,12 @@ SHORT = "short"
 the twist's play from two short roll sweeps (:func:`short_hysteresis_plan`; 89 moves in all),
 no knob play, no tracker bias."""
 SHORT_RINGS = "short+rings"
-"""A development condition (not in the default set): the 5-point search, coarse roll sweeps
-and stops on three knob rings turned the spin's way, F over the five points and the ring
-stops (:mod:`icenav.calibration.short`; 105 moves in all)."""
+"""The 5-point search, coarse roll sweeps and ring stops turned both ways, F over the points
+and the stops (:mod:`icenav.calibration.short`; 111 moves; not in the default set)."""
 SHORT_PRIOR = "short+rings+prior"
-"""``short+rings`` with the play prior of the catheter's product line (an explicit option:
-the roll's and the twist's play shapes from full calibrations of other catheters of the
-same family, :mod:`icenav.calibration.play_prior`, file ``eval/data/play_prior_<family>.json``;
-the same moves as ``short+rings``, fitted from the same recording)."""
+"""``short+rings``' moves fitted with the play prior of the product line (an explicit option:
+play shapes from full calibrations of other catheters of the family, ``eval/data/
+play_prior_<family>.json``, :mod:`icenav.calibration.play_prior`)."""
 ALL_CONDITIONS = (*CONDITIONS, SHORT, SHORT_RINGS, SHORT_PRIOR)
 """Every condition ``--conditions`` accepts."""
 FILE = "file"
@@ -451,25 +451,27 @@ def _short_commands(
     q_model: Array, cal: Calibrations, rings: bool = False, prior: bool = False
 ) -> Array:
     """The short calibration's commands (APPROACH_STEPS + n, 4): the twist pre-shaped, the
-    5-point F (with ``rings``: F over the five points and the ring stops), the roll's play
-    inverse at the intended bend (knobs without play model). The rings turned both ways
-    command through F+ / F- by the sense the path turns (icenav.calibration.short, S1)."""
-    to_motor: Callable[[ArrayLike], Array]
+    5-point F (``rings``: with the ring stops, F+ / F- by the sense turned, S1 of
+    icenav.calibration.short), the roll's play inverse at the intended bend."""
     if rings:
         sr = cal.short_prior if prior else cal.short_rings
         if sr is None:
             name = SHORT_PRIOR if prior else SHORT_RINGS
             raise InvalidValueError(f"condition {name!r} needs its calibration")
-        comp = sr.hysteresis
-        to_motor = sr.model_to_motor_path  # F+ / F- by the sense turned
-    elif cal.short is None:
+        return short_ring_commands(sr, q_model)  # F+ / F- by the sense turned
+    if cal.short is None:
         raise InvalidValueError(f"condition {SHORT!r} needs the short calibration")
-    else:
-        comp, fmap = cal.short, cal.simplified.knob_map
+    to_motor = functools.partial(cal.simplified.knob_map.model_to_motor, check=False)
+    return _compensated_commands(q_model, cal.short, to_motor)
 
-        def to_motor(model: ArrayLike) -> Array:
-            return np.asarray(fmap.model_to_motor(model, check=False), np.float64)
 
+def short_ring_commands(sr: ShortRingCalibration, q_model: Array) -> Array:
+    """``short+rings``' commands (APPROACH_STEPS + n, 4) for ``q_model`` (n, 4), for scripts."""
+    return _compensated_commands(q_model, sr.hysteresis, sr.model_to_motor_path)
+
+
+def _compensated_commands(q_model: Array, comp: Any, to_motor: Callable[..., Array]) -> Array:
+    """The path pre-shaped by ``comp``, mapped by ``to_motor``, then its play inverse."""
     path = _approach_path(q_model)
     lim = DEFAULT_GEOMETRY.knob_limit
     model = comp.preshape_model(path)
