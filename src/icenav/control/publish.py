@@ -23,7 +23,7 @@ from icenav._typing import Array
 from icenav.control.modes import HALTED
 from icenav.control.state import ControllerState, ImageFrame, ViewSummary
 from icenav.geometry.kinematics import CatheterGeometry, backbone, forward
-from icenav.recovery.drift import DEFAULT_DRIFT_MM, RESOLUTION_FRACTION
+from icenav.recovery.drift import DEFAULT_DRIFT_MM, cannot_tell
 
 if TYPE_CHECKING:
     from icenav.control.controller import Controller
@@ -215,9 +215,11 @@ def force_check_text(
     if has_tracker:  # Eq. (F5) compares with where the operator's last drive left the tip
         rest = getattr(forces, "rest", None)
         if rest is None:
-            drift = "; tip-drift check on (tracker, armed at your next drive: the last motion "
-            drift += "was not yours)"
-        elif (r := rest.resolution_mm()) > RESOLUTION_FRACTION * drift_limit_mm:  # Eq. (F6)
+            drift = (
+                "; tip-drift check on (tracker, armed at your next drive: the last motion "
+                "was not yours)"
+            )
+        elif cannot_tell(r := rest.resolution_mm(), drift_limit_mm):  # Eq. (F6)
             drift = (
                 f"; tip-drift check on (tracker; cannot tell here: the still tip strays "
                 f"{r:.1f} mm by itself, so a return that finds it moved asks you to confirm)"

@@ -35,9 +35,9 @@ from icenav.recovery.drift import (
     CONFIRM_S,
     DEFAULT_DRIFT_MM,
     DRIFT_WINDOW_S,
-    RESOLUTION_FRACTION,
     Phases,
     RestReference,
+    cannot_tell,
 )
 from icenav.recovery.force import (
     DEFAULT_MARGIN_FRACTION,
@@ -300,7 +300,7 @@ class PathTask:
         if drift <= self.drift_limit_mm:
             return None
         resolution = rest.resolution_mm()
-        if resolution > RESOLUTION_FRACTION * self.drift_limit_mm:  # Eq. (F6): cannot tell
+        if cannot_tell(resolution, self.drift_limit_mm):  # Eq. (F6)
             if rest.confirmed(now):
                 self.drift_unchecked = True
                 return None

@@ -56,6 +56,7 @@ from icenav.recovery.drift import (
     RESOLUTION_FRACTION,
     REST_WINDOW_S,
     RestReference,
+    cannot_tell,
 )
 from icenav.recovery.force import (
     CHECK_MARGIN_FRACTION,
@@ -346,11 +347,11 @@ def record_pair(cfg: ForceStudyConfig) -> dict[str, Any]:
             row(k, q, f, math.nan, -1)
             b.clock.advance(DT)
 
-    def back_off(q_free: Array) -> None:  # the operator looks at the force readout
-        for _ in range(6 if cfg.rest_force_n is not None else 0):
+    def back_off(q_free: Array, limit_n: float) -> None:  # the operator reads the force
+        for _ in range(6):
             n0 = len(rows)
             drive(b.operator.dwell(1.0))
-            if np.mean([r[5] for r in rows[n0:]]) <= float(cfg.rest_force_n or 0.0):
+            if np.mean([r[5] for r in rows[n0:]]) <= limit_n:
                 return
             drive(b.operator.move_to(0.5 * (b.operator.state + q_free)))
 
@@ -362,7 +363,8 @@ def record_pair(cfg: ForceStudyConfig) -> dict[str, Any]:
             b.operator.state = np.asarray(b.robot.read_state().q, np.float64).copy()
         q_free = b.operator.state.copy()
         drive(b.operator.explore(cfg.moves_between))
-        back_off(q_free)
+        if cfg.rest_force_n is not None:
+            back_off(q_free, cfg.rest_force_n)
         if cfg.dwell_s > 0:
             drive(b.operator.dwell(cfg.dwell_s))
         n_op = len(rows)
@@ -435,7 +437,7 @@ class ReturnCheck:
         """(beyond the limit, the check cannot tell here) of Eqs. (F5, F6)."""
         drift = self.drift_mm if point.phase_match else self.drift_instant_mm
         res = self.resolution_mm if point.phase_match else self.resolution_instant_mm
-        return drift > point.drift_mm, res > point.resolution_fraction * point.drift_mm
+        return drift > point.drift_mm, cannot_tell(res, point.drift_mm, point.resolution_fraction)
 
     def stopped(self, point: CheckPoint) -> bool:
         """Whether the check stops this return at ``point`` (refuses, or asks the operator
@@ -456,6 +458,23 @@ def _pose(row: Array) -> Array:
     return t
 
 
+def _stop_row(op: Array) -> int:
+    """The first row after the operator's last motion in the operator's rows ``op``."""
+    moved = np.flatnonzero(np.any(np.diff(op[:, 1:5], axis=0) != 0, axis=1))
+    return int(moved[-1]) + 1 if len(moved) else 0
+
+
+def _reference(t0: float, rows: Array, phases: bool) -> RestReference:
+    """Eq. (F5)'s reference of a stop at ``t0`` (s) from the EM rows of the stillness (the
+    first one the stop's), with their respiratory signal and cardiac phase or without (the
+    instantaneous form)."""
+    r0 = rows[0]
+    ref = RestReference(t0, r0[6:9], None, *((r0[13], r0[12]) if phases else (None, None)))
+    for r in rows[1:]:
+        ref.add(float(r[0]), r[6:9], *((float(r[13]), float(r[12])) if phases else (None, None)))
+    return ref
+
+
 def _rest_drift(
     op: Array, ret: Array, dwell_s: float | None, shifted: bool
 ) -> tuple[float, float, float, float]:
@@ -465,8 +484,7 @@ def _rest_drift(
     return's first reading, or, for ``dwell_s`` shorter than the recorded dwell, the reading
     that long after the stop (an undisturbed return started then). Returns (phase-matched,
     instantaneous) ``D`` and ``R`` of Eqs. (F5, F6) (mm; NaN: no reading)."""
-    moved = np.flatnonzero(np.any(np.diff(op[:, 1:5], axis=0) != 0, axis=1))
-    stop = int(moved[-1]) + 1 if len(moved) else 0
+    stop = _stop_row(op)
     em = np.flatnonzero(np.isfinite(op[:, 6]))
     before = em[em <= stop]
     first = int(before[-1]) if len(before) else (int(em[0]) if len(em) else -1)
@@ -479,9 +497,7 @@ def _rest_drift(
     keep = em >= first
     keep &= op[em, 0] <= t0 + window + 1e-9 if math.isfinite(t0) else em == first
     rows = op[em[keep]]
-    ref = RestReference(t0, rows[0, 6:9], None, rows[0, 13], rows[0, 12])
-    for r in rows[1:]:
-        ref.add(float(r[0]), r[6:9], float(r[13]), float(r[12]))
+    ref, plain = _reference(t0, rows, phases=True), _reference(t0, rows, phases=False)
     now = ret[0] if len(ret) else None
     if dwell_s is not None and dwell_s < recorded and not shifted:
         later = em[op[em, 0] >= t0 + dwell_s - 1e-9]
@@ -489,9 +505,6 @@ def _rest_drift(
     if now is None or not np.isfinite(now[6]):
         return math.nan, math.nan, math.nan, math.nan
     t_now = float(now[0]) if math.isfinite(now[0]) else None
-    plain = RestReference(t0, rows[0, 6:9])  # no phases: Eq. (F6)'s instantaneous form
-    for r in rows[1:]:
-        plain.add(float(r[0]), r[6:9], None, None)
     return (ref.drift(now[6:9], float(now[13]), float(now[12]), t_now), ref.drift(now[6:9]),
             ref.resolution_mm(), plain.resolution_mm())  # fmt: skip
 
@@ -529,9 +542,7 @@ def check_returns(
             sustained = np.full(1, -np.inf)
         shifted = bool(np.any(shift))
         drift, instant, res, res_instant = _rest_drift(op, ret, dwell_s, shifted)  # F5, F6
-        moved = np.flatnonzero(np.any(np.diff(op[:, 1:5], axis=0) != 0, axis=1))
-        still = op[int(moved[-1]) + 1 if len(moved) else 0 :, 5]
-        rest_f = float(np.median(still)) if len(still) else math.nan
+        rest_f = float(np.median(op[_stop_row(op) :, 5]))  # the still rows' force
         out.append(ReturnCheck(float(np.max(np.abs(shift))), float(sustained.max()), drift,
                                instant, res, res_instant, rest_f))  # fmt: skip
     return out

@@ -48,30 +48,20 @@ Rest = tuple[tuple[float, ...], tuple[float, ...]] | None
 """A rest pose as the store writes it: (tip (3,) mm, motor state (4,)), or None."""
 
 
-def _has_tables(store: SessionStore) -> bool:
-    db = store._db  # noqa: SLF001 - the store's connection, on the thread that owns it
-    names = {r[0] for r in db.execute("SELECT name FROM sqlite_master WHERE type='table'")}
-    return {"forces", "tip_forces"} <= names
-
-
-def _has_rest(store: SessionStore) -> bool:
-    db = store._db  # noqa: SLF001
-    return db.execute("SELECT 1 FROM sqlite_master WHERE name='rest_tip'").fetchone() is not None
-
-
 def load_forces(store: SessionStore) -> ForceRecord:
     """The force record stored in ``store`` (empty for a file without one)."""
+    db = store._db  # noqa: SLF001 - the store's connection, on the thread that owns it
     try:
-        if not _has_tables(store):
+        names = {r[0] for r in db.execute("SELECT name FROM sqlite_master WHERE type='table'")}
+        if not {"forces", "tip_forces"} <= names:
             return ForceRecord()
-        db = store._db  # noqa: SLF001
         vr = db.execute("SELECT vertex, force_n FROM forces ORDER BY vertex").fetchall()
         tr = db.execute(
             "SELECT x, y, z, ux, uy, uz, force_n FROM tip_forces ORDER BY seq"
         ).fetchall()
         rr = (
             db.execute("SELECT x, y, z, q1, q2, q3, q4 FROM rest_tip").fetchall()
-            if _has_rest(store)
+            if "rest_tip" in names
             else []
         )
     except sqlite3.Error as exc:

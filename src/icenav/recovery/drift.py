@@ -62,6 +62,7 @@ __all__ = [
     "RESOLUTION_FRACTION",
     "REST_WINDOW_S",
     "RestReference",
+    "cannot_tell",
     "check_q",
     "tip_drift",
 ]
@@ -269,39 +270,42 @@ class RestReference:
         ``t`` (s; None: every reading counts) with the respiratory signal ``resp`` and the
         cardiac phase ``cardiac`` (mm)."""
         p = _position(tip2base, "tip2base")
-        n = self._n
-        rows = self._rows[:n]
+        rows = self._rows[: self._n]
         if t is not None:  # readings older than the guard (the stop's always counts)
-            n = max(1, int(np.searchsorted(rows[:, 0], float(t) - GUARD_S, side="right")))
-        ps = rows[:n, 1:4]
-        d2 = np.zeros(n)
-        used = False
-        c = rows[:n, 5]
-        if cardiac is not None and np.all(np.isfinite(c)) and n > 1:
-            d2 += ((c - float(cardiac) + 0.5) % 1.0 - 0.5) ** 2
-            used = True
-        r = rows[:n, 4]
-        if resp is not None and np.all(np.isfinite(r)) and np.ptp(r) > 1e-12:
-            d2 += ((r - float(resp)) / np.ptp(r)) ** 2
-            used = True
-        if not used:  # the instantaneous form: against the reading at the stop
-            return float(np.linalg.norm(p - ps[0]))
-        near = np.argsort(d2, kind="stable")[:NEIGHBOURS]
-        return float(np.linalg.norm(p - ps[near].mean(axis=0)))
+            rows = rows[: max(1, int(np.searchsorted(rows[:, 0], float(t) - GUARD_S, "right")))]
+        d2 = _phase_distances(
+            rows,
+            np.array([np.nan if resp is None else float(resp)]),
+            np.array([np.nan if cardiac is None else float(cardiac)]),
+        )
+        if d2 is None:  # the instantaneous form: against the reading at the stop
+            return float(np.linalg.norm(p - rows[0, 1:4]))
+        near = np.argsort(d2[0], kind="stable")[:NEIGHBOURS]
+        return float(np.linalg.norm(p - rows[near, 1:4].mean(axis=0)))
 
 
-def _phase_distances(rows: Array, k: Array) -> Array | None:
-    """Squared phase distances (len(k), n) of Eq. (F5) between the readings ``k`` and all
-    ``rows`` (n, 6); None when neither signal is usable (the instantaneous form)."""
-    d2 = np.zeros((len(k), len(rows)))
+def cannot_tell(
+    resolution_mm: float, limit_mm: float, fraction: float = RESOLUTION_FRACTION
+) -> bool:
+    """Eq. (F6)'s rule: the check cannot tell a moved patient from the still tip's own
+    motion where its resolution (mm) exceeds ``fraction`` of the limit (mm)."""
+    return resolution_mm > fraction * limit_mm
+
+
+def _phase_distances(rows: Array, resp: Array, cardiac: Array) -> Array | None:
+    """Squared phase distances (m, n) of Eq. (F5) between the m query phases ``resp`` and
+    ``cardiac`` (m,) (NaN: not read) and the reference ``rows`` (n, 6); a signal is left
+    out when a query or a reference reading lacks it, or it is flat over the reference;
+    None when neither is left (the instantaneous form)."""
+    d2 = np.zeros((len(resp), len(rows)))
     used = False
     c = rows[:, 5]
-    if np.all(np.isfinite(c)):
-        d2 += ((c[None, :] - c[k, None] + 0.5) % 1.0 - 0.5) ** 2
+    if len(rows) > 1 and np.all(np.isfinite(cardiac)) and np.all(np.isfinite(c)):
+        d2 += ((c[None, :] - cardiac[:, None] + 0.5) % 1.0 - 0.5) ** 2
         used = True
     r = rows[:, 4]
-    if np.all(np.isfinite(r)) and np.ptp(r) > 1e-12:
-        d2 += ((r[None, :] - r[k, None]) / np.ptp(r)) ** 2
+    if np.all(np.isfinite(resp)) and np.all(np.isfinite(r)) and np.ptp(r) > 1e-12:
+        d2 += ((r[None, :] - resp[:, None]) / np.ptp(r)) ** 2
         used = True
     return d2 if used else None
 
@@ -318,7 +322,7 @@ def _resolution(rows: Array) -> float:
     if not np.any(k_ok):
         return 0.0
     k, far = k[k_ok], far[k_ok]
-    d2 = _phase_distances(rows, k)
+    d2 = _phase_distances(rows, rows[k, 4], rows[k, 5])
     if d2 is None:  # the instantaneous form: against the reading at the stop
         return float(np.percentile(np.linalg.norm(ps[k] - ps[0], axis=1), 90))
     d2 = np.where(far, d2, np.inf)
