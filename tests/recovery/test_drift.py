@@ -151,3 +151,17 @@ def test_a_question_is_confirmed_only_by_a_second_press_soon_after_it() -> None:
     assert ref.confirmed(10.0 + CONFIRM_S) and not ref.confirmed(10.0 + CONFIRM_S + 0.1)
     ref.ask(None)  # no clock: any later press confirms
     assert ref.confirmed(1e6) and ref.confirmed(None)
+
+
+def test_the_status_line_reuses_a_resolution_until_the_readings_grow_by_a_quarter() -> None:
+    """Eq. (F6) costs about a millisecond; the status line is built every control cycle
+    while the reference grows, so with ``within`` it takes the value computed over at least
+    that fraction of the readings; the check (the default) always takes the exact one."""
+    ref = _wandering()
+    first = ref.resolution_mm()
+    n = ref.n_readings
+    t = ref._rows[n - 1, 0]  # noqa: SLF001 - the newest reading's time
+    for k in range(1, n // 10):  # 10 % more readings, far off: the exact value changes
+        ref._append(t + 0.025 * k, [60.0, 0.0, 40.0], *_signals(t + 0.025 * k))  # noqa: SLF001
+    assert ref.resolution_mm(within=0.8) == first
+    assert ref.resolution_mm() != first

@@ -219,7 +219,7 @@ def force_check_text(
                 "; tip-drift check on (tracker, armed at your next drive: the last motion "
                 "was not yours)"
             )
-        elif cannot_tell(r := rest.resolution_mm(), drift_limit_mm):  # Eq. (F6)
+        elif cannot_tell(r := rest.resolution_mm(within=0.8), drift_limit_mm):  # Eq. (F6)
             drift = (
                 f"; tip-drift check on (tracker; cannot tell here: the still tip strays "
                 f"{r:.1f} mm by itself, so a return that finds it moved asks you to confirm)"

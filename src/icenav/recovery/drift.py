@@ -207,15 +207,18 @@ class RestReference:
         ps = self._rows[: self._n, 1:4]
         return float(np.percentile(np.linalg.norm(ps - ps.mean(axis=0), axis=1), 90))
 
-    def resolution_mm(self) -> float:
+    def resolution_mm(self, within: float = 1.0) -> float:
         """``R`` of Eq. (F6) (mm): how far Eq. (F5) puts the still tip from itself over the
         reference; 0 while no reading has :data:`NEIGHBOURS` others
-        :data:`RESOLUTION_EXCLUDE_S` away (the check applies as it is). Safe to call from
-        another thread than the one adding readings (the count is read before the rows,
-        which only grow)."""
+        :data:`RESOLUTION_EXCLUDE_S` away (the check applies as it is). ``within`` < 1
+        accepts the value last computed over at least that fraction of the readings (the
+        status line, built every control cycle while the reference grows, so it costs a
+        computation, about 1 ms, only as the readings grow by a quarter); the check takes
+        the exact value. Safe to call from another thread than the one adding readings
+        (the count is read before the rows, which only grow)."""
         n = self._n
         cached = self._resolution
-        if cached[0] == n:
+        if cached[0] == n or (cached[0] >= 0 and cached[0] >= within * n):
             return cached[1]
         rows = self._rows[:n]
         value = _resolution(rows)
@@ -326,6 +329,6 @@ def _resolution(rows: Array) -> float:
     if d2 is None:  # the instantaneous form: against the reading at the stop
         return float(np.percentile(np.linalg.norm(ps[k] - ps[0], axis=1), 90))
     d2 = np.where(far, d2, np.inf)
-    near = np.argsort(d2, axis=1, kind="stable")[:, :NEIGHBOURS]
+    near = np.argsort(d2, axis=1, kind="stable")[:, :NEIGHBOURS]  # ties: the earliest, as F5
     d = np.linalg.norm(ps[k] - ps[near].mean(axis=1), axis=1)
     return float(np.percentile(d, 90))
