@@ -2,7 +2,7 @@
 on a beating wall (`docs/digital-twin.md` 9.8): how far the tip's trajectory moves from one
 beat to the next at the same phase, binned by the contact force it rests with.
 
-    python docs/figures/review_still_tip.py [--pairs 100:0,101:1,102:2] [--states 14]
+    python docs/figures/review_still_tip.py [--pairs 100:0,101:1,102:2] [--states 24] [--ablate]
 
 The published figure: Lessick, Kornowski, Fuchs, Ben-Haim (2001), NOGA mapping catheter on
 the left-ventricular endocardium of seven pigs, "LocStab", the mean displacement between the
@@ -15,13 +15,16 @@ mean and sd over the beats of the state.
 Twin's truth only (a review of the twin, not a method); development pairs (catheters
 100-102, patients 0-2), states: each pair's three views, then states bent from them in
 random directions by 10-80 deg (seeded) so the resting force spans free to above 1 N. Writes
-``docs/figures/review_still_tip.json`` and ``docs/figures/review_still_tip.png``.
+``docs/figures/review_still_tip.json`` and ``docs/figures/review_still_tip.png``;
+``--ablate`` adds the in-vivo condition with one source of beat-to-beat motion off at a
+time (the same states), to the table and the records.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+from dataclasses import replace
 from pathlib import Path
 
 import matplotlib
@@ -30,7 +33,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from icenav.sim.conditions import build_twin  # noqa: E402
+from icenav.sim.conditions import IN_VIVO, PHANTOM, Condition, build_twin  # noqa: E402
 
 HERE = Path(__file__).parent
 LESSICK_MM = (1.33, 0.61)
@@ -40,6 +43,16 @@ BEATS = 6
 """Consecutive beats sampled per state (5 pairs)."""
 SETTLE_S = 3.0
 """Wait after the move before the first beat (the shaft settles; s)."""
+ABLATIONS: dict[str, Condition] = {
+    "in-vivo, no beat-to-beat shape (P6 off)": replace(
+        IN_VIVO, rhythm=replace(IN_VIVO.rhythm, shape_sd_mm=0.0)
+    ),
+    "in-vivo, no amplitude / stroke variation": replace(
+        IN_VIVO, rhythm=replace(IN_VIVO.rhythm, amplitude_sd=0.0, stroke_variation=0.0)
+    ),
+    "in-vivo, no breathing": replace(IN_VIVO, breathing=None),
+}
+"""``--ablate``: the in-vivo condition with one source of beat-to-beat motion off."""
 BINS_N = (0.0, 0.02, 0.1, 0.2, 0.4, 1.0, np.inf)
 """Force bins of the table (N): free, light, 10-20 g, 20-40 g (clinical), above."""
 
@@ -85,13 +98,15 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--pairs", default="100:0,101:1,102:2")
     ap.add_argument("--states", type=int, default=24)
+    ap.add_argument("--ablate", action="store_true", help="also the ABLATIONS (in vivo)")
     args = ap.parse_args()
     rows: list[dict[str, float | str | int]] = []
-    for cond in ("in-vivo", "phantom"):
+    conds = {"in-vivo": IN_VIVO, "phantom": PHANTOM} | (ABLATIONS if args.ablate else {})
+    for cond, spec in conds.items():
         for pair in args.pairs.split(","):
             cat, pat = (int(x) for x in pair.split(":"))
             clock = _Clock()
-            twin = build_twin(cond, cat, pat, clock)
+            twin = build_twin(spec, cat, pat, clock)
             rng = np.random.default_rng(1000 * cat + pat)
             for i, q in enumerate(_states(twin, args.states, rng)):
                 clock.t += 1.0
@@ -102,21 +117,21 @@ def main() -> None:
                                  loc_stab_mm=m, loc_stab_sd_mm=s, force_n=f,
                                  range_mm=rng_mm))  # fmt: skip
                 print(
-                    f"{cond:8s} {cat}/{pat} state {i:2d}: force {f:5.2f} N, "
+                    f"{cond[:24]:24s} {cat}/{pat} state {i:2d}: force {f:5.2f} N, "
                     f"LocStab {m:5.2f} +- {s:4.2f} mm, range {rng_mm:5.1f} mm",
                     flush=True,
                 )
     (HERE / "review_still_tip.json").write_text(json.dumps({"rows": rows}, indent=1))
-    _table(rows)
+    _table(rows, list(conds))
     _plot(rows)
 
 
-def _table(rows: list[dict]) -> None:
+def _table(rows: list[dict], conds: list[str]) -> None:
     print(
         "\n| condition | force (N) | states | LocStab, mean of states (mm) | sd over beats (mm) |"
     )
     print("|---|---|---:|---:|---:|")
-    for cond in ("in-vivo", "phantom"):
+    for cond in conds:
         for lo, hi in zip(BINS_N[:-1], BINS_N[1:], strict=True):
             sel = [r for r in rows if r["condition"] == cond and lo <= r["force_n"] < hi]
             if not sel:
@@ -129,7 +144,7 @@ def _table(rows: list[dict]) -> None:
 
 def _plot(rows: list[dict]) -> None:
     fig, ax = plt.subplots(figsize=(6.5, 4.2))
-    for cond, color in (("in-vivo", "tab:red"), ("phantom", "tab:blue")):
+    for cond, color in (("in-vivo", "tab:red"), ("phantom", "tab:blue")):  # not the ablations
         sel = [r for r in rows if r["condition"] == cond]
         ax.errorbar([max(r["force_n"], 1e-3) for r in sel], [r["loc_stab_mm"] for r in sel],
                     yerr=[r["loc_stab_sd_mm"] for r in sel], fmt="o", ms=4, alpha=0.7,
