@@ -5,6 +5,7 @@ contact forces, the session stores them, a restarted session checks its returns 
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -310,6 +311,27 @@ def test_refine_view_runs_the_pose_stage_on_the_breath_averaged_pose() -> None:
     assert em_error_mm() <= before + 0.3  # never farther than it started (the scatter)
 
 
+def _at_the_mitral_view(
+    clock: Clock, *, wandering: bool, seconds: float
+) -> tuple[Controller, SimulatedRobot, Any, np.ndarray]:
+    """A controller on the phantom twin (catheter 100, patient 0) with an exact tracker
+    (``wandering``: wrapped in :class:`WanderingTracker`), jogged to the mitral view in
+    ``seconds`` and the view saved as "mitral"; (controller, robot, tracker, view's q)."""
+    twin = build_twin("phantom", 100, 0, clock)
+    robot = SimulatedRobot(twin.plant, clock=clock)
+    tracker: Any = DisturbedTracker(exact_tracker(twin.plant.inner, clock), twin.plant)
+    if wandering:
+        tracker = WanderingTracker(tracker)
+    tracker.start()
+    ctrl = Controller(robot, ControllerConfig(), clock=clock, tracker=tracker,
+                      cardiac_phase=twin.rhythm.phase)  # fmt: skip
+    q_view = np.asarray(twin.views["mitral_valve"], np.float64)
+    ctrl.request_mode(Mode.KNOB)
+    _jog_to(ctrl, clock, q_view, seconds)
+    ctrl.save_view("mitral")
+    return ctrl, robot, tracker, q_view
+
+
 @pytest.mark.parametrize("between", ["nothing", "the operator drives"])
 def test_where_the_drift_check_cannot_tell_a_return_asks_and_the_second_press_runs_it(
     between: str,
@@ -319,16 +341,7 @@ def test_where_the_drift_check_cannot_tell_a_return_asks_and_the_second_press_ru
     holds with a question, and a second press runs the return (the robot moves). When the
     operator drives between the presses, the new rest asks again."""
     clock = Clock()
-    twin = build_twin("phantom", 100, 0, clock)
-    robot = SimulatedRobot(twin.plant, clock=clock)
-    tracker = WanderingTracker(DisturbedTracker(exact_tracker(twin.plant.inner, clock), twin.plant))
-    tracker.start()
-    ctrl = Controller(robot, ControllerConfig(), clock=clock, tracker=tracker,
-                      cardiac_phase=twin.rhythm.phase)  # fmt: skip
-    q_view = np.asarray(twin.views["mitral_valve"], np.float64)
-    ctrl.request_mode(Mode.KNOB)
-    _jog_to(ctrl, clock, q_view, 1.2)
-    ctrl.save_view("mitral")
+    ctrl, robot, tracker, q_view = _at_the_mitral_view(clock, wandering=True, seconds=1.2)
     _jog_to(ctrl, clock, 0.5 * q_view, 0.6)
     for _ in range(int(7.0 * ctrl.config.rate_hz)):  # the jog runs out; the operator looks
         _cycle(ctrl, clock)
@@ -358,16 +371,7 @@ def test_the_rest_after_the_operators_stop_arms_the_tip_drift_check() -> None:
     the operator's drive, so the rest reference is kept (the check is armed). A return's own
     motion, ended in IDLE, is not."""
     clock = Clock()
-    twin = build_twin("phantom", 100, 0, clock)
-    robot = SimulatedRobot(twin.plant, clock=clock)
-    tracker = DisturbedTracker(exact_tracker(twin.plant.inner, clock), twin.plant)
-    tracker.start()
-    ctrl = Controller(robot, ControllerConfig(), clock=clock, tracker=tracker,
-                      cardiac_phase=twin.rhythm.phase)  # fmt: skip
-    q_view = np.asarray(twin.views["mitral_valve"], np.float64)
-    ctrl.request_mode(Mode.KNOB)
-    _jog_to(ctrl, clock, q_view, 1.0)
-    ctrl.save_view("mitral")
+    ctrl, _, _, _ = _at_the_mitral_view(clock, wandering=False, seconds=1.0)
     for _ in range(20):  # driving on, then Stop while the knobs still move
         ctrl.jog(np.array([-0.4, 0.3, 0.0, 0.0]), "knob")
         _cycle(ctrl, clock)
