@@ -22,6 +22,7 @@ import contextlib
 import math
 import os
 import threading
+import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
@@ -567,3 +568,79 @@ def test_control_token_in_the_browser(browser: Any, tmp_path: Path) -> None:
             assert console.last_error == ""
     finally:
         ctl.shutdown()
+
+
+def test_a_return_that_cannot_be_checked_asks_in_the_browser_and_runs_at_the_second_press(
+    browser: Any,
+) -> None:
+    """Eq. (F6) as the operator meets it, on the real controller in real time: where the
+    still tip strays as far as a moved patient would carry it, the status says so before any
+    press; a Go to view after the tip was carried holds (the robot stays) and the line above
+    the image asks, with the seconds left; the second click runs the return and the question
+    goes. The tip's wander and the carry come from a tracker wrapper (a wall the operator
+    cannot see move), the rest is the phantom twin."""
+    from playwright.sync_api import expect
+
+    from icenav.control.controller import Controller, ControllerConfig
+    from icenav.devices.sim_robot import SimulatedRobot
+    from icenav.sim.conditions import build_twin
+    from icenav.sim.disturbed import DisturbedTracker
+    from tests.support.twin import WanderingTracker, exact_tracker
+
+    clock = time.monotonic
+    twin = build_twin("phantom", 100, 0, clock)
+    tracker = WanderingTracker(DisturbedTracker(exact_tracker(twin.plant.inner, clock), twin.plant))
+    tracker.start()
+    config = ControllerConfig(stall_estop_s=5.0)  # as above: a loaded CI
+    ctl = Controller(SimulatedRobot(twin.plant, clock=clock), config, clock=clock,
+                     tracker=tracker, cardiac_phase=twin.rhythm.phase)  # fmt: skip
+    waiter = StateWaiter(ctl)
+    ctl.start()
+
+    def drive_to(target: np.ndarray) -> None:
+        """A script jogs the knobs to ``target`` (rad) and stops (the operator's drive)."""
+        while True:
+            q = waiter.next_states(1)[0].q_motor
+            if np.abs(target - q).max() < math.radians(0.5):
+                break
+            ctl.jog(np.clip((target - q) / 0.2, -0.5, 0.5), "knob")
+        ctl.stop()
+        waiter.until(lambda s: s.mode is Mode.IDLE, "stopped")
+
+    try:
+        q_view = np.asarray(twin.views["mitral_valve"], np.float64)
+        drive_to(q_view)
+        ctl.save_view("mitral")
+        waiter.until(lambda s: [v.name for v in s.views] == ["mitral"], "view saved")
+        drive_to(0.5 * q_view)
+        left = waiter.until(lambda s: "cannot tell here" in s.force_check, "the rest read")
+        ctl.release_control("script")
+        waiter.until(lambda s: s.control_owner is None, "control free")
+        with Console(ctl, port=0, refresh_hz=5.0, status_hz=5.0) as console:
+            page = _open(browser, console.url, 1400, 900)
+            expect(page.get_by_text("You have control")).to_be_visible()
+            page.get_by_text("Status", exact=True).click()  # told before any press
+            expect(page.get_by_text("cannot tell here", exact=False).first).to_be_visible()
+            page.get_by_text("Status", exact=True).click()
+            tracker.t_jump = clock()  # the patient moves: the tip is carried 8 mm
+            goto = page.get_by_role("button", name="Go to view", exact=True)
+            expect(goto).to_be_enabled()
+            goto.click()
+            asked = waiter.until(lambda s: bool(s.question), "the question")
+            assert "cannot tell here" in asked.message and "press again" in asked.message
+            expect(page.get_by_text("Waiting for you:", exact=False)).to_be_visible()
+            expect(page.get_by_text("s left)", exact=False).first).to_be_visible()
+            held = waiter.next_states(20)
+            assert all(s.mode is Mode.IDLE for s in held)
+            np.testing.assert_array_equal(held[-1].q_motor, left.q_motor)  # the robot stays
+            goto.click()  # the operator looked at the image: the second press runs it
+            waiter.until(lambda s: s.mode is Mode.GOTO_VIEW, "the return runs")
+            done = waiter.until(lambda s: s.mode is Mode.IDLE, "the return ended", 60.0)
+            assert np.abs(done.q_motor - q_view).max() < math.radians(1.0), done.message
+            assert done.question == ""
+            expect(page.get_by_text("Waiting for you:", exact=False)).to_be_hidden()
+            page.close()
+            assert console.last_error == ""
+    finally:
+        ctl.shutdown()
+        tracker.stop()

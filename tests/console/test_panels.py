@@ -151,6 +151,11 @@ def test_summary_line_names_mode_and_message() -> None:
     assert summary_markdown(_state(message="jog refused"), "") == "**Jogging the knobs**"
     fault = summary_markdown(_state(mode=Mode.FAULT, message="drive 2 fault 0x2310"), "")
     assert "**FAULT: robot stopped**: drive 2 fault 0x2310" in fault  # the cause stays
+    # an open question stays in front of a stale or newer message while it can be answered
+    asked = _state(message="view 'a' saved", question="press the return again")
+    assert summary_markdown(asked, "") == (
+        "**Jogging the knobs**: **Waiting for you:** press the return again"
+    )
 
 
 def test_mode_dropdown_names_the_running_automatic_mode() -> None:

@@ -5,7 +5,6 @@ contact forces, the session stores them, a restarted session checks its returns 
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 import pytest
@@ -19,7 +18,7 @@ from icenav.persistence.store import SessionStore
 from icenav.sim.conditions import build_twin
 from icenav.sim.disturbed import DisturbedTracker, TwinForceSensor, mean_pose
 from tests.support.clock import Clock
-from tests.support.twin import exact_tracker
+from tests.support.twin import WanderingTracker, exact_tracker
 
 
 def _cycle(ctrl: Controller, clock: Clock) -> None:
@@ -311,37 +310,6 @@ def test_refine_view_runs_the_pose_stage_on_the_breath_averaged_pose() -> None:
     assert em_error_mm() <= before + 0.3  # never farther than it started (the scatter)
 
 
-class _Wandering:
-    """The twin's tracker with the tip carried about by a wall the operator cannot see
-    move: offsets (base frame, mm) of periods no ECG phase explains, and ``jump`` (mm,
-    along base x) from time ``t_jump`` on, as a moved patient would carry it."""
-
-    def __init__(self, inner: DisturbedTracker) -> None:
-        self.inner = inner
-        self.t_jump = float("inf")
-        self.jump = 8.0
-
-    def _offset(self, t: float) -> np.ndarray:
-        w = 2.0 * np.pi * t
-        wander = 4.0 * np.array([np.sin(w / 1.7), np.sin(w / 2.9 + 1.0), np.sin(w / 5.3 + 2.0)])
-        return wander + ([self.jump, 0.0, 0.0] if t >= self.t_jump else 0.0)
-
-    def get_frame(self) -> Any:
-        from icenav.devices.tracker import TrackerFrame
-
-        frame = self.inner.get_frame()
-        if frame.sensor2tracker is None:
-            return frame
-        t2b = np.asarray(self.inner.inner.config.tracker2base, np.float64)
-        shift = np.eye(4)
-        shift[:3, 3] = self._offset(float(frame.timestamp))
-        s2t = np.linalg.inv(t2b) @ shift @ t2b @ np.asarray(frame.sensor2tracker)
-        return TrackerFrame(frame.timestamp, s2t, frame.status, frame.quality)
-
-    def __getattr__(self, name: str) -> Any:
-        return getattr(self.inner, name)
-
-
 @pytest.mark.parametrize("between", ["nothing", "the operator drives"])
 def test_where_the_drift_check_cannot_tell_a_return_asks_and_the_second_press_runs_it(
     between: str,
@@ -353,7 +321,7 @@ def test_where_the_drift_check_cannot_tell_a_return_asks_and_the_second_press_ru
     clock = Clock()
     twin = build_twin("phantom", 100, 0, clock)
     robot = SimulatedRobot(twin.plant, clock=clock)
-    tracker = _Wandering(DisturbedTracker(exact_tracker(twin.plant.inner, clock), twin.plant))
+    tracker = WanderingTracker(DisturbedTracker(exact_tracker(twin.plant.inner, clock), twin.plant))
     tracker.start()
     ctrl = Controller(robot, ControllerConfig(), clock=clock, tracker=tracker,
                       cardiac_phase=twin.rhythm.phase)  # fmt: skip
@@ -370,6 +338,7 @@ def test_where_the_drift_check_cannot_tell_a_return_asks_and_the_second_press_ru
     message = _go(ctrl, clock, "mitral")
     assert "cannot tell here" in message and "press again" in message, message
     assert np.all(np.abs(np.asarray(robot.read_state().q) - q_left) < [0.05, 0.05, 0.05, 0.5])
+    assert "s left)" in ctrl.snapshot().question  # the console keeps it in front
     if between == "the operator drives":
         ctrl.request_mode(Mode.KNOB)
         _jog_to(ctrl, clock, 0.45 * q_view, 0.3)
@@ -381,3 +350,35 @@ def test_where_the_drift_check_cannot_tell_a_return_asks_and_the_second_press_ru
     else:
         _go(ctrl, clock, "mitral")
         assert np.abs(np.asarray(robot.read_state().q) - q_left).max() > 0.05
+        assert ctrl.snapshot().question == ""  # answered
+
+
+def test_the_rest_after_the_operators_stop_arms_the_tip_drift_check() -> None:
+    """The operator jogs and presses Stop: the robot settles in IDLE; that settling is still
+    the operator's drive, so the rest reference is kept (the check is armed). A return's own
+    motion, ended in IDLE, is not."""
+    clock = Clock()
+    twin = build_twin("phantom", 100, 0, clock)
+    robot = SimulatedRobot(twin.plant, clock=clock)
+    tracker = DisturbedTracker(exact_tracker(twin.plant.inner, clock), twin.plant)
+    tracker.start()
+    ctrl = Controller(robot, ControllerConfig(), clock=clock, tracker=tracker,
+                      cardiac_phase=twin.rhythm.phase)  # fmt: skip
+    q_view = np.asarray(twin.views["mitral_valve"], np.float64)
+    ctrl.request_mode(Mode.KNOB)
+    _jog_to(ctrl, clock, q_view, 1.0)
+    ctrl.save_view("mitral")
+    for _ in range(20):  # driving on, then Stop while the knobs still move
+        ctrl.jog(np.array([-0.4, 0.3, 0.0, 0.0]), "knob")
+        _cycle(ctrl, clock)
+    q_stop = ctrl.snapshot().q_motor  # the loop has not read the last jog's move yet
+    ctrl.stop()
+    for _ in range(int(2.0 * ctrl.config.rate_hz)):
+        _cycle(ctrl, clock)
+    assert ctrl.mode is Mode.IDLE
+    assert not np.array_equal(ctrl.snapshot().q_motor, q_stop)  # it settled in IDLE
+    assert ctrl.forces.rest is not None
+    assert "armed at your next drive" not in ctrl.snapshot().force_check
+    _go(ctrl, clock, "mitral")  # a return moves the robot: not the operator's
+    assert ctrl.forces.rest is None
+    assert "armed at your next drive" in ctrl.snapshot().force_check

@@ -184,11 +184,14 @@ def status_markdown(state: ControllerState) -> str:
 
 def summary_markdown(state: ControllerState, message: str | None = None) -> str:
     """One line above the image: the mode in words and the latest message (``message``
-    when given: the console drops a stale one); the cause in FAULT / ESTOP."""
+    when given: the console drops a stale one); the cause in FAULT / ESTOP; an open
+    question (``state.question``) in front of the message while it can be answered."""
     mode = MODE_LABELS.get(state.mode, state.mode.value)
     text = md(state.message if message is None else message)
     if state.mode in (Mode.FAULT, Mode.ESTOP):
         return f"**{mode}**: {md(state.message) or '(no message)'}"
+    if state.question:  # kept in front for as long as it can be answered
+        return f"**{mode}**: **Waiting for you:** {md(state.question)}"
     return f"**{mode}**: {text}" if text else f"**{mode}**"
 
 

@@ -229,6 +229,8 @@ class Controller(CommandCalls):
         self._q_cmd = np.array(q0, dtype=np.float64)
         self._q = np.array(q0, dtype=np.float64)
         self._q_last = self._q.copy()
+        self._driven_last = False
+        """Whether the last motion was the operator's (KNOB / TIP, or IDLE after it)."""
         self.forces.keep_rest_if_at(self._q)  # a restored rest pose: only if nothing moved
         self.roadmap.add(self._q)
         self._state = self.publisher.make_state()
@@ -402,7 +404,10 @@ class Controller(CommandCalls):
             if moved:
                 self._still_since, self._q_last = now, self._q.copy()
             mode = self.machine.mode
-            driving = mode in _OPERATOR_MODES
+            # the robot settling in IDLE after the operator's Stop is still their drive
+            driving = mode in _OPERATOR_MODES or (mode is Mode.IDLE and self._driven_last)
+            if moved:
+                self._driven_last = driving
             operator = self.force_sensor is not None and driving
             buffered = self.pose_buffer is not None and mode not in _UNBUFFERED_MODES
             tip = self.tip_pose_now() if operator or buffered else None

@@ -23,12 +23,12 @@ from icenav._typing import Array
 from icenav.control.modes import HALTED
 from icenav.control.state import ControllerState, ImageFrame, ViewSummary
 from icenav.geometry.kinematics import CatheterGeometry, backbone, forward
-from icenav.recovery.drift import DEFAULT_DRIFT_MM, cannot_tell
+from icenav.recovery.drift import CONFIRM_S, DEFAULT_DRIFT_MM, RestReference, cannot_tell
 
 if TYPE_CHECKING:
     from icenav.control.controller import Controller
 
-__all__ = ["Publisher", "force_check_text"]
+__all__ = ["Publisher", "force_check_text", "pending_question"]
 
 
 def _points(q_model: Array, geometry: CatheterGeometry, n: int) -> Array:
@@ -125,6 +125,9 @@ class Publisher:
                 ctrl.config.force_drift_mm,
             ),
             message=self.operator_message(),
+            question=pending_question(ctrl.forces, ctrl.now, ctrl.task is None)
+            if ctrl.machine.mode not in HALTED
+            else "",
             progress=None if task is None else task.progress,
             progress_label="" if task is None else task.label,
             n_vertices=ctrl.roadmap.n_vertices,
@@ -178,6 +181,9 @@ class Publisher:
             mode=ctrl.machine.mode,
             robot_status=ctrl.robot.status,
             message=self.operator_message(),
+            question=pending_question(ctrl.forces, ctrl.now, ctrl.task is None)
+            if ctrl.machine.mode not in HALTED
+            else "",
             progress=None,
             progress_label="",
             control_owner=ctrl.authorization.holder,
@@ -231,3 +237,21 @@ def force_check_text(
     n = forces.forces.n_recorded
     text = f"on ({n} states of your trace with a force)" if n else "on (no force recorded yet)"
     return text + drift
+
+
+def pending_question(forces: Any, now: Callable[[], float], idle: bool) -> str:
+    """The question a held return left open (Eq. F6 of :mod:`icenav.recovery.drift`), with
+    the seconds left to answer it; "" when there is none, it has expired, or a task runs
+    (``idle`` False). ``now`` is the loop's clock (s), read only while a question is open."""
+    rest = getattr(forces, "rest", None)
+    if not idle or not isinstance(rest, RestReference) or rest.asked_at is None:
+        return ""
+    t = now()
+    if not rest.confirmed(t):
+        return ""
+    left = CONFIRM_S if not np.isfinite(rest.asked_at) else CONFIRM_S - (t - rest.asked_at)
+    return (
+        f"The return waits for you ({left:.0f} s left): the tip-drift check cannot tell here "
+        "whether the patient has moved. If the image shows the patient has not moved, press "
+        "the return again to go with the force check alone; else drive to the view by hand."
+    )

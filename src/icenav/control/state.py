@@ -120,6 +120,11 @@ class ControllerState:
     channel", or "on" with the operator's readings recorded so far."""
     message: str = ""
     """Latest operator-facing message (fault text, what just happened)."""
+    question: str = ""
+    """A question the robot waits on the operator to answer (empty: none), shown for as long
+    as it can be answered: a return that held because the tip-drift check cannot tell
+    whether the patient moved (Eq. F6 of :mod:`icenav.recovery.drift`) and runs at a second
+    press within :data:`~icenav.recovery.drift.CONFIRM_S`."""
     progress: float | None = None
     """Progress of the automatic motion or calibration in [0, 1], None when there is none."""
     progress_label: str = ""

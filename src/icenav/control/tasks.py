@@ -292,7 +292,7 @@ class PathTask:
         second press runs the return under the force limit alone."""
         tip = self.tip_pose() if self.tip_pose is not None else None
         rest = self.rest_tip
-        if tip is None or not isinstance(rest, RestReference):
+        if tip is None or not isinstance(rest, RestReference) or self.drift_unchecked:
             return None
         now = self.clock() if self.clock is not None else None
         phases = (None, None) if self.signals is None or now is None else self.signals(now)
@@ -303,6 +303,7 @@ class PathTask:
         if cannot_tell(resolution, self.drift_limit_mm):  # Eq. (F6)
             if rest.confirmed(now):
                 self.drift_unchecked = True
+                rest.answered()
                 return None
             rest.ask(now)
             self.failure = (

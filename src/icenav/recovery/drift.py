@@ -237,6 +237,10 @@ class RestReference:
             return False
         return t is None or self.asked_at == -np.inf or t - self.asked_at <= CONFIRM_S
 
+    def answered(self) -> None:
+        """The operator's confirmation was taken by a return: a later one asks again."""
+        self.asked_at = None
+
     def set_stop_phases(self, resp: float | None, cardiac: float | None) -> None:
         """The phases read with the stop's reading, when they are read after it (the loop
         reads them once the motors have stopped instead of at every moving cycle)."""
