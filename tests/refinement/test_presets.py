@@ -39,3 +39,14 @@ def test_the_product_keeps_the_dead_bands() -> None:
         assert own.max_duration_s == pytest.approx(base.max_duration_s + 36.0)
     assert CYCLE_POSE_STAGE_PHANTOM.tolerance_mm < 0.5
     assert math.degrees(CYCLE_POSE_STAGE_PHANTOM.tolerance_rad) < 0.5
+
+
+def test_the_in_vivo_stage_has_the_longer_budget_and_the_phantom_keeps_its_own() -> None:
+    """In vivo: 120 s and at most 9 corrections (more measured draws, the best kept); the
+    phantom's preset keeps session 7's 60 s and 5 corrections, and neither uses the secant
+    update or the stop after an unpaid correction (tried, not kept)."""
+    assert (CYCLE_POSE_STAGE.max_duration_s, CYCLE_POSE_STAGE.max_iterations) == (120.0, 9)
+    ph = CYCLE_POSE_STAGE_PHANTOM
+    assert (ph.max_duration_s, ph.max_iterations) == (60.0, 5)
+    for base in (CYCLE_POSE_STAGE, ph):
+        assert base.secant_weight == 0.0 and not base.stop_unpaid

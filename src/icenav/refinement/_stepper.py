@@ -25,6 +25,16 @@ class _Measure:
     pass
 
 
+@dataclass(frozen=True)
+class _MeasurePose:
+    """The pose stage's request: hold and measure."""
+
+
+@dataclass(frozen=True)
+class _WaitExpiration:
+    """The pose stage's request: hold until end-expiration (Eq. R3)."""
+
+
 _Request = _Move | _Measure
 """What the search asks for next: a move to a state, or one beat measured there."""
 

@@ -32,14 +32,9 @@ from icenav.devices.robot import RobotBackend
 from icenav.devices.tracker import TrackerBackend
 from icenav.errors import ConfigurationError, ShapeError
 from icenav.geometry.se3 import body_pose_error
-from icenav.refinement.image_search import (
-    _DEG,
-    NeighbourhoodError,
-    _four,
-    _Move,
-    _Stepper,
-    drive_task,
-)
+from icenav.refinement._secant import held_dls, secant_update
+from icenav.refinement._stepper import _MeasurePose, _Move, _Stepper, _WaitExpiration
+from icenav.refinement.image_search import _DEG, NeighbourhoodError, _four, drive_task
 
 __all__ = [
     "PoseMeasurement",
@@ -185,6 +180,13 @@ class PoseStageConfig:
     engaged joint with a backoff (``approach_always``): the roll's backoff sweep slips the
     shaft many times (roll and translation share one friction budget), which releases the
     translation's stiction; a smaller step keeps the roll (each approach is a new draw)."""
+    secant_weight: float = 0.0
+    """With ``step_from_last``: after every correction the step's Jacobian is updated from
+    the measured move (Broyden, this weight in [0, 1]; 0: the model's Jacobian at every
+    step), so the next step is aimed by the response measured at the view."""
+    stop_unpaid: bool = False
+    """With ``step_from_last``: a correction that did not lower the measured error below the
+    best by ``min_decrease_mm`` is the last (status STALLED; ends at the best state)."""
     expiration_wait_s: float = 4.5
     """Longest wait for end-expiration before a last leg (s; about one breath): the leg goes
     anyway after it. The time budget counts it for every planned move."""
@@ -214,6 +216,8 @@ class PoseStageConfig:
                 raise ConfigurationError(f"{name} must be an int >= 1, got {n!r}")
         check_positive(self.sample_rate_hz, "sample_rate_hz", "Hz")
         check_positive(self.expiration_wait_s, "expiration_wait_s", "s")
+        if not 0.0 <= self.secant_weight <= 1.0:
+            raise ConfigurationError(f"secant_weight must be in [0, 1], got {self.secant_weight}")
         if not (math.isfinite(self.undo_margin_mm) and self.undo_margin_mm >= 0.0):
             raise ConfigurationError(f"undo_margin_mm must be >= 0 mm, got {self.undo_margin_mm}")
         check_positive(self.tolerance_mm, "tolerance_mm", "mm")
@@ -303,16 +307,6 @@ class PoseStageResult:
     """The stage ended worse than it started and went back to the start state."""
     revisits: int = 0
     """Re-approaches of the best measured state (``revisit_best``)."""
-
-
-@dataclass(frozen=True)
-class _MeasurePose:
-    """The stage's request: hold and measure."""
-
-
-@dataclass(frozen=True)
-class _WaitExpiration:
-    """The stage's request: hold until end-expiration (Eq. R3)."""
 
 
 class PoseStageTask:
@@ -443,6 +437,7 @@ class PoseStageTask:
         self._best_q = self.q_start.copy()
         self._undone = False
         self._revisits = 0
+        self._jac: Array | None = None
 
     # --- the servo (a generator of requests) ----------------------------------------------
     def _engaged(self) -> Array:
@@ -477,30 +472,27 @@ class PoseStageTask:
         from icenav.geometry.kinematics import jacobian
 
         cfg = self.config
-        jac = jacobian(q, check=False)
-        jw = self._w[:, None] * jac
-        ew = self._w * e
+        jac = jacobian(q, check=False) if self._jac is None else self._jac
         # joints without a backoff never move against their engaged direction: held
         no_reverse = (np.array(cfg.backoff) == 0) & (self._engaged() != 0)
-        free = np.ones(4, dtype=bool)
-        dq = np.zeros(4)
-        for _ in range(4):
-            a = jw[:, free]
-            lhs = a.T @ a + cfg.damping**2 * np.eye(int(free.sum()))
-            dq = np.zeros(4)
-            dq[free] = np.linalg.solve(lhs, a.T @ ew)
-            bad = free & no_reverse & (dq * self._engaged() < 0)
-            if not np.any(bad):
-                break
-            free &= ~bad
-            if not np.any(free):
-                dq = np.zeros(4)
-                break
+        dq = held_dls(self._w[:, None] * jac, self._w * e, cfg.damping, no_reverse, self._engaged())
         lim = np.array(cfg.max_step)
         # joints that cannot come back approach their target from one side: short steps
         dq = np.where(no_reverse, cfg.one_sided_gain * dq, dq)
         out: Array = np.clip(q + gain * np.clip(dq, -lim, lim), self._run.lo, self._run.hi)
         return out
+
+    def _learn(self, before: PoseMeasurement, after: PoseMeasurement) -> None:
+        """Update the step's Jacobian from a measured correction (``secant_weight``)."""
+        from icenav.geometry.kinematics import jacobian
+
+        cfg = self.config
+        if cfg.secant_weight <= 0.0:
+            return
+        jac = jacobian(before.q, check=False) if self._jac is None else self._jac
+        dq = after.q - before.q
+        scale = np.array(cfg.max_step)
+        self._jac = secant_update(jac, dq, before.error - after.error, scale, cfg.secant_weight)
 
     def _cost(self, m: PoseMeasurement) -> float:
         return float(np.linalg.norm(self._w * m.error))
@@ -607,16 +599,20 @@ class PoseStageTask:
             if m2 is None:
                 self._status = PoseStageStatus.NO_POSE
                 return
+            if cfg.step_from_last and not revisit:
+                self._learn(m, m2)
             m = m2
             self._final = m
-            if self._cost(m) < self._cost(best) - cfg.min_decrease_mm or (
-                cfg.step_from_last and revisit
-            ):
+            paid = self._cost(m) < self._cost(best) - cfg.min_decrease_mm
+            if paid or (cfg.step_from_last and revisit):
                 # (a revisit is a new draw at the best command: its measurement replaces
                 # the old one, which was the luckier of the two)
                 best, self._best_q = m, m.q.copy()
             elif not cfg.step_from_last:
                 gain *= 0.5  # the step did not pay: a shorter one from the best state
+            elif cfg.stop_unpaid and not self._within(m):
+                self._status = PoseStageStatus.STALLED
+                break
             if cfg.verify and self._within(m) and self._time_for([], reserve=False):
                 m2 = yield _MeasurePose()  # accept only what a second window confirms
                 if m2 is None:

@@ -32,7 +32,8 @@ pairs (``docs/view-recovery.md``): the estimate tells a held state well; what sc
 about 0.3 mm is a state's error from one move to the next (the shaft's lost motion)."""
 
 CYCLE_POSE_STAGE = PoseStageConfig(
-    max_iterations=5,
+    # as many measured draws as fit in 120 s (about 4-5 with the 9-s window), the best kept
+    max_iterations=9,
     max_step=(2.0 * _DEG, 2.0 * _DEG, 4.0 * _DEG, 2.0),
     step_from_last=True,
     revisit_best=True,
@@ -45,28 +46,31 @@ CYCLE_POSE_STAGE = PoseStageConfig(
     min_decrease_mm=0.3,
     undo_margin_mm=0.3,
     reapproach_first=False,
-    max_duration_s=75.0,
+    max_duration_s=120.0,
     arrive_at_expiration=True,
     release_translation_mm=0.3,
 )
 """The pose stage on the cycle-averaged estimator (in vivo): integral corrections, each
-measured over complete breaths, as many as fit in 75 s with a measurement after each and
-the way back to the best measured state kept (at most 5); every correction that moves the
-translation by more than 0.3 mm sweeps the roll through its backoff first, which releases
-the shaft's axial stiction (``release_translation_mm``), and every move makes its last leg
-at end-expiration (``arrive_at_expiration``), so the shaft's last slip happens at the same
-respiratory level and a translation command lands where it was aimed instead of anywhere
-in the shaft's lost-motion band; a dead band (tolerance, 0.8 mm / 1.3 deg) about two
-standard deviations of the estimate (:data:`ESTIMATE_SCATTER`) below the targets
-(:data:`IN_VIVO_TARGET`), so that a state measured within the targets is kept rather than
-moved (a move redraws the shaft's lost motion: a correction from a state measured within
-the targets landed within them again only about half of the time on the development
-pairs), and a least decrease that counts above the scatter of a state's error from one move
-to the next (about 0.3 mm on the twin); ends at the best measured state, the start
-included (``end_at_best``: re-approached and measured when the last correction landed worse
-by more than the scatter). ``verify`` (a second window before accepting) and rotations
-weighted as the targets were tried on the development pairs and not kept
-(``docs/results.md``, Table II)."""
+measured over complete breaths, as many as fit in 120 s with a measurement after each and
+the way back to the best measured state kept (at most 9; every move is a new draw of the
+shaft's lost motion and the stage keeps the best measured state, so more measured draws
+leave a better one); every correction that moves the translation by more than 0.3 mm sweeps
+the roll through its backoff first, which releases the shaft's axial stiction
+(``release_translation_mm``), and every move makes its last leg at end-expiration
+(``arrive_at_expiration``), so the shaft's last slip happens at the same respiratory level
+and a translation command lands where it was aimed instead of anywhere in the shaft's
+lost-motion band; a dead band (tolerance, 0.8 mm / 1.3 deg) about two standard deviations of
+the estimate (:data:`ESTIMATE_SCATTER`) below the targets (:data:`IN_VIVO_TARGET`), so that
+a state measured within the targets is kept rather than moved (a move redraws the shaft's
+lost motion: a correction from a state measured within the targets landed within them again
+only about half of the time on the development pairs), and a least decrease that counts
+above the scatter of a state's error from one move to the next (about 0.3 mm on the twin);
+ends at the best measured state, the start included (``end_at_best``: re-approached and
+measured when the last correction landed worse by more than the scatter). ``verify`` (a
+second window before accepting), rotations weighted as the targets, the secant update of the
+step's Jacobian (``secant_weight``) and the stop after a correction that did not pay
+(``stop_unpaid``) were tried on the development pairs and not kept (``docs/results.md``,
+Table II)."""
 
 CYCLE_POSE_STAGE_PHANTOM = replace(
     CYCLE_POSE_STAGE,
@@ -74,14 +78,15 @@ CYCLE_POSE_STAGE_PHANTOM = replace(
     tolerance_rad=0.35 * _DEG,
     min_decrease_mm=0.1,
     undo_margin_mm=0.1,
+    max_iterations=5,
     max_duration_s=60.0,
     arrive_at_expiration=False,
     release_translation_mm=0.0,
 )
-"""The same in the phantom (complete beats, no breathing): the dead band below the
-phantom's targets (0.5 mm / 0.5 deg), the least decrease and the undo margin at the
-smaller scatter of a still catheter there; session 7's 60 s, no breathing to wait for and
-no release sweep (the phantom's stiffer shaft has a lost-motion band of about 0.7 mm; these
+"""The same in the phantom (complete beats, no breathing): the dead band below the phantom's
+targets (0.5 mm / 0.5 deg), the least decrease and the undo margin at the smaller scatter of
+a still catheter there; session 7's 60 s and 5 corrections, no breathing to wait for and no
+release sweep (the phantom's stiffer shaft has a lost-motion band of about 0.7 mm; these
 settings met the phantom's targets held out)."""
 
 
