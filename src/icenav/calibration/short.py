@@ -29,6 +29,21 @@ the path turns about the knob origin (true of a circle, a spin; a radial move ge
 of the two senses' lag, which is no lag at all); between the rings' radii F interpolates.
 It identifies no knob play model and no tracker bias. With ``both_ways=False`` (the first
 development version) the rings turn one way only and F is ``F+``.
+
+*Spin rings* (``spin=True``; an option measured on development catheters, not the default):
+each ring stop is reached with the roll turned against the knobs' angle ``a`` turned so far,
+so a ring is a spin of the image at the ring's bend, the tip standing still in the base
+frame as in the evaluation's spins::
+
+    q_k = (r cos a_k, r sin a_k, -a_k, 0),   a_k continued over the turn and back     (S2)
+
+and the tracker's field bias at that point enters F as a spin meets it (rings at roll 0
+teach F the bias as if it turned with the knobs, and a spin through them makes the tracked
+tip orbit the intended one). F's samples are taken into the knob frame of the roll
+*reached* (the sweeps' play model along the commanded path) and the five points, read at
+roll 0, are left out beyond the smallest ring::
+
+    p_i = R_z(-phi3_eff,i) (tip_i - d4 e_z),   phi3_eff = play model (phi3 commanded)  (S3)
 """
 
 from __future__ import annotations
@@ -80,11 +95,12 @@ SWEEP_STEP = math.radians(20.0)
 """Roll step of the short calibration's sweeps (rad): a play's width is read from the offset
 between the up and the down branch, which a coarse step samples too."""
 
-SPIN_RINGS = True
-"""The short calibration's rings turn the roll against the knobs (spin rings, session 10;
-roll 0 before): docs/calibration.md section 7."""
-RING_SAMPLES = 4
-"""Tracker samples averaged at each ring stop (1 before session 10): 10 ms each, no move."""
+SPIN_RINGS = False
+"""The short calibration's rings keep the roll at 0 by default; spin rings (the roll turned
+against the knobs, ``spin=True``) are a measured option, not adopted: docs/calibration.md
+section 7, session 10."""
+RING_SAMPLES = 1
+"""Tracker samples averaged at each ring stop by default (10 ms each, no move)."""
 
 
 def ring_path(
