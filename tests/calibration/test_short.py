@@ -73,6 +73,14 @@ def test_the_short_plan_stays_within_100_moves_from_rest_to_rest() -> None:
     flat = short_ring_plan(spin=False, n_average=1)
     assert flat.plan.n == sp.plan.n and not flat.spin
     assert np.all(flat.plan.n_average[rings] == 1)
+    # a finer, narrower straight sweep in the same moves; the bent sweep as it was
+    fine = short_ring_plan(straight=(10 * DEG, 5 * DEG))
+    assert fine.plan.n == sp.plan.n
+    roll = fine.plan.q_motor[fine.plan.segment("sweep phi3"), 2]
+    np.testing.assert_allclose(np.max(np.abs(roll)), 10 * DEG)
+    np.testing.assert_allclose(np.max(np.abs(np.diff(roll))), 5 * DEG)
+    bent = fine.plan.segment("sweep phi3, phi1 bent")
+    np.testing.assert_allclose(fine.plan.q_motor[bent], sp.plan.q_motor[bent], atol=1e-12)
 
 
 def _tip_error(emap: object, cath: SyntheticCatheter, path: np.ndarray) -> float:

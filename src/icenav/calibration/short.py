@@ -95,6 +95,13 @@ SWEEP_STEP = math.radians(20.0)
 """Roll step of the short calibration's sweeps (rad): a play's width is read from the offset
 between the up and the down branch, which a coarse step samples too."""
 
+STRAIGHT_SWEEP = (math.radians(30.0), SWEEP_STEP)
+"""Amplitude and step (rad) of the short calibration's straight roll sweep."""
+BENT_AMPLITUDE = math.radians(50.0)
+"""Amplitude (rad) of its bent roll sweep, the AP knob at :data:`BENT_KNOB`."""
+BENT_KNOB = math.radians(50.0)
+"""The AP knob's angle (rad) of the bent roll sweep (the sweeps' ``roll_bend``)."""
+
 SPIN_RINGS = False
 """The short calibration's rings keep the roll at 0 by default; spin rings (the roll turned
 against the knobs, ``spin=True``) are a measured option, not adopted: docs/calibration.md
@@ -171,6 +178,7 @@ def short_ring_plan(
     direction_step: float | None = None,
     spin: bool = SPIN_RINGS,
     n_average: int = RING_SAMPLES,
+    straight: tuple[float, float] = STRAIGHT_SWEEP,
 ) -> ShortRingPlan:
     """Roll sweeps straight (+-30 deg) and with the AP knob at 50 deg (+-50 deg) in
     ``roll_step``, then :func:`ring_path`: 100 moves with the defaults (both ways,
@@ -180,11 +188,13 @@ def short_ring_plan(
     ``roll_step``): the plays over the knob plane
     (:func:`~icenav.calibration.hysteresis.hysteresis_plan`); fewer stops keep the budget."""
     stops = (BOTH_WAYS_STOPS if both_ways else 12) if n_stops is None else int(n_stops)
+    amplitude, step = (float(x) for x in straight)
     sweeps = hysteresis_plan(
         joints=(2,),
-        roll_amplitude=math.radians(30.0),
-        roll_step=roll_step,
-        roll_widening=0.4,
+        roll_amplitude=amplitude,
+        roll_step=step,
+        bent_step=roll_step,
+        roll_widening=(BENT_AMPLITUDE - amplitude) / BENT_KNOB,
         more_roll_bends=(),
         play_directions=tuple(float(p) for p in play_directions),
         direction_step=roll_step if direction_step is None else float(direction_step),
