@@ -1,15 +1,20 @@
-"""A development ablation, not the method (docs/results.md, session 10): the short
-calibration's rings as they were (roll at 0) against *spin rings* (the roll turned against
-the knobs, ``short_ring_plan(spin=True)``), with one tracker sample or four averaged per
-stop, with and without the play prior, next to ours (``dense+hysteresis``) on the same
-catheter. Every variant is its own recording of its plan on the same catheter (rig reset
-between), spun as ``eval spin``'s ``short+rings`` is.
+"""A development ablation, not the method (docs/calibration.md section 7, session 10):
+``short+rings`` as it is (``rings``) against one change of its plan, each with and without
+the play prior (``+prior``), every variant its own recording of its plan on the same
+catheter (rig reset between), spun as ``eval spin``'s ``short+rings`` is. Sets:
+
+- ``spin``: *spin rings* (``spin4``: the roll turned against the knobs,
+  ``short_ring_plan(spin=True)``, four tracker samples a stop), and ours
+  (``dense+hysteresis``) on the same catheter;
+- ``average``: four tracker samples averaged at each ring stop (``rings4``);
+- ``straight``: the straight roll sweep +-10 deg in 5 deg steps (``fine``, the same 13
+  moves as +-30 deg in 15 deg steps).
 
 Reports EM and true RMS errors of the paper's spin at 20 / 40 / 60 deg and writes them as
 JSON (``rows``: variant -> [EM mm, EM deg, true mm, true deg] per bend). Development
 catheters only (210-229)::
 
-    python docs/figures/ablation_short_spin.py default 210 [OUT.json]
+    python docs/figures/ablation_short_spin.py default 210 [OUT.json [SET]]
 """
 
 from __future__ import annotations
@@ -31,18 +36,21 @@ from icenav.geometry.trajectories import spin_trajectory
 
 fam, seed = sys.argv[1], int(sys.argv[2])
 out_path = sys.argv[3] if len(sys.argv) > 3 else None
+which = sys.argv[4] if len(sys.argv) > 4 else "spin"
+SETS: dict[str, list[tuple[str, dict[str, Any]]]] = {
+    "spin": [("rings", {"spin": False, "n_average": 1}), ("spin4", {"spin": True, "n_average": 4})],
+    "average": [("rings", {}), ("rings4", {"n_average": 4})],
+    "straight": [("rings", {}), ("fine", {"straight": (math.radians(10.0), math.radians(5.0))})],
+}
 if not 210 <= seed <= 229:
     raise SystemExit("development catheters only (210-229)")
 
 rig, tracker = S.make_rig(seed, "straight", fam)
 five = S.run_calibration("five_point", rig, tracker).calibration_set
-ours = S.run_calibration("dense+hysteresis", rig, tracker).details
+ours = S.run_calibration("dense+hysteresis", rig, tracker).details if which == "spin" else None
 prior = S.family_play_prior(fam)
 variants: dict[str, Any] = {}
-for name, kw in [
-    ("rings", {"spin": False, "n_average": 1}),
-    ("spin4", {"spin": True, "n_average": 4}),
-]:
+for name, kw in SETS[which]:
     rig.reset()
     plan = short_ring_plan(**kw)
     rec = run_visits(plan_visits(plan.plan), rig.move, tracker)
@@ -50,12 +58,13 @@ for name, kw in [
     variants[name + "+prior"] = fit_short_rings(plan, rec, five, prior=prior)
 
 rows: dict[str, list[float]] = {}
-for name in [*variants, "ours"]:
+for name in [*variants, *(["ours"] if ours is not None else [])]:
     errs: list[float] = []
     for bend in S.BENDS_DEG:
         sp = spin_trajectory([math.radians(bend), 0.0, 0.0, 0.0], 360, include_end=True)
         intended = forward(sp.q_model, check=False)
         if name == "ours":
+            assert ours is not None
             cmd = S.knob_map_commands(ours.knob_map(), S._approach_path(sp.q_model))
         else:
             cmd = S.short_ring_commands(variants[name], sp.q_model)
@@ -68,4 +77,4 @@ for name in [*variants, "ours"]:
     print(f"{fam} {seed} {name:12s} " + error_row(errs), flush=True)
 if out_path:
     with open(out_path, "w") as fh:
-        json.dump({"family": fam, "seed": seed, "rows": rows}, fh, indent=1)
+        json.dump({"family": fam, "seed": seed, "set": which, "rows": rows}, fh, indent=1)
