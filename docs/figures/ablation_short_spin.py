@@ -7,6 +7,8 @@ catheter (rig reset between), spun as ``eval spin``'s ``short+rings`` is. Sets:
   ``short_ring_plan(spin=True)``, four tracker samples a stop), and ours
   (``dense+hysteresis``) on the same catheter;
 - ``average``: four tracker samples averaged at each ring stop (``rings4``);
+- ``radii``: the rings on the spins' own knob radii, 20 / 40 / 60 deg (``at-spins``; a
+  diagnosis of F between the rings, not a method: it would fit the protocol's bends);
 - ``straight``: the straight roll sweep +-10 deg in 5 deg steps (``fine``, the same 13
   moves as +-30 deg in 15 deg steps).
 
@@ -40,6 +42,10 @@ which = sys.argv[4] if len(sys.argv) > 4 else "spin"
 SETS: dict[str, list[tuple[str, dict[str, Any]]]] = {
     "spin": [("rings", {"spin": False, "n_average": 1}), ("spin4", {"spin": True, "n_average": 4})],
     "average": [("rings", {}), ("rings4", {"n_average": 4})],
+    "radii": [
+        ("rings", {}),
+        ("at-spins", {"radii": tuple(math.radians(a) for a in (20.0, 40.0, 60.0))}),
+    ],
     "straight": [("rings", {}), ("fine", {"straight": (math.radians(10.0), math.radians(5.0))})],
 }
 if not 210 <= seed <= 229:
