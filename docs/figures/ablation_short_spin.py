@@ -9,6 +9,8 @@ catheter (rig reset between), spun as ``eval spin``'s ``short+rings`` is. Sets:
 - ``average``: four tracker samples averaged at each ring stop (``rings4``);
 - ``radii``: the rings on the spins' own knob radii, 20 / 40 / 60 deg (``at-spins``; a
   diagnosis of F between the rings, not a method: it would fit the protocol's bends);
+- ``radii15``: rings at 15 / 45 / 75 deg of knob radius (``r15``: one inside the smallest
+  bend spun);
 - ``straight``: the straight roll sweep +-10 deg in 5 deg steps (``fine``, the same 13
   moves as +-30 deg in 15 deg steps).
 
@@ -45,6 +47,10 @@ SETS: dict[str, list[tuple[str, dict[str, Any]]]] = {
     "radii": [
         ("rings", {}),
         ("at-spins", {"radii": tuple(math.radians(a) for a in (20.0, 40.0, 60.0))}),
+    ],
+    "radii15": [
+        ("rings", {}),
+        ("r15", {"radii": tuple(math.radians(a) for a in (15.0, 45.0, 75.0))}),
     ],
     "straight": [("rings", {}), ("fine", {"straight": (math.radians(10.0), math.radians(5.0))})],
 }
