@@ -193,7 +193,7 @@ def test_the_tension_form_is_chosen_by_held_out_residual() -> None:
     truth = TendonTransmission(ap=pair, rl=pair, wrap=0.5, friction=0.3, coupling_form="stretch")
     motion = synthetic_catheter(truth, rng, circles, 0.05 * DEG)
     middle = circle_blocks(circles) == 2
-    fit = identify_transmission_form([motion], [middle], degree=3, max_nfev=12, refit_nfev=4)
+    fit = identify_transmission_form([motion], [middle], degree=3, train_nfev=12, refit_nfev=4)
     scores = dict(fit.held_out_rms)
     assert fit.model.coupling_form == "stretch"
     assert scores["stretch"] < 0.5 * scores["added"]
