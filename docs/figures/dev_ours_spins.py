@@ -8,7 +8,8 @@ commit). Session 10's before / after of the tension's form (docs/results.md):
     python docs/figures/dev_ours_spins.py --json after.json default:213 ...    # after
 
 Each record: the transmission fit's residual (deg), its form and held-out scores, the fit's
-wall time and per bend (EM mm, EM deg, true mm, true deg). Development seeds only.
+wall time and per bend (EM mm, EM deg, true mm, true deg). Development seeds only. (The
+session-10 records were written by this loop before it kept the held-out scores.)
 """
 
 from __future__ import annotations
