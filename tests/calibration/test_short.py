@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 from numpy.typing import ArrayLike
 
+from icenav.calibration.plans import MotionPlan
 from icenav.calibration.play_prior import make_play_prior
 from icenav.calibration.procedure import run_procedure, run_visits
 from icenav.calibration.procedures import make_procedure, plan_visits
@@ -24,9 +25,11 @@ from icenav.calibration.short import (
     turn_sense,
 )
 from icenav.compensation.bend_play import BendPlay, KnobPlanePlay
+from icenav.compensation.calibration_set import CalibrationSet
 from icenav.compensation.hysteresis import HysteresisCompensator
 from icenav.errors import ConfigurationError
 from icenav.geometry.kinematics import forward
+from icenav.geometry.trajectories import spin_trajectory
 from tests.support.calibration import SyntheticCatheter, Tracker, distortion
 
 DEG = math.pi / 180
@@ -49,12 +52,35 @@ def test_ring_path_turns_one_way_at_constant_radius() -> None:
         ring_path(radii=(2.0,))
 
 
+def test_spin_rings_turn_the_roll_against_the_knobs_and_back() -> None:
+    q = ring_path(n_stops=10, both_ways=True, spin=True)
+    flat = ring_path(n_stops=10, both_ways=True)
+    np.testing.assert_array_equal(q[:, :2], flat[:, :2])  # the same knob stops
+    for i in range(len(RING_RADII)):
+        ring = q[21 * i : 21 * (i + 1)]
+        knob_angle = np.unwrap(np.arctan2(ring[:, 1], ring[:, 0]))
+        # phi3 = -(the knobs' angle turned), continued over the turn and back (S2)
+        np.testing.assert_allclose(ring[:, 2], -knob_angle, atol=1e-9)
+        assert ring[10, 2] == pytest.approx(-2.0 * math.pi) and ring[-1, 2] == pytest.approx(0.0)
+
+
 def test_the_short_plan_stays_within_100_moves_from_rest_to_rest() -> None:
     sp = short_ring_plan()
     assert sp.plan.n <= 100 and short_ring_plan(both_ways=False).plan.n <= 100
     np.testing.assert_array_equal(sp.plan.q_motor[-1], np.zeros(4))
     rings = sp.plan.segment(KNOB_RINGS)
-    assert np.all(sp.plan.n_average[rings] == 1)
+    assert np.all(sp.plan.n_average[rings] == sp.n_average)
+    flat = short_ring_plan(spin=False, n_average=1)
+    assert flat.plan.n == sp.plan.n and not flat.spin
+    assert np.all(flat.plan.n_average[rings] == 1)
+    # a finer, narrower straight sweep in the same moves; the bent sweep as it was
+    fine = short_ring_plan(straight=(10 * DEG, 5 * DEG))
+    assert fine.plan.n == sp.plan.n
+    roll = fine.plan.q_motor[fine.plan.segment("sweep phi3"), 2]
+    np.testing.assert_allclose(np.max(np.abs(roll)), 10 * DEG)
+    np.testing.assert_allclose(np.max(np.abs(np.diff(roll))), 5 * DEG)
+    bent = fine.plan.segment("sweep phi3, phi1 bent")
+    np.testing.assert_allclose(fine.plan.q_motor[bent], sp.plan.q_motor[bent], atol=1e-12)
 
 
 def _tip_error(emap: object, cath: SyntheticCatheter, path: np.ndarray) -> float:
@@ -188,3 +214,55 @@ def test_a_play_prior_gives_the_short_calibration_the_plays_shape_over_the_knob_
         np.testing.assert_allclose(got, want, rtol=0.15)
         if psi == math.radians(90.0):
             assert np.max(np.abs(line / want - 1.0)) > 0.45
+
+
+class _FieldTracker(Tracker):
+    """The synthetic catheter read through a field bias that stays in the base frame (2 mm
+    along x, -1 mm along y: it does not turn with the roll, as the tracker's field)."""
+
+    def measure_tip2base(self, n_average: int = 1) -> np.ndarray | None:
+        pose = super().measure_tip2base(n_average)
+        if pose is None:
+            return None
+        pose = pose.copy()
+        pose[:3, 3] += (2.0, -1.0, 0.0)
+        return pose
+
+
+def test_spin_rings_calibrate_the_tip_where_the_tracker_reads_it_during_a_spin() -> None:
+    """Rings at roll 0 teach F the field bias at each stop as if it turned with the knobs:
+    a spin through them makes the tracked tip orbit the intended one (about sqrt 2 x the
+    bias, 3.2 mm RMS). Spin rings read the tip standing where the spin holds it, so the
+    tracked tip of a spin between their radii stays near the intended one: 1.1 mm, against
+    0.7 mm for F's own error between these rings without any bias (the turning bias is
+    interpolated between 8 stops a ring). The section's length is not fitted (the bias
+    reads as length on either rings)."""
+    cath = SyntheticCatheter(r=(2 * DEG, 2 * DEG, 0.0))
+    model = spin_trajectory([40 * DEG, 0.0, 0.0, 0.0], 37, include_end=True).q_model
+    want = forward(model[0], check=False)[:3, 3]
+    err = {}
+    for spin in (False, True):
+        tracker = _FieldTracker(cath)
+        cath.p = [0.0, 0.0, 0.0]
+        # the origin and four points beyond the rings, as the 5-point search's, at roll 0
+        q5 = np.zeros((5, 4))
+        q5[1:, :2] = 85 * DEG * np.array([[1, 0], [0, 1], [-1, 0], [0, -1]])
+        five = run_visits(plan_visits(MotionPlan.make(q5, "five", 1)), cath.move, tracker)
+        five_set = CalibrationSet(q_motor=q5, tip2base=five.tip2base, method="five")
+        sp = short_ring_plan((30 * DEG, 50 * DEG), 8, both_ways=False, spin=spin)
+        rec = run_visits(plan_visits(sp.plan), cath.move, tracker)
+        cal = fit_short_rings(sp, rec, five_set, fit_length=False)
+        # as a spin is commanded: the twist pre-shaped, F, the roll's play inverse
+        path = np.vstack([np.linspace(np.zeros(4), model[0], 9), model])
+        comp = cal.hysteresis
+        eff = cal.model_to_motor_path(comp.preshape_model(path))
+        comp.reset(np.zeros(4))
+        cmd = comp.command_path(eff, bends=np.hypot(path[:, 0], path[:, 1]))
+        cath.p = [0.0, 0.0, 0.0]
+        read = []
+        for q in cmd:
+            cath.move(q)
+            read.append(tracker.measure_tip2base()[:3, 3])  # type: ignore[index]
+        err[spin] = float(np.sqrt(np.mean(np.sum((np.array(read[9:]) - want) ** 2, -1))))
+    assert err[False] > 2.5  # the orbit
+    assert err[True] < 1.25

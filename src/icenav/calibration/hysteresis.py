@@ -302,6 +302,7 @@ def hysteresis_plan(
     retries: int = 10,
     play_directions: Sequence[float] | None = None,
     direction_step: float | None = None,
+    bent_step: float | None = None,
 ) -> HysteresisPlan:
     """The sweeps: each knob of ``joints`` 0 -> +A -> -A -> +A -> 0 (``amplitude``, in
     ``step``) with the others at 0, one tracker sample per step; phi1 again with phi2 at
@@ -315,7 +316,8 @@ def hysteresis_plan(
     pi); default :data:`PLAY_DIRECTIONS` when ``more_roll_bends`` is not empty, else none)
     the roll is swept once more per direction with the knobs bent ``roll_bend`` along it
     (``phi1, phi2 = roll_bend (cos psi, sin psi)``; in ``direction_step``, default
-    ``roll_step``), for the plays over the knob plane. The robot starts and ends at zeros
+    ``roll_step``), for the plays over the knob plane. The bent roll sweeps go in
+    ``bent_step`` (default ``roll_step``). The robot starts and ends at zeros
     (unread moves)."""
     _check_counts(retries, 1)
     if not (0.0 <= roll_widening <= 2.0):
@@ -347,7 +349,9 @@ def hysteresis_plan(
     sweep = sweep_path(amplitude, step)
     roll_sweep = sweep_path(roll_amplitude, roll_step)
 
-    def bent_roll_sweep(knob: float, step: float = roll_step) -> Array:
+    bstep = roll_step if bent_step is None else float(bent_step)
+
+    def bent_roll_sweep(knob: float, step: float = bstep) -> Array:
         return sweep_path(min(roll_amplitude + roll_widening * knob, math.pi), step)
 
     zero = np.zeros((1, 4))

@@ -29,6 +29,21 @@ the path turns about the knob origin (true of a circle, a spin; a radial move ge
 of the two senses' lag, which is no lag at all); between the rings' radii F interpolates.
 It identifies no knob play model and no tracker bias. With ``both_ways=False`` (the first
 development version) the rings turn one way only and F is ``F+``.
+
+*Spin rings* (``spin=True``; an option measured on development catheters, not the default):
+each ring stop is reached with the roll turned against the knobs' angle ``a`` turned so far,
+so a ring is a spin of the image at the ring's bend, the tip standing still in the base
+frame as in the evaluation's spins::
+
+    q_k = (r cos a_k, r sin a_k, -a_k, 0),   a_k continued over the turn and back     (S2)
+
+and the tracker's field bias at that point enters F as a spin meets it (rings at roll 0
+teach F the bias as if it turned with the knobs, and a spin through them makes the tracked
+tip orbit the intended one). F's samples are taken into the knob frame of the roll
+*reached* (the sweeps' play model along the commanded path) and the five points, read at
+roll 0, are left out beyond the smallest ring::
+
+    p_i = R_z(-phi3_eff,i) (tip_i - d4 e_z),   phi3_eff = play model (phi3 commanded)  (S3)
 """
 
 from __future__ import annotations
@@ -80,18 +95,35 @@ SWEEP_STEP = math.radians(20.0)
 """Roll step of the short calibration's sweeps (rad): a play's width is read from the offset
 between the up and the down branch, which a coarse step samples too."""
 
+STRAIGHT_SWEEP = (math.radians(30.0), SWEEP_STEP)
+"""Amplitude and step (rad) of the short calibration's straight roll sweep."""
+BENT_AMPLITUDE = math.radians(50.0)
+"""Amplitude (rad) of its bent roll sweep, the AP knob at :data:`BENT_KNOB`."""
+BENT_KNOB = math.radians(50.0)
+"""The AP knob's angle (rad) of the bent roll sweep (the sweeps' ``roll_bend``)."""
+
+SPIN_RINGS = False
+"""The short calibration's rings keep the roll at 0 by default; spin rings (the roll turned
+against the knobs, ``spin=True``) are a measured option, not adopted: docs/calibration.md
+section 7, session 10."""
+RING_SAMPLES = 1
+"""Tracker samples averaged at each ring stop by default (10 ms each, no move)."""
+
 
 def ring_path(
     radii: Sequence[float] = RING_RADII,
     n_stops: int = 12,
     direction: int = 1,
     both_ways: bool = False,
+    spin: bool = False,
 ) -> Array:
     """Ring stops, motor joint states (m, 4) (rad): for each radius r, a move to (r, 0), then
     ``n_stops`` stops one turn around at equal angles, counter-clockwise in (phi1, phi2)
     (``direction`` +1; -1 clockwise); the last stop is (r, 0) again. With ``both_ways`` the
-    same stops follow turned the other way (``1 + 2 n_stops`` rows a ring). Roll and
-    translation 0."""
+    same stops follow turned the other way (``1 + 2 n_stops`` rows a ring). Translation 0;
+    the roll 0, or with ``spin`` turned against the knobs' angle (phi3 = -angle, continued
+    over the turn: the ring is a spin of the image at the ring's bend, the tip standing
+    still in the base frame, as the evaluation's spins, Eq. S2)."""
     rr = [float(r) for r in radii]
     if not rr or any(not (0.0 < r <= DEFAULT_GEOMETRY.knob_limit) for r in rr):
         raise ConfigurationError(
@@ -101,16 +133,18 @@ def ring_path(
         raise ConfigurationError(
             f"need 4 <= n_stops <= 72 and direction +-1, got {n_stops}, {direction}"
         )
-    rows: list[tuple[float, float]] = []
+    rows: list[tuple[float, float, float]] = []
     senses = (direction, -direction) if both_ways else (direction,)
     for r in rr:
-        rows.append((r, 0.0))
+        rows.append((r, 0.0, 0.0))
         for sense in senses:
             for k in range(1, int(n_stops) + 1):
                 a = sense * 2.0 * math.pi * k / int(n_stops)
-                rows.append((r * math.cos(a), r * math.sin(a)))
+                # the second sense starts where the first ended (a full turn away)
+                turned = a if sense == senses[0] else senses[0] * 2.0 * math.pi + a
+                rows.append((r * math.cos(a), r * math.sin(a), -turned if spin else 0.0))
     out = np.zeros((len(rows), 4))
-    out[:, :2] = rows
+    out[:, :3] = rows
     return out
 
 
@@ -128,6 +162,10 @@ class ShortRingPlan:
     """Stops per turn and sense."""
     both_ways: bool
     """Each ring turned both ways."""
+    spin: bool = False
+    """The rings turn the roll against the knobs (:func:`ring_path`'s ``spin``)."""
+    n_average: int = 1
+    """Tracker samples averaged at each ring stop."""
 
 
 def short_ring_plan(
@@ -138,6 +176,9 @@ def short_ring_plan(
     roll_step: float = SWEEP_STEP,
     play_directions: Sequence[float] = (),
     direction_step: float | None = None,
+    spin: bool = SPIN_RINGS,
+    n_average: int = RING_SAMPLES,
+    straight: tuple[float, float] = STRAIGHT_SWEEP,
 ) -> ShortRingPlan:
     """Roll sweeps straight (+-30 deg) and with the AP knob at 50 deg (+-50 deg) in
     ``roll_step``, then :func:`ring_path`: 100 moves with the defaults (both ways,
@@ -147,17 +188,19 @@ def short_ring_plan(
     ``roll_step``): the plays over the knob plane
     (:func:`~icenav.calibration.hysteresis.hysteresis_plan`); fewer stops keep the budget."""
     stops = (BOTH_WAYS_STOPS if both_ways else 12) if n_stops is None else int(n_stops)
+    amplitude, step = (float(x) for x in straight)
     sweeps = hysteresis_plan(
         joints=(2,),
-        roll_amplitude=math.radians(30.0),
-        roll_step=roll_step,
-        roll_widening=0.4,
+        roll_amplitude=amplitude,
+        roll_step=step,
+        bent_step=roll_step,
+        roll_widening=(BENT_AMPLITUDE - amplitude) / BENT_KNOB,
         more_roll_bends=(),
         play_directions=tuple(float(p) for p in play_directions),
         direction_step=roll_step if direction_step is None else float(direction_step),
     )
-    path = ring_path(radii, stops, direction, both_ways)
-    rings = MotionPlan.make(path, KNOB_RINGS, 1, retries=0)
+    path = ring_path(radii, stops, direction, both_ways, spin=spin)
+    rings = MotionPlan.make(path, KNOB_RINGS, int(n_average), retries=0)
     rest = MotionPlan.make(np.zeros((1, 4)), "to zero", n_average=0, retries=0)
     return ShortRingPlan(
         plan=MotionPlan.concat([sweeps.plan, rings, rest]),
@@ -165,6 +208,8 @@ def short_ring_plan(
         rings=path,
         n_stops=stops,
         both_ways=bool(both_ways),
+        spin=bool(spin),
+        n_average=int(n_average),
     )
 
 
@@ -216,10 +261,12 @@ class ShortRingCalibration:
         if q.ndim != 2 or q.shape[1] != 4:
             raise ConfigurationError(f"q_model must have shape (n, 4), got {q.shape}")
         out = np.asarray(self.elasticity_map.model_to_motor(q, check=False), np.float64)
+        sense = turn_sense(q[:, :2])
         if self.reverse_map is not None:
             rev = np.asarray(self.reverse_map.model_to_motor(q, check=False), np.float64)
-            w = 0.5 * (1.0 + turn_sense(q[:, :2]))[:, None]  # (S1)
+            w = 0.5 * (1.0 + sense)[:, None]  # (S1)
             out = w * out + (1.0 - w) * rev
+
         bend = DEFAULT_GEOMETRY.knob_ratio * np.hypot(q[:, 0], q[:, 1])
         out[:, 3] = q[:, 3] - self.section.axial_excess(bend)  # (SL1)
         return out
@@ -246,11 +293,21 @@ def fit_short_rings(
     roll = fit_short_plays(splan, recording, prior, geometry)
     section = _fit_section(recording, five_point, geometry) if fit_length else SectionLength()
     q, poses = recording.part(KNOB_RINGS)
+    if splan.spin:
+        # F's samples in the knob frame of the roll reached, not the roll commanded (S3)
+        q = np.array(q)
+        q[:, 2] = roll.effective_path(q, q_start=np.zeros(4))[:, 2]
     tracked = np.all(np.isfinite(poses.reshape(len(q), -1)), axis=1)
     if np.any(tracked):
         poses = np.array(poses)
         poses[tracked] = section.correct_poses(poses[tracked])
     five_point = section.correct(five_point)
+    keep_five = np.ones(five_point.n_samples, dtype=bool)
+    if splan.spin:
+        # the five points were read at roll 0: beyond the rings' smallest radius their field
+        # bias is not the one a spin meets there (S3); F keeps those inside it (the origin)
+        radius = np.hypot(five_point.q_motor[:, 0], five_point.q_motor[:, 1])
+        keep_five = radius < float(np.min(np.hypot(splan.rings[:, 0], splan.rings[:, 1])))
     # the sense each stop was reached in: the first pass of a ring, then (both ways) the
     # second; the move onto the ring (a radial one) joins neither
     per_ring = 1 + (2 if splan.both_ways else 1) * splan.n_stops
@@ -262,8 +319,8 @@ def fit_short_rings(
     def f_over(stops: Any) -> ElasticityMap:
         keep = stops & tracked
         samples = CalibrationSet(
-            q_motor=np.vstack([five_point.q_motor, q[keep]]),
-            tip2base=np.concatenate([five_point.tip2base, poses[keep]]),
+            q_motor=np.vstack([five_point.q_motor[keep_five], q[keep]]),
+            tip2base=np.concatenate([five_point.tip2base[keep_five], poses[keep]]),
             catheter_id=five_point.catheter_id,
             vessel=five_point.vessel,
             method="five-point+rings",
