@@ -1,16 +1,17 @@
 """Markdown tables of docs/results.md (plant families) from the records of ``icenav eval spin``.
 
-The held-out records are made by ONE run each. Catheters 320-324 (round 5, session 9; the
+The held-out records are made by ONE run each. Catheters 325-329 (round 6, session 10; the
 freeze commit is in docs/results.md; on the busy 2-core machine shared by four engineers),
-as two commands so that a late finish could be cut after 322, their records merged into
-``families_seeds320-324.json``:
+as two commands so that a late finish could be cut after 327, their records merged into
+``families_seeds325-329.json``:
 
-    nice -n 10 icenav eval spin --plant-family all --seeds 320-322 --jobs 2 \\
+    nice -n 10 icenav eval spin --plant-family all --seeds 325-327 --jobs 2 \\
         --conditions none,dense,dense+hysteresis,short+rings,short+rings+prior \\
-        --json docs/figures/families_seeds320-322.json
-    (the same with --seeds 323-324 --json docs/figures/families_seeds323-324.json)
+        --json docs/figures/families_seeds325-327.json
+    (the same with --seeds 328-329 --json docs/figures/families_seeds328-329.json)
 
-and, the rounds before (now spent): ``--seeds 315-319`` (round 4, at bcf73ae, without
+and, the rounds before (now spent): ``--seeds 320-324`` (round 5, at 38cea1a, the same
+conditions), ``--seeds 315-319`` (round 4, at bcf73ae, without
 ``short+rings+prior``), ``--seeds 310-314`` (round 3, at 2bf7dc3, the same conditions),
 ``--seeds 305-309`` (methods frozen at 899b631, without ``short+rings``) and ``--seeds
 300-304`` (at b41cbd4), their records in ``docs/figures/families_seeds3*.json``.

@@ -339,3 +339,26 @@ def test_a_model_fitted_for_another_geometry_is_refused(
         f.compensation(CatheterGeometry(bending_length=70.0))
     with pytest.raises(FileFormatError, match="must be a CatheterCalibration"):
         CalibrationFile(cat.dense, kind="dense+hysteresis", model=cat.elasticity_map)
+
+
+def test_the_tension_form_and_its_scores_come_back_and_old_files_keep_the_added_form(
+    twin_catheter_calibration: CatheterCalibration,
+) -> None:
+    cat = twin_catheter_calibration
+    t0 = cat.transmission
+    model = dataclasses.replace(t0.fit.model, coupling_form="stretch")
+    fit = dataclasses.replace(
+        t0.fit, model=model, held_out_rms=(("added", 0.09), ("stretch", 0.08))
+    )
+    stretched = dataclasses.replace(cat, transmission=dataclasses.replace(t0, fit=fit))
+    doc = json.loads(json.dumps(encode_model("dense+hysteresis", stretched)))
+    back = decode_model("dense+hysteresis", doc, "x.json").transmission.fit
+    assert back.model == model and back.held_out_rms == fit.held_out_rms
+    # a file written before the choice: no form, no scores
+    del doc["transmission"]["fit"]["model"]["coupling_form"]
+    del doc["transmission"]["fit"]["held_out_rms"]
+    old = decode_model("dense+hysteresis", doc, "x.json").transmission.fit
+    assert old.model.coupling_form == "added" and old.held_out_rms == ()
+    doc["transmission"]["fit"]["held_out_rms"] = [["added", "small"]]
+    with pytest.raises(FileFormatError, match="held_out_rms"):
+        decode_model("dense+hysteresis", doc, "x.json")

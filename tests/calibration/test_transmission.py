@@ -17,13 +17,16 @@ from icenav.calibration.transmission import (
     KNOB_CIRCLES,
     CalibrationMotion,
     build_transmission,
+    circle_blocks,
     circle_path,
     circle_plan,
     identify_transmission,
+    identify_transmission_form,
     motion_from,
     reidentify_in_situ,
 )
 from icenav.compensation.tendon_map import TendonKnobMap
+from icenav.compensation.transmission import PairTransmission, TendonTransmission
 from icenav.errors import ConfigurationError, ShapeError
 from icenav.geometry.kinematics import forward
 from tests.support.transmission import (
@@ -169,3 +172,30 @@ def test_identification_on_a_plant_with_distributed_play() -> None:
     assert np.sqrt(np.mean(err_model**2)) < 0.5 * np.sqrt(np.mean(err_none**2))
     with pytest.raises(ShapeError, match="static_coefficients"):
         identify_transmission(motions, degree=3, static_coefficients=np.zeros((3, 2)))
+
+
+def test_circle_blocks_count_the_departures_from_rest() -> None:
+    path = circle_path((20 * DEG, 40 * DEG, 60 * DEG), step=10 * DEG)
+    labels = circle_blocks(np.vstack([np.zeros((1, 4)), path]))
+    assert labels[0] == 0 and labels.max() == 3
+    assert np.all(np.diff(labels) >= 0)
+    for k, r in zip((1, 2, 3), (20, 40, 60), strict=True):
+        assert np.max(np.hypot(*path[labels[1:] == k, :2].T)) == pytest.approx(r * DEG)
+
+
+def test_the_tension_form_is_chosen_by_held_out_residual() -> None:
+    """Data of a catheter whose tendons are routed so that the other pair's bend relieves
+    them (the stretch form, TR3s): the stretch form predicts the held-out middle circle
+    better than the added one (TR3) fitted to the same data, and is kept."""
+    rng = np.random.default_rng(11)
+    circles = circle_path((25 * DEG, 45 * DEG, 65 * DEG), step=10 * DEG)
+    pair = PairTransmission(slack=1.0 * DEG, seal_play=0.5 * DEG, tension_play=0.5, coupling=0.8)
+    truth = TendonTransmission(ap=pair, rl=pair, wrap=0.5, friction=0.3, coupling_form="stretch")
+    motion = synthetic_catheter(truth, rng, circles, 0.05 * DEG)
+    middle = circle_blocks(circles) == 2
+    fit = identify_transmission_form([motion], [middle], degree=3, train_nfev=12, refit_nfev=4)
+    scores = dict(fit.held_out_rms)
+    assert fit.model.coupling_form == "stretch"
+    assert scores["stretch"] < 0.5 * scores["added"]
+    with pytest.raises(ConfigurationError, match="held_out"):
+        identify_transmission_form([motion], [np.zeros(circles.shape[0], dtype=bool)])

@@ -204,3 +204,27 @@ def test_bad_input_is_refused() -> None:
         TendonCompensator(TendonTransmission()).command(np.zeros(3))
     with pytest.raises(ConfigurationError, match="TendonTransmission"):
         TendonCompensator("model")  # type: ignore[arg-type]
+
+
+def test_the_stretch_form_lets_the_other_pairs_bend_relieve_a_tendon() -> None:
+    """(TR3s): a tendon's tension is its stretch, which the other pair's bend can shorten;
+    (TR3) only ever adds to it. With no coupling the two forms are the same model."""
+
+    def ap_lag(form: str, coupling: float, rl_bend: float) -> float:
+        """Lag (rad) of z1 behind x1 halfway up a 0 -> 40 deg AP ramp, the RL knob held."""
+        pair = PairTransmission(seal_play=0.5 * DEG, tension_play=0.5, coupling=coupling)
+        m = TendonTransmission(ap=pair, rl=pair, wrap=0.5, friction=0.3, coupling_form=form)
+        x1 = np.linspace(0, 40, 201) * DEG
+        x = np.stack([x1, np.full_like(x1, rl_bend)], axis=-1)
+        return float(x1[100] - m.simulate(x, x_start=[0.0, rl_bend])[100, 0])
+
+    bend = -40 * DEG  # with coupling > 0 this RL bend shortens tendon A (sigma gamma z2 < 0)
+    free = ap_lag("added", 0.0, bend)
+    assert ap_lag("stretch", 0.0, bend) == pytest.approx(free, abs=1e-12)
+    assert ap_lag("added", 0.6, bend) == pytest.approx(free, abs=1e-12)  # never relieved
+    assert ap_lag("stretch", 0.6, bend) < 0.5 * free  # relieved down to its seal play
+    # the other way round both forms add the same tension
+    assert ap_lag("stretch", -0.6, bend) == pytest.approx(ap_lag("added", -0.6, bend))
+    assert ap_lag("added", -0.6, bend) > 1.5 * free
+    with pytest.raises(ConfigurationError, match="coupling_form"):
+        TendonTransmission(coupling_form="mixed")

@@ -478,6 +478,8 @@ def _decode_tendons(r: _Field) -> TendonTransmission:
             wrap=r.number("wrap"),
             friction=r.number("friction"),
             max_substep=r.number("max_substep"),
+            # files written before the form was chosen hold the added form (TR3)
+            coupling_form=r.text("coupling_form") if "coupling_form" in r.doc else "added",
         )
     )
 
@@ -495,6 +497,7 @@ def _encode_transmission(t: TransmissionCalibration) -> dict[str, Any]:
             fit,
             model=_encode_tendons(fit.model),
             static_coefficients=np.asarray(fit.static_coefficients).tolist(),
+            held_out_rms=[[name, v] for name, v in fit.held_out_rms],
         ),
         effective_map=_encode_map(t.effective_map),
         compensator={
@@ -524,6 +527,22 @@ def _decode_section(r: _Field | None) -> SectionLength:
     )
 
 
+def _held_out(f: _Field) -> tuple[tuple[str, float], ...]:
+    """``fit.held_out_rms``: a list of [coupling form, residual (rad)] pairs."""
+    v = f.get("held_out_rms")
+    ok = isinstance(v, list) and all(
+        isinstance(x, list)
+        and len(x) == 2
+        and isinstance(x[0], str)
+        and isinstance(x[1], int | float)
+        and not isinstance(x[1], bool)
+        for x in v
+    )
+    if not ok:
+        raise f.error("held_out_rms", f"must be a list of [form, number] pairs, got {v!r}")
+    return tuple((str(x[0]), float(x[1])) for x in v)
+
+
 def _decode_transmission(r: _Field) -> TransmissionCalibration:
     f = r.sub("fit")
     degree = f.integer("degree")
@@ -536,6 +555,7 @@ def _decode_transmission(r: _Field) -> TransmissionCalibration:
         n_samples=f.integer("n_samples"),
         n_evaluations=f.integer("n_evaluations"),
         degree=degree,
+        held_out_rms=_held_out(f) if "held_out_rms" in f.doc else (),
     )
     c = r.sub("compensator")
     compensator = c.build(

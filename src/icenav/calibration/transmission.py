@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -35,6 +35,7 @@ from icenav.compensation.section_length import SectionLength
 from icenav.compensation.tracker_bias import TrackerBias
 from icenav.compensation.transmission import (
     _MAX_PLAY,
+    COUPLING_FORMS,
     PairTransmission,
     TendonCompensator,
     TendonTransmission,
@@ -48,10 +49,13 @@ __all__ = [
     "CalibrationMotion",
     "F_SMOOTHING",
     "KNOB_CIRCLES",
+    "FORM_MARGIN",
     "build_transmission",
+    "circle_blocks",
     "circle_path",
     "circle_plan",
     "identify_transmission",
+    "identify_transmission_form",
     "motion_from",
     "observed_knobs",
     "reidentify_in_situ",
@@ -215,11 +219,22 @@ def _poly_basis(z: Array, degree: int) -> Array:
     return np.stack(cols, axis=-1)
 
 
-def _design(motions: Sequence[CalibrationMotion], weight_limit: float) -> tuple[list, Array, Array]:
+def _design(
+    motions: Sequence[CalibrationMotion],
+    weight_limit: float,
+    keep: Sequence[ArrayLike] | None = None,
+) -> tuple[list, Array, Array]:
+    if keep is not None and len(keep) != len(motions):
+        raise ShapeError(f"masks must have one array per motion ({len(motions)}), got {len(keep)}")
     ys, masks = [], []
-    for m in motions:
+    for i, m in enumerate(motions):
         ok = np.all(np.isfinite(m.observed), axis=1)
         ok &= np.max(np.abs(m.q_motor[:, :2]), axis=1) <= weight_limit + 1e-9
+        if keep is not None:
+            k = np.asarray(keep[i], dtype=bool).ravel()
+            if k.shape != ok.shape:
+                raise ShapeError(f"masks[{i}] must have shape {ok.shape}, got {k.shape}")
+            ok &= k
         masks.append(ok)
         ys.append(m.observed[ok])
     return masks, np.concatenate(ys), np.concatenate([np.flatnonzero(k) for k in masks])
@@ -234,6 +249,8 @@ def identify_transmission(
     max_gain: float = 1.0,
     max_nfev: int = 60,
     static_coefficients: ArrayLike | None = None,
+    coupling_form: str | None = None,
+    masks: Sequence[ArrayLike] | None = None,
 ) -> TransmissionFit:
     """Identify a :class:`TendonTransmission` from commanded motions and the tracked tip.
 
@@ -260,6 +277,12 @@ def identify_transmission(
         Keep ``G`` fixed (e.g. a straight-vessel fit's ``static_coefficients``) instead of
         refitting it: for re-identifying the plays in situ (in a curved vessel) from knob
         circles alone, with the bending section's elasticity as calibrated.
+    coupling_form : str, optional
+        The tension form (:data:`~icenav.compensation.transmission.COUPLING_FORMS`); default:
+        ``initial``'s (``"added"`` without ``initial``).
+    masks : sequence of bool arrays (n_i,), optional
+        Per motion, the samples that may enter the residual (e.g. a held-out part left out);
+        every motion is still simulated whole.
     """
     if not motions or not all(isinstance(m, CalibrationMotion) for m in motions):
         raise ConfigurationError("motions must be a non-empty sequence of CalibrationMotion")
@@ -267,7 +290,7 @@ def identify_transmission(
         raise ConfigurationError(f"degree must be in [1, 9], got {degree}")
     if not (0.0 < float(max_gain) <= 2.0):
         raise ConfigurationError(f"max_gain must be in (0, 2] rad/rad, got {max_gain}")
-    masks, y, _ = _design(motions, float(fit_limit))
+    masks, y, _ = _design(motions, float(fit_limit), masks)
     n_valid = y.shape[0]
     if n_valid < 50:
         raise ConfigurationError(f"only {n_valid} valid samples within fit_limit; need >= 50")
@@ -282,6 +305,9 @@ def identify_transmission(
         if initial is None
         else initial
     )
+    form = init.coupling_form if coupling_form is None else coupling_form
+    if form not in COUPLING_FORMS:
+        raise ConfigurationError(f"coupling_form must be one of {COUPLING_FORMS}, got {form!r}")
     b = float(max_gain)
     lo = np.array([0, 0, 0, -b, 0, 0, 0, -b, 0, 0])
     hi = np.array([_MAX_PLAY, _MAX_PLAY, b, b, _MAX_PLAY, _MAX_PLAY, b, b, 5.0, 3.0])
@@ -290,7 +316,9 @@ def identify_transmission(
     count = [0]
 
     def effective(theta: Array) -> Array:
-        model = TendonTransmission.from_vector(np.clip(theta, lo, hi), max_substep=step)
+        model = TendonTransmission.from_vector(
+            np.clip(theta, lo, hi), max_substep=step, coupling_form=form
+        )
         count[0] += 1
         zs = [
             model.simulate(m.q_motor, m.q_start[:2])[k] for m, k in zip(motions, masks, strict=True)
@@ -320,7 +348,7 @@ def identify_transmission(
     sol = least_squares(
         resid, x0, bounds=(lo, hi), x_scale="jac", diff_step=1e-3, max_nfev=max_nfev
     )
-    model = TendonTransmission.from_vector(sol.x, max_substep=step)
+    model = TendonTransmission.from_vector(sol.x, max_substep=step, coupling_form=form)
     r, coef = resid_for(effective(sol.x))
     x_cmd = np.concatenate([m.q_motor[k, :2] for m, k in zip(motions, masks, strict=True)])
     r0, _ = resid_for(x_cmd)
@@ -335,11 +363,109 @@ def identify_transmission(
     )
 
 
-F_SMOOTHING = 0.3
+def circle_blocks(q_motor: ArrayLike, rest: float = math.radians(0.5)) -> Array:
+    """Label (n,) of each state of a knob-circle motion (n, >=2) (rad): 0 at rest before the
+    first circle, then k for the k-th departure from rest (a ray, its circles, the way
+    back); a state within ``rest`` (rad) of the knob origin keeps the current label."""
+    q = check_finite(q_motor, "q_motor", "rad")
+    if q.ndim != 2 or q.shape[1] < 2:
+        raise ShapeError(f"q_motor must have shape (n, 2) or (n, 4), got {q.shape}")
+    r = np.hypot(q[:, 0], q[:, 1])
+    away = r > rest
+    starts = away & ~np.concatenate([[False], away[:-1]])
+    return np.cumsum(starts).astype(int)
+
+
+FORM_MARGIN = 0.02
+"""The stretch form (TR3s) is kept only where its held-out residual is this fraction below
+the added form's (TR3): a tie keeps the form the project used before."""
+
+
+def identify_transmission_form(
+    motions: Sequence[CalibrationMotion],
+    held_out: Sequence[ArrayLike],
+    *,
+    forms: Sequence[str] = COUPLING_FORMS,
+    train_nfev: int = 20,
+    refit_nfev: int = 20,
+    **identify_kwargs: Any,
+) -> TransmissionFit:
+    """Choose the tension form of the transmission by held-out residual, then fit it on all.
+
+    Each form of ``forms`` is identified (:func:`identify_transmission`) without the samples
+    marked in ``held_out`` (one bool array (n_i,) per motion) and scored by the RMS residual
+    of those samples, their static map G the training fit's; the form with the smallest
+    residual (the first of ``forms`` unless another is :data:`FORM_MARGIN` lower) is refitted
+    on every sample from its training solution. ``train_nfev`` and ``refit_nfev`` bound the
+    optimiser's evaluations of each training fit and of the refit (``max_nfev`` of
+    :func:`identify_transmission`; the three together cost about one fit of 60: on
+    development catheter 214 of `default` the added form's residual is 3.05 / 3.01 deg after
+    15 / 30 evaluations and does not fall further). The returned fit's ``held_out_rms``
+    lists each form's held-out residual (rad).
+    """
+    if len(held_out) != len(motions):
+        raise ShapeError(f"held_out must have one array per motion ({len(motions)})")
+    test = [np.asarray(h, dtype=bool).ravel() for h in held_out]
+    if not any(np.any(t) for t in test):
+        raise ConfigurationError("held_out marks no sample: nothing to choose the form by")
+    kwargs = {k: v for k, v in identify_kwargs.items() if k not in ("coupling_form", "max_nfev")}
+    fits: dict[str, TransmissionFit] = {}
+    scores: list[tuple[str, float]] = []
+    for form in forms:
+        fit = identify_transmission(
+            motions,
+            coupling_form=form,
+            masks=[~t for t in test],
+            max_nfev=int(train_nfev),
+            **kwargs,
+        )
+        fits[form] = fit
+        scores.append(
+            (
+                form,
+                _held_out_rms(
+                    fit, motions, test, float(kwargs.get("fit_limit", math.radians(70.0)))
+                ),
+            )
+        )
+    best_form, best = scores[0]
+    for form, v in scores[1:]:
+        if v < best * (1.0 - FORM_MARGIN):
+            best_form, best = form, v
+    kwargs.pop("initial", None)
+    kwargs["max_nfev"] = int(refit_nfev)
+    final = identify_transmission(motions, initial=fits[best_form].model, **kwargs)
+    return replace(final, held_out_rms=tuple(scores))
+
+
+def _held_out_rms(
+    fit: TransmissionFit,
+    motions: Sequence[CalibrationMotion],
+    test: Sequence[Array],
+    fit_limit: float,
+) -> float:
+    """RMS residual (rad, per knob pair as ``TransmissionFit.rms``) of the ``test`` samples
+    (valid, within ``fit_limit``) with the fit's model and static map."""
+    masks, y, _ = _design(motions, fit_limit, test)
+    if y.shape[0] == 0:
+        raise ConfigurationError("no valid held-out sample within fit_limit")
+    z = np.concatenate(
+        [
+            fit.model.simulate(m.q_motor, m.q_start[:2])[k]
+            for m, k in zip(motions, masks, strict=True)
+        ]
+    )
+    r = _poly_basis(z, fit.degree) @ fit.static_coefficients - y
+    return float(np.sqrt(np.mean(r**2) * 2.0))
+
+
+F_SMOOTHING = 0.1
 """Smoothing of the thin-plate RBF of F on effective knobs (RBFInterpolator's ``smoothing``).
 The relabelled samples are no longer a grid and include exact duplicates (saturated corners);
-an exact interpolant (0) oscillates between them. Chosen on development catheters 50-52
-(docs/calibration.md, section 4c): 0.3 keeps a margin from the exact fit."""
+an exact interpolant (0) oscillates between them. 0.3 was chosen on development catheters
+50-52 of the default twin; 0.1 since session 10 (docs/calibration.md, section 4c: 0.05 /
+0.3 / 1.0 / 3.0 measured on three development catheters of the families, the error falling
+monotonically with less smoothing down to 0.05; 0.1 keeps a margin from the exact fit)."""
 
 
 def build_transmission(
@@ -352,6 +478,7 @@ def build_transmission(
     circles_in_map: bool = True,
     geometry: CatheterGeometry = DEFAULT_GEOMETRY,
     section: SectionLength | None = None,
+    choose_form: bool = True,
     **identify_kwargs: Any,
 ) -> TransmissionCalibration:
     """Identify the tendon transmission and build F on its effective knobs.
@@ -376,6 +503,12 @@ def build_transmission(
         fit_section_length`): its axial excess is removed from ``dense`` here (``circles``
         must have it removed already, :func:`motion_from`) and the compensation sends it to
         the translation. None: the model's length.
+    choose_form : bool
+        With ``circles`` of at least three radii: the tension's form (TR3 or TR3s) is chosen
+        by the residual of the middle circle predicted by a fit without it
+        (:func:`identify_transmission_form`, whose own evaluation bounds then replace
+        ``max_nfev``); otherwise, or if False, the form of ``identify_kwargs``' ``initial`` /
+        ``coupling_form`` (default TR3).
     identify_kwargs
         Passed to :func:`identify_transmission` (degree, fit_limit, max_gain, max_nfev).
     """
@@ -395,7 +528,15 @@ def build_transmission(
     motions = [CalibrationMotion(q_motor=path, observed=obs)]
     if circles is not None:
         motions.append(circles)
-    fit = identify_transmission(motions, **identify_kwargs)
+    blocks = None if circles is None else circle_blocks(circles.q_motor)
+    if choose_form and blocks is not None and int(blocks.max()) >= 3:
+        # the tension's form chosen by the middle circle's residual, predicted from the rest
+        middle = blocks == (int(blocks.max()) + 1) // 2
+        fit = identify_transmission_form(
+            motions, [np.zeros(path.shape[0], dtype=bool), middle], **identify_kwargs
+        )
+    else:
+        fit = identify_transmission(motions, **identify_kwargs)
     eff = fit.model.simulate(path, x_start=[0.0, 0.0])
     q_eff = np.zeros((keep.size, 4))
     q_eff[:, :2] = eff[keep]

@@ -17,6 +17,7 @@ equations, the capstan form of the tendon-sheath literature, not the paper's)::
     p_i = sigma_i x_j - s_j                                  # (TR1) proximal pull, slack s_j
     Theta = wrap + friction * hypot(z1, z2)                  # (TR2) capstan exponent mu Theta
     T_i = max(d_i, 0) + max(sigma_i gamma_j z_k, 0)          # (TR3) tension (rad of pull)
+    T_i = max(d_i + sigma_i gamma_j z_k, 0)                  # (TR3s) the "stretch" form
     d_i = clip(d_i, p_i - w_j - kappa_j T_i g+(Theta),       # (TR4) friction band
                     p_i + w_j + kappa_j T_i g-(Theta))
     z_j = max(d_A, 0) - max(d_B, 0)                          # (TR5) effective knob
@@ -29,6 +30,13 @@ puts on one tendon of this pair (signed: which tendon is stretched depends on wh
 tendons are routed), ``wrap`` the capstan exponent of the straight catheter (mu times the
 shaft's curvature) and ``friction`` (mu) its growth per rad of bend. The effective knobs
 ``z`` are what an elasticity map F built on them sees.
+
+Two forms of the tension (``coupling_form``): ``"added"`` (TR3) adds the other pair's share to
+the tendon's own pull, so it never relieves a tendon; ``"stretch"`` (TR3s) reads the tension
+as the tendon's stretch beyond its path, which the other pair's bend lengthens or shortens
+(a tendon routed off its pair's plane), and which cannot be negative. Neither is assumed: the
+identification keeps the one that predicts held-out calibration data better
+(:func:`icenav.calibration.transmission.identify_transmission_form`).
 
 Compensation (:class:`TendonCompensator`): for a wanted effective knob pair ``z*`` the motor
 knobs ``x`` are found by a 1-D root search per knob (``z_j`` is non-decreasing in ``x_j``)
@@ -59,6 +67,7 @@ from icenav.errors import ConfigurationError, ShapeError
 from icenav.geometry.kinematics import DEFAULT_GEOMETRY
 
 __all__ = [
+    "COUPLING_FORMS",
     "PairTransmission",
     "TendonCompensator",
     "TendonTransmission",
@@ -69,6 +78,8 @@ __all__ = [
 ]
 
 _MAX_PLAY = math.radians(20.0)
+COUPLING_FORMS = ("added", "stretch")
+"""The tension forms of (TR3) / (TR3s) (see the module docstring)."""
 _PARAM_NAMES = (
     "ap.slack",
     "ap.seal_play",
@@ -139,8 +150,15 @@ class TendonTransmission:
     """mu: growth of the capstan exponent per rad of bend of the section (>= 0)."""
     max_substep: float = math.radians(2.0)
     """Largest knob change per substep of :meth:`step` (rad), > 0."""
+    coupling_form: str = "added"
+    """How the other pair's bend enters a tendon's tension: ``"added"`` (TR3) or
+    ``"stretch"`` (TR3s)."""
 
     def __post_init__(self) -> None:
+        if self.coupling_form not in COUPLING_FORMS:
+            raise ConfigurationError(
+                f"coupling_form must be one of {COUPLING_FORMS}, got {self.coupling_form!r}"
+            )
         for name in ("ap", "rl"):
             if not isinstance(getattr(self, name), PairTransmission):
                 raise ConfigurationError(f"{name} must be a PairTransmission")
@@ -170,9 +188,9 @@ class TendonTransmission:
 
     @classmethod
     def from_vector(
-        cls, v: ArrayLike, max_substep: float = math.radians(2.0)
+        cls, v: ArrayLike, max_substep: float = math.radians(2.0), coupling_form: str = "added"
     ) -> TendonTransmission:
-        """Inverse of :meth:`to_vector`."""
+        """Inverse of :meth:`to_vector` (``coupling_form``: see the class)."""
         x = check_finite(v, "parameter vector").ravel()
         if x.size != len(_PARAM_NAMES):
             raise ShapeError(f"parameter vector must have {len(_PARAM_NAMES)} values, got {x.size}")
@@ -182,6 +200,7 @@ class TendonTransmission:
             wrap=float(x[8]),
             friction=float(x[9]),
             max_substep=max_substep,
+            coupling_form=coupling_form,
         )
 
     def with_vessel(self, vessel_curvature: float) -> TendonTransmission:
@@ -218,6 +237,7 @@ class TendonTransmission:
         s1, w1, k1, c1 = ap.slack, ap.seal_play, ap.tension_play, ap.coupling
         s2, w2, k2, c2 = rl.slack, rl.seal_play, rl.tension_play, rl.coupling
         wrap, mu = self.wrap, self.friction
+        stretch = self.coupling_form == "stretch"
         for i in range(1, n + 1):
             f = i / n
             x1 = a0 + f * (a1 - a0)
@@ -226,13 +246,16 @@ class TendonTransmission:
             z2 = (dC if dC > 0.0 else 0.0) - (dD if dD > 0.0 else 0.0)
             e = wrap + mu * math.hypot(z1, z2)  # (TR2) capstan exponent
             gp, gm = g_plus(e), g_minus(e)
-            # tensions (rad of pull): own stretch + the other pair's bend (signed coupling)
-            cz = c1 * z2
-            tA = (dA if dA > 0.0 else 0.0) + (cz if cz > 0.0 else 0.0)
-            tB = (dB if dB > 0.0 else 0.0) + (-cz if cz < 0.0 else 0.0)
-            cz = c2 * z1
-            tC = (dC if dC > 0.0 else 0.0) + (cz if cz > 0.0 else 0.0)
-            tD = (dD if dD > 0.0 else 0.0) + (-cz if cz < 0.0 else 0.0)
+            # tensions (rad of pull): own pull and the other pair's bend (signed coupling)
+            cz1, cz2 = c1 * z2, c2 * z1
+            if stretch:  # (TR3s)
+                tA, tB = max(dA + cz1, 0.0), max(dB - cz1, 0.0)
+                tC, tD = max(dC + cz2, 0.0), max(dD - cz2, 0.0)
+            else:  # (TR3)
+                tA = (dA if dA > 0.0 else 0.0) + (cz1 if cz1 > 0.0 else 0.0)
+                tB = (dB if dB > 0.0 else 0.0) + (-cz1 if cz1 < 0.0 else 0.0)
+                tC = (dC if dC > 0.0 else 0.0) + (cz2 if cz2 > 0.0 else 0.0)
+                tD = (dD if dD > 0.0 else 0.0) + (-cz2 if cz2 < 0.0 else 0.0)
             # (TR1), (TR4): each distal pull sticks inside its friction band
             p = x1 - s1
             dA = min(max(dA, p - w1 - k1 * tA * gp), p + w1 + k1 * tA * gm)
@@ -294,6 +317,10 @@ class TransmissionFit:
     degree: int = 7
     """Total degree of the static map G (``static_coefficients`` has (degree+1)(degree+2)/2
     rows)."""
+    held_out_rms: tuple[tuple[str, float], ...] = ()
+    """(coupling form, RMS residual (rad)) of each form tried on held-out calibration data
+    (:func:`icenav.calibration.transmission.identify_transmission_form`); empty if the form
+    was not chosen that way."""
 
 
 # --- compensation ----------------------------------------------------------------------------

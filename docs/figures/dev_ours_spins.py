@@ -1,0 +1,75 @@
+"""Ours (``dense+hysteresis``) on development catheters of the plant families: the console's
+calibration recorded once per catheter, fitted by :func:`icenav.calibration.catheter.fit_catheter`
+of the source tree, and the spins of ``icenav eval spin`` (20 / 40 / 60 deg, 360 samples, the
+controller's map; one fresh rig per spin, the tracker's noise sequence the same at every
+commit). Session 10's before / after of the tension's form (docs/results.md):
+
+    python docs/figures/dev_ours_spins.py --json before.json default:213 ...   # at b4a65da
+    python docs/figures/dev_ours_spins.py --json after.json default:213 ...    # after
+
+Each record: the transmission fit's residual (deg), its form and held-out scores, the fit's
+wall time and per bend (EM mm, EM deg, true mm, true deg). Development seeds only. (The
+session-10 records were written by this loop before it kept the held-out scores.)
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import time
+from typing import Any
+
+import numpy as np
+
+from icenav.calibration.catheter import fit_catheter
+from icenav.calibration.procedure import run_procedure
+from icenav.calibration.procedures import make_procedure
+from icenav.eval.spin import _approach_path, _rmse, knob_map_commands, make_rig, run_spin
+from icenav.geometry.kinematics import DEFAULT_GEOMETRY as G
+from icenav.geometry.kinematics import forward
+from icenav.geometry.trajectories import spin_trajectory
+
+
+def one(family: str, seed: int) -> dict[str, Any]:
+    rig, tracker = make_rig(seed, "straight", family)
+    rig.reset()
+    proc = make_procedure("dense+hysteresis")
+    rec = run_procedure(proc, rig.move, tracker)
+    t = time.time()
+    cat = fit_catheter(proc.catheter_plan, rec, geometry=G)
+    fit = cat.transmission.fit
+    out: dict[str, Any] = {
+        "fit_rms_deg": math.degrees(fit.rms),
+        "fit_s": time.time() - t,
+        "model": str(fit.model),
+        "held_out_deg": {k: math.degrees(v) for k, v in getattr(fit, "held_out_rms", ())},
+        "spins": {},
+    }
+    for bend in (20, 40, 60):
+        sp = spin_trajectory([math.radians(bend), 0.0, 0.0, 0.0], 360, include_end=True)
+        cmd = knob_map_commands(cat.knob_map(np.zeros(4), G), _approach_path(sp.q_model))
+        rig, tracker = make_rig(seed, "straight", family)
+        true, em = run_spin(rig, tracker, cmd)
+        intended = forward(sp.q_model, G, check=False)
+        ok = np.all(np.isfinite(em.reshape(len(em), -1)), axis=1)
+        out["spins"][str(bend)] = (*_rmse(em[ok], intended[ok]), *_rmse(true, intended))
+    return out
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("catheters", nargs="+", help="family:seed")
+    ap.add_argument("--json", required=True)
+    args = ap.parse_args()
+    res = {}
+    for spec in args.catheters:
+        family, seed = spec.split(":")
+        res[spec] = one(family, int(seed))
+        print(spec, res[spec]["fit_rms_deg"], res[spec]["spins"], flush=True)
+        with open(args.json, "w") as f:
+            json.dump(res, f, indent=1)
+
+
+if __name__ == "__main__":
+    main()
