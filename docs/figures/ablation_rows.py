@@ -1,8 +1,33 @@
-"""Shared by the ablation scripts of this folder: one variant's row of errors as text."""
+"""Shared by the ablation scripts of this folder: one variant's spin errors and their row
+as text."""
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+import math
+from collections.abc import Callable, Sequence
+from typing import Any
+
+import numpy as np
+
+from icenav.eval import spin as S
+from icenav.geometry.kinematics import forward
+from icenav.geometry.trajectories import spin_trajectory
+
+
+def spin_errors(rig: Any, tracker: Any, commands: Callable[[Any], Any]) -> list[float]:
+    """The eval's spin (20 / 40 / 60 deg, 360 samples) on ``rig`` with ``commands(q_model)``
+    -> (n, 4) motor commands; (EM mm, EM deg, true mm, true deg) per bend, flattened (the
+    order :func:`error_row` reads)."""
+    errs: list[float] = []
+    for bend in S.BENDS_DEG:
+        sp = spin_trajectory([math.radians(bend), 0.0, 0.0, 0.0], 360, include_end=True)
+        intended = forward(sp.q_model, check=False)
+        true, em = S.run_spin(rig, tracker, commands(sp.q_model))
+        ok = np.all(np.isfinite(em.reshape(len(em), -1)), axis=1)
+        ep, er = S._rmse(em[ok], intended[ok])
+        tp, tr = S._rmse(true, intended)
+        errs += [ep, er, tp, tr]
+    return errs
 
 
 def error_row(e: Sequence[float]) -> str:

@@ -24,21 +24,18 @@ only (210-229)::
 from __future__ import annotations
 
 import json
-import math
 import sys
 from dataclasses import replace
 from typing import Any
 
 import numpy as np
-from ablation_rows import error_row
+from ablation_rows import error_row, spin_errors
 
 from icenav.calibration.plans import Recording
 from icenav.calibration.procedure import run_visits
 from icenav.calibration.procedures import plan_visits
 from icenav.calibration.short import ShortRingCalibration, fit_short_rings, short_ring_plan
 from icenav.eval import spin as S
-from icenav.geometry.kinematics import forward
-from icenav.geometry.trajectories import spin_trajectory
 
 fam, seed = sys.argv[1], int(sys.argv[2])
 out_path = sys.argv[3] if len(sys.argv) > 3 else None
@@ -84,19 +81,14 @@ def short_commands(sr: Any, q_model: Any) -> Any:
 
 rows: dict[str, list[float]] = {}
 for name in [*variants, "ours"]:
-    errs: list[float] = []
-    for bend in S.BENDS_DEG:
-        sp = spin_trajectory([math.radians(bend), 0.0, 0.0, 0.0], 360, include_end=True)
-        intended = forward(sp.q_model, check=False)
-        if name == "ours":
-            cmd = S.knob_map_commands(ours.knob_map(), S._approach_path(sp.q_model))
-        else:
-            cmd = short_commands(variants[name], sp.q_model)
-        true, em = S.run_spin(rig, tracker, cmd)
-        ok = np.all(np.isfinite(em.reshape(len(em), -1)), axis=1)
-        ep, er = S._rmse(em[ok], intended[ok])
-        tp, tr = S._rmse(true, intended)
-        errs += [ep, er, tp, tr]
+    if name == "ours":
+        o = ours  # a fresh (stateful) map for every spin, as the eval does
+        errs = spin_errors(
+            rig, tracker, lambda q, o=o: S.knob_map_commands(o.knob_map(), S._approach_path(q))
+        )
+    else:
+        cal = variants[name]
+        errs = spin_errors(rig, tracker, lambda q, cal=cal: short_commands(cal, q))
     rows[name] = errs
     e = errs
     print(f"{name:12s} " + error_row(e), flush=True)

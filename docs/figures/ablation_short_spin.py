@@ -28,15 +28,12 @@ import math
 import sys
 from typing import Any
 
-import numpy as np
-from ablation_rows import error_row
+from ablation_rows import error_row, spin_errors
 
 from icenav.calibration.procedure import run_visits
 from icenav.calibration.procedures import plan_visits
 from icenav.calibration.short import fit_short_rings, short_ring_plan
 from icenav.eval import spin as S
-from icenav.geometry.kinematics import forward
-from icenav.geometry.trajectories import spin_trajectory
 
 fam, seed = sys.argv[1], int(sys.argv[2])
 out_path = sys.argv[3] if len(sys.argv) > 3 else None
@@ -71,20 +68,15 @@ for name, kw in SETS[which]:
 
 rows: dict[str, list[float]] = {}
 for name in [*variants, *(["ours"] if ours is not None else [])]:
-    errs: list[float] = []
-    for bend in S.BENDS_DEG:
-        sp = spin_trajectory([math.radians(bend), 0.0, 0.0, 0.0], 360, include_end=True)
-        intended = forward(sp.q_model, check=False)
-        if name == "ours":
-            assert ours is not None
-            cmd = S.knob_map_commands(ours.knob_map(), S._approach_path(sp.q_model))
-        else:
-            cmd = S.short_ring_commands(variants[name], sp.q_model)
-        true, em = S.run_spin(rig, tracker, cmd)
-        ok = np.all(np.isfinite(em.reshape(len(em), -1)), axis=1)
-        ep, er = S._rmse(em[ok], intended[ok])
-        tp, tr = S._rmse(true, intended)
-        errs += [ep, er, tp, tr]
+    if name == "ours":
+        assert ours is not None
+        o = ours  # a fresh (stateful) map for every spin, as the eval does
+        errs = spin_errors(
+            rig, tracker, lambda q, o=o: S.knob_map_commands(o.knob_map(), S._approach_path(q))
+        )
+    else:
+        cal = variants[name]
+        errs = spin_errors(rig, tracker, lambda q, cal=cal: S.short_ring_commands(cal, q))
     rows[name] = errs
     print(f"{fam} {seed} {name:12s} " + error_row(errs), flush=True)
 if out_path:
