@@ -48,6 +48,7 @@ from icenav.geometry.kinematics import DEFAULT_GEOMETRY, CatheterGeometry
 __all__ = [
     "CalibrationMotion",
     "F_SMOOTHING",
+    "FIT_LIMIT",
     "KNOB_CIRCLES",
     "FORM_MARGIN",
     "build_transmission",
@@ -219,6 +220,15 @@ def _poly_basis(z: Array, degree: int) -> Array:
     return np.stack(cols, axis=-1)
 
 
+FIT_LIMIT = math.radians(70.0)
+"""Default ``fit_limit`` (rad): commanded knobs beyond it stay out of the residual."""
+
+
+def _pair_rms(r: Array) -> float:
+    """RMS residual per knob pair (rad) of residuals ``r`` (n, 2) or flattened."""
+    return float(np.sqrt(np.mean(np.asarray(r) ** 2) * 2.0))
+
+
 def _design(
     motions: Sequence[CalibrationMotion],
     weight_limit: float,
@@ -245,7 +255,7 @@ def identify_transmission(
     *,
     initial: TendonTransmission | None = None,
     degree: int = 7,
-    fit_limit: float = math.radians(70.0),
+    fit_limit: float = FIT_LIMIT,
     max_gain: float = 1.0,
     max_nfev: int = 60,
     static_coefficients: ArrayLike | None = None,
@@ -354,8 +364,8 @@ def identify_transmission(
     r0, _ = resid_for(x_cmd)
     return TransmissionFit(
         model=model,
-        rms=float(np.sqrt(np.mean(r**2) * 2.0)),
-        rms_without_play=float(np.sqrt(np.mean(r0**2) * 2.0)),
+        rms=_pair_rms(r),
+        rms_without_play=_pair_rms(r0),
         static_coefficients=coef,
         n_samples=n_valid,
         n_evaluations=count[0],
@@ -420,14 +430,8 @@ def identify_transmission_form(
             **kwargs,
         )
         fits[form] = fit
-        scores.append(
-            (
-                form,
-                _held_out_rms(
-                    fit, motions, test, float(kwargs.get("fit_limit", math.radians(70.0)))
-                ),
-            )
-        )
+        limit = float(kwargs.get("fit_limit", FIT_LIMIT))
+        scores.append((form, _held_out_rms(fit, motions, test, limit)))
     best_form, best = scores[0]
     for form, v in scores[1:]:
         if v < best * (1.0 - FORM_MARGIN):
@@ -455,8 +459,7 @@ def _held_out_rms(
             for m, k in zip(motions, masks, strict=True)
         ]
     )
-    r = _poly_basis(z, fit.degree) @ fit.static_coefficients - y
-    return float(np.sqrt(np.mean(r**2) * 2.0))
+    return _pair_rms(_poly_basis(z, fit.degree) @ fit.static_coefficients - y)
 
 
 F_SMOOTHING = 0.1

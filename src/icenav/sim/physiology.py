@@ -202,10 +202,13 @@ class Breathing:
             return np.zeros(tt.shape)
         self._extend(float(flat.max()))
         if self._arrays is None:
-            self._arrays = tuple(  # type: ignore[assignment]
-                np.asarray(v) for v in (self._starts, self._periods, self._bases, self._depths)
+            self._arrays = (
+                np.asarray(self._starts),
+                np.asarray(self._periods),
+                np.asarray(self._bases),
+                np.asarray(self._depths),
             )
-        starts, periods, bases, depths = self._arrays  # type: ignore[misc]
+        starts, periods, bases, depths = self._arrays
         k = np.clip(np.searchsorted(starts, flat, side="right") - 1, 0, len(self._periods) - 1)
         tau = np.clip((flat - starts[k]) / periods[k], 0.0, 1.0)
         # Eq. (P4): baseline interpolated over the breath, Lujan's sin^(2n) curve on top
