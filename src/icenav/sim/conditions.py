@@ -124,7 +124,7 @@ IN_VIVO = Condition(
         rsa=0.03,
         amplitude_sd=0.05,
         stroke_variation=0.10,
-        shape_sd_mm=1.0,
+        shape_sd_mm=0.5,
     ),
     breathing=BreathingParams(period_sd=0.05, amplitude_sd=0.10, baseline_sd=0.05),
     shaft=ShaftParams(

@@ -18,10 +18,14 @@ Equations (numbered as in ``docs/digital-twin.md``, section 9):
   ``u_resp(x, t) = r(t) (d + theta (axis x (x - c)))``: a translation ``d`` (mm) and a small
   rotation ``theta`` (rad) about ``axis`` through ``c``, per unit level (a nominal breath).
 * (P6) The heart's position and shape at a given phase vary from beat to beat:
-  ``u_beat(x, t) = (1 - s) D_k(x) + s D_k+1(x)``, ``s = (1 - cos(pi phi)) / 2``, with the
-  affine field ``D_k(x) = d_k + G_k (x - c)`` drawn per beat (``d_k`` ~ N(0, sigma_d^2) per
-  axis, ``G_k`` entries ~ N(0, (sigma_d / L)^2)): beat-to-beat variation of the filling and
-  of the contraction's geometry, continuous across the R wave.
+  ``u_beat(x, t) = w(x) ((1 - s) D_k(x) + s D_k+1(x))``, ``s = (1 - cos(pi phi)) / 2``,
+  with the field ``D_k(x) = sigma_d (a_k + B_k r / L) / sqrt(1 + |r|^2 / L^2)``,
+  ``r = x - c``, drawn per beat (entries of ``a_k`` and ``B_k`` ~ N(0, 1)): every point
+  moves by ``sigma_d`` per axis (sd), points closer than about ``L`` move together;
+  ``w(x)`` is 1 in the heart and falls to 0 along the caval veins within ``taper`` of the
+  cavo-atrial junctions (the veins outside the pericardium are held by the liver and the
+  mediastinum, they do not take part in the heart's beat-to-beat shape); continuous across
+  the R wave.
 
 All draws come from ``numpy.random.default_rng`` seeded with the patient's seed; beats and
 breaths are generated in order, so a value depends only on the seed and the time asked.
@@ -86,6 +90,11 @@ class RhythmParams:
     about the right atrium's long axis (4.2 cm, Bommer et al. 1979, cited by the paper)."""
     shape_centre_mm: tuple[float, float, float] = (30.0, -10.0, 10.0)
     """Centre ``c`` of the beat-to-beat shape field (anatomy frame, mm): mid-heart (P6)."""
+    shape_vein_taper_mm: float = 20.0
+    """Length (mm) along the caval veins, from the cavo-atrial junction, over which the
+    beat-to-beat shape field falls to zero (``w`` of P6): about the intrathoracic,
+    intrapericardial length of the IVC (1-2 cm); the veins beyond are held by the liver and
+    the mediastinum."""
 
     def __post_init__(self) -> None:
         hr = check_positive(self.heart_rate_bpm, "heart_rate_bpm", "beats/min")
@@ -101,6 +110,7 @@ class RhythmParams:
             raise ConfigurationError(f"shape_sd_mm must be in [0, 5] mm, got {sd} mm")
         check_positive(self.shape_length_mm, "shape_length_mm", "mm")
         check_finite(self.shape_centre_mm, "shape_centre_mm", "mm")
+        check_positive(self.shape_vein_taper_mm, "shape_vein_taper_mm", "mm")
 
     @property
     def period_s(self) -> float:
@@ -335,9 +345,13 @@ class CardiacRhythm:
         self.beat_start(k + 1)  # draws beat k + 1
         s = 0.5 * (1.0 - math.cos(math.pi * self.phase(t)))
         g = (1.0 - s) * self._shape[k] + s * self._shape[k + 1]
-        d = p.shape_sd_mm * g[:3]
-        grad = (p.shape_sd_mm / p.shape_length_mm) * g[3:].reshape(3, 3)
-        out: Array = d + (points - np.asarray(p.shape_centre_mm)) @ grad.T
+        r = (points - np.asarray(p.shape_centre_mm)) / p.shape_length_mm
+        # Eq. (P6): a_k + B_k r / L, normalised so that every point's sd is sigma_d per axis
+        # (the affine field d_k + G_k r of session 7 grew without bound away from c: 1.7
+        # sigma_d at the right atrium's wall, 1.8 sigma_d along the IVC)
+        field = g[:3] + r @ g[3:].reshape(3, 3).T
+        norm = np.sqrt(1.0 + np.einsum("...i,...i->...", r, r))[..., None]
+        out: Array = p.shape_sd_mm * field / norm
         return out
 
     def time_at_phase(self, k: int, phase: float) -> float:
@@ -384,6 +398,36 @@ class PhysiologicalHeart(HeartPhantom):
         )
         self.rhythm = rhythm
         self.breathing = breathing
+        self._veins = self._caval_veins(phantom)
+
+    @staticmethod
+    def _caval_veins(phantom: HeartPhantom) -> list[tuple[Array, Array, float]]:
+        """(junction (3,), unit axis away from the atrium (3,), radius) of the IVC and SVC."""
+        ra = np.asarray(phantom.chamber("ra").centre, np.float64)
+        out = []
+        for v in phantom.vessels:
+            if v.name not in ("ivc", "svc"):
+                continue
+            a, b = np.asarray(v.start, np.float64), np.asarray(v.end, np.float64)
+            if np.linalg.norm(a - ra) > np.linalg.norm(b - ra):
+                a, b = b, a  # a: the end at the atrium
+            out.append((a, (b - a) / np.linalg.norm(b - a), float(v.radius_mm)))
+        return out
+
+    def shape_weight(self, points: Array) -> Array:
+        """``w(x)`` of Eq. (P6) at ``points`` (N, 3) (anatomy frame, mm): 1 in the heart,
+        falling linearly to 0 along a caval vein over ``shape_vein_taper_mm`` beyond its
+        cavo-atrial junction, and back to 1 over 10 mm outside the vein's radius + 5 mm."""
+        w = np.ones(points.shape[:-1])
+        taper = self.rhythm.params.shape_vein_taper_mm
+        for junction, axis, radius in self._veins:
+            rel = points - junction
+            h = rel @ axis
+            rho = np.sqrt(np.maximum(np.einsum("...i,...i->...", rel, rel) - h * h, 0.0))
+            along = np.clip(h / taper, 0.0, 1.0)
+            inside = np.clip((radius + 15.0 - rho) / 10.0, 0.0, 1.0)
+            w = w * (1.0 - along * inside)
+        return w
 
     def cardiac_phase(self, t: float) -> float:
         """Phase (P2) of the rhythm at ``t`` (s)."""
@@ -394,7 +438,9 @@ class PhysiologicalHeart(HeartPhantom):
         variation (P6) and breathing (P5)."""
         u = self.rhythm.amplitude(float(t)) * super().displacement(points, t)
         if self.rhythm.params.shape_sd_mm > 0.0:
-            u = u + self.rhythm.shape_displacement(points, float(t))
+            # Eq. (P6): the beat's shape, held off the caval veins beyond the junctions
+            w = self.shape_weight(points)[..., None]
+            u = u + w * self.rhythm.shape_displacement(points, float(t))
         if self.breathing is not None:
             u = u + self.breathing.displacement(points, float(t))
         out: Array = u
