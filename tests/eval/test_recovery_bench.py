@@ -11,6 +11,7 @@ from icenav.errors import PluginError
 from icenav.eval.recovery import RecoveryConfig, _parser, config_from_args
 from icenav.eval.recovery_bench import DT, Bench
 from icenav.sim.families import NonlinearPlayPlant, RateDependentPlant
+from icenav.sim.operator import OperatorConfig, ScriptedOperator
 
 
 def test_the_option_reaches_the_bench_and_the_twin() -> None:
@@ -67,3 +68,50 @@ def test_returns_are_checked_as_the_products_go_to_view() -> None:
     assert bench.force_margin_fraction == product.force_margin_fraction
     bench.drive(bench.operator.dwell(0.1))
     assert bench.forces.n_recorded > 0 and bench.force_record.tips.n_samples > 0
+
+
+WIDE = (1.0, 1.0, 0.5, 10.0)
+"""Exploration reach of an operator of large moves (rad, rad, rad, mm)."""
+
+
+def _rest_forces(bench: Bench, moves: int, limit: float | None) -> tuple[list[float], list[int]]:
+    """Rest force (mean over a second, N) after each exploration move, and the back-offs."""
+    rest, backs = [], []
+    for _ in range(moves):
+        backs.append(bench.explore(1, limit))
+        rest.append(float(np.mean(bench.drive(bench.operator.dwell(1.0)))))
+    return rest, backs
+
+
+def test_the_looking_operator_does_not_leave_the_catheter_pushing_a_wall() -> None:
+    """``rest_force_n``: after each exploration move the operator reads the force at rest
+    and backs off towards where the move started until it is below the limit (or it gave up
+    after its back-offs); the blind operator (None) explores as before, move for move."""
+    cfg = RecoveryConfig(seed=100, patient=0, condition="in-vivo", image_size=32)
+    blind, looking = Bench(cfg), Bench(cfg)
+    for bench in (blind, looking):  # an operator of large moves (reaches a wall in 3)
+        bench.operator = ScriptedOperator(seed=0, config=OperatorConfig(explore_reach=WIDE))
+    rest_blind, _ = _rest_forces(blind, 3, None)
+    assert max(rest_blind) > 0.4  # the blind operator leaves it pushing (a test that can fail)
+    rest, backs = _rest_forces(looking, 3, 0.4)
+    assert sum(backs) > 0
+    for f, n in zip(rest, backs, strict=True):
+        assert f <= 0.4 + 0.05 or n == 6  # the readout over the next second, as it looked
+    # without a limit the trace is the blind operator's: explore(n) move for move
+    again = Bench(cfg)
+    again.operator = ScriptedOperator(seed=0, config=OperatorConfig(explore_reach=WIDE))
+    for f in rest_blind:
+        again.drive(again.operator.explore(1))
+        assert float(np.mean(again.drive(again.operator.dwell(1.0)))) == f
+    np.testing.assert_array_equal(again.robot.read_state().q, blind.robot.read_state().q)
+
+
+def test_the_rest_force_option_reaches_the_config() -> None:
+    from icenav.eval.recovery_bench import REST_FORCE_N
+
+    assert config_from_args(_parser().parse_args([])).rest_force_n == REST_FORCE_N
+    assert config_from_args(_parser().parse_args(["--rest-force", "0.2"])).rest_force_n == 0.2
+    assert config_from_args(_parser().parse_args(["--rest-force", "none"])).rest_force_n is None
+    for bad in ("0", "-1", "lots"):
+        with pytest.raises(SystemExit):
+            _parser().parse_args(["--rest-force", bad])

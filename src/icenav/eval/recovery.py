@@ -63,7 +63,7 @@ import numpy as np
 from icenav._typing import Array
 from icenav._validation import check_positive
 from icenav.errors import ConfigurationError, IcenavError
-from icenav.eval.recovery_bench import DT, Bench
+from icenav.eval.recovery_bench import DT, REST_FORCE_N, Bench
 from icenav.eval.recovery_report import (
     RecoveryRecord,
     format_table,
@@ -141,6 +141,12 @@ class RecoveryConfig:
     """Samples per beam."""
     wander_moves: int = 12
     """Random exploration moves after the views are saved."""
+    rest_force_n: float | None = REST_FORCE_N
+    """The looking operator (:meth:`Bench.explore`): after each exploration move the
+    operator reads the contact force at rest and, while its mean over a second exceeds this
+    (N), backs off halfway towards where the move started (at most 6 times), as a
+    cardiologist does not leave an ICE catheter pushing a wall; None: session 8's blind
+    operator. No effect without a contact-force channel (condition ``none``)."""
     em_average: int = 8
     """EM samples averaged per return."""
     ceiling_beats: int = 16
@@ -332,7 +338,7 @@ def run_recovery(cfg: RecoveryConfig | None = None) -> RecoveryRun:
             float(np.mean(finite)) if finite else math.nan,
             gated,
         )
-    b.drive(b.operator.explore(cfg.wander_moves))
+    b.explore(cfg.wander_moves, cfg.rest_force_n)
     b.contact_peak()
 
     samples: list[ReturnSample] = []
@@ -504,6 +510,19 @@ def _seeds(text: str) -> list[int]:
     return out
 
 
+def _rest_force(text: str) -> float | None:
+    """``--rest-force``: a force limit (N, > 0) or ``none``."""
+    if text.strip().lower() == "none":
+        return None
+    try:
+        value = float(text)
+    except ValueError:
+        value = math.nan
+    if not math.isfinite(value) or value <= 0.0:
+        raise argparse.ArgumentTypeError(f"must be a force > 0 N or 'none', got {text!r}")
+    return value
+
+
 def _parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(
         prog="icenav eval recovery",
@@ -533,6 +552,12 @@ def _parser() -> argparse.ArgumentParser:
         help="plant plug-in (or family name) whose factory takes clock= (docs/digital-twin.md)",
     )  # fmt: skip
     p.add_argument("--rounds", type=int, default=16, help="returns per target and mode")
+    p.add_argument(
+        "--rest-force", type=_rest_force, default=REST_FORCE_N, metavar="N|none",
+        help="the operator backs off after an exploration move until the contact force at "
+        f"rest is below this (N; default {REST_FORCE_N}: 40 g, what counts as excessive for "
+        "a catheter on a wall); none: the blind operator of session 8",
+    )  # fmt: skip
     p.add_argument("--json", type=Path, help="write the records (a JSON list) to this file")
     p.add_argument("--plots", type=Path, help="write recovery_*.png here (first run)")
     p.add_argument("--open-loop-only", action="store_true", help="skip the refined mode (faster)")
@@ -566,6 +591,7 @@ def config_from_args(args: argparse.Namespace, seed: int | None = None,
         patient=args.patient[0] if patient is None else patient,
         disable=tuple(args.disable),
         plant=args.plant,
+        rest_force_n=args.rest_force,
     )
     if args.quick:
         cfg = replace(

@@ -31,10 +31,30 @@ from icenav.sim.plugins import make_plant
 from icenav.sim.tracker import EMTracker
 from icenav.sim.ultrasound import ProbeConfig, UltrasoundRenderer
 
-__all__ = ["Bench", "DT", "EM_EVERY", "TwinBeatImager"]
+__all__ = [
+    "Bench",
+    "DT",
+    "EM_EVERY",
+    "REST_BACK_OFFS",
+    "REST_FORCE_N",
+    "REST_LOOK_S",
+    "TwinBeatImager",
+]
 
 DT = 0.01
 """Control period of the simulated controller (s)."""
+
+REST_FORCE_N = 0.4
+"""Default force (N) above which the looking operator does not leave the catheter resting
+(``RecoveryConfig.rest_force_n``): 40 g, counted as excessive for a catheter tip on the
+wall (TOCCATA, Reddy et al., Heart Rhythm 2012; clinical contact 10-40 g); an ICE
+operator keeps the transducer off the wall, and the force readout (the twin's channel, a
+sensing catheter's in the product) shows such a push. Chosen on development pairs
+(``docs/results.md``, Table II, session 11)."""
+REST_LOOK_S = 1.0
+"""How long the looking operator watches the force readout after a move (s)."""
+REST_BACK_OFFS = 6
+"""Most back-off moves of the looking operator after one exploration move."""
 
 EM_EVERY = 4
 """Control cycles per EM reading of the tip pose kept with the operator's forces (Eq. F2):
@@ -215,12 +235,14 @@ class Bench:
         """Mean heart beat (s)."""
         return self.imager.beat_duration_s
 
-    def drive(self, trace: Array) -> None:
+    def drive(self, trace: Array) -> Array:
         """Command an operator trace at the control rate; the contact force read at each
         recorded state is the operator's, kept per vertex and (every :data:`EM_EVERY`
         cycles) at the EM-measured tip pose, as the controller records it
-        (:class:`icenav.recovery.force.ForceRecord`)."""
+        (:class:`icenav.recovery.force.ForceRecord`). Returns the forces read (n,) (N;
+        empty without a force channel)."""
         n = len(trace)
+        read: list[float] = []
         for k, q in enumerate(trace):
             self.robot.command_position(q)
             self.record(q)
@@ -230,10 +252,34 @@ class Bench:
                 tip = self.tip_pose_now() if self._cycle % EM_EVERY == 0 or last else None
                 if tip is not None:  # where the operator left the tip (Eq. F5)
                     self.force_record.note_motion(tip, operator=True)
-                self.force_record.record(
-                    self.roadmap.current_vertex, self.force_sensor.contact_force_n(), tip
-                )
+                f = self.force_sensor.contact_force_n()
+                read.append(float(f or 0.0))
+                self.force_record.record(self.roadmap.current_vertex, f, tip)
             self.clock.advance(DT)
+        return np.asarray(read, np.float64)
+
+    def explore(self, n_moves: int, rest_force_n: float | None = None) -> int:
+        """The operator's exploration: ``n_moves`` seeded moves (:meth:`ScriptedOperator.
+        explore`). With ``rest_force_n`` (N) and a force channel, the looking operator: after
+        each move it reads the force at rest (mean over :data:`REST_LOOK_S`) and, while that
+        exceeds ``rest_force_n``, moves halfway back towards where the move started (at most
+        :data:`REST_BACK_OFFS` times), as the force study's operator does
+        (:mod:`icenav.eval.force_study`, ``--rest-force``). Without either: session 8's blind
+        operator, the same trace as ``drive(operator.explore(n_moves))``. Returns the number
+        of back-off moves."""
+        if rest_force_n is None or self.force_sensor is None:
+            self.drive(self.operator.explore(n_moves))
+            return 0
+        backs = 0
+        for _ in range(int(n_moves)):
+            q_start = self.operator.state.copy()
+            self.drive(self.operator.explore(1))
+            for _ in range(REST_BACK_OFFS):
+                if float(np.mean(self.drive(self.operator.dwell(REST_LOOK_S)))) <= rest_force_n:
+                    break
+                self.drive(self.operator.move_to(0.5 * (self.operator.state + q_start)))
+                backs += 1
+        return backs
 
     def tip_pose_now(self) -> Array | None:
         """(4, 4) the EM-measured tip pose now (one sample, mm; None if it dropped out)."""
