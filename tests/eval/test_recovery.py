@@ -186,7 +186,7 @@ def test_in_vivo_returns_are_disturbed(in_vivo_run: RecoveryRun) -> None:
         # the static (cycle-averaged) error is the periodic motion averaged out: smaller
         # than the instantaneous one, which carries the breath the return fell on
         assert 0.0 < r.true_static_tip_error_mm_mean < r.true_tip_error_mm_mean + 1.0
-        assert r.returns_stopped == 0  # no patient shift: the force check lets them pass
+        assert r.returns_stopped <= 1  # no patient shift: the force check lets them pass ...
         # each return's static error is kept (how many meet a target), in line with the mean
         assert len(r.true_static_tip_errors_mm) == r.n_returns
         assert len(r.true_static_orientation_errors_deg) == r.n_returns
@@ -202,6 +202,9 @@ def test_in_vivo_returns_are_disturbed(in_vivo_run: RecoveryRun) -> None:
         tips = np.stack([s.dct_tip2base[:3, 3] for s in rs])
         assert np.ptp(tips, axis=0).max() > 0.02
         assert all(s.force_margin_use < 1.0 for s in rs)
+        # ... or, where the still tip strays by itself (a wall it touches moves), asks
+        # (Eq. F6); it never refuses a return nobody moved the patient for
+        assert all(s.return_stopped is None or "cannot tell" in s.return_stopped for s in rs)
 
 
 def test_catheters_and_patients_are_paired_in_order() -> None:

@@ -244,14 +244,22 @@ class Bench:
         n = len(trace)
         read: list[float] = []
         for k, q in enumerate(trace):
+            moved = not np.array_equal(q, self._last_q)
             self.robot.command_position(q)
             self.record(q)
             if self.force_sensor is not None:
                 self._cycle += 1
-                last = k == n - 1
-                tip = self.tip_pose_now() if self._cycle % EM_EVERY == 0 or last else None
-                if tip is not None:  # where the operator left the tip (Eq. F5)
-                    self.force_record.note_motion(tip, operator=True)
+                now = self.clock.now()
+                stops = moved and (k == n - 1 or np.array_equal(trace[k + 1], q))
+                tip = None
+                if self._cycle % EM_EVERY == 0 or k == n - 1 or stops:
+                    tip = self.tip_pose_now()
+                # as the controller: where the operator left the tip, noted when the motors
+                # moved, and the tip read while they stand still (Eq. F5's reference)
+                if moved and tip is not None:
+                    self.force_record.note_motion(tip, True, q, now)
+                elif not moved and tip is not None and self.force_record.wants_still_readings(now):
+                    self.force_record.note_still(now, tip, self._signals)
                 f = self.force_sensor.contact_force_n()
                 read.append(float(f or 0.0))
                 self.force_record.record(self.roadmap.current_vertex, f, tip)
@@ -280,6 +288,14 @@ class Bench:
                 self.drive(self.operator.move_to(0.5 * (self.operator.state + q_start)))
                 backs += 1
         return backs
+
+    def _signals(self, t: float) -> tuple[float | None, float | None]:
+        """The respiratory signal and the cardiac phase at ``t`` (s), as the controller's
+        ``signals`` (Eq. F5's phase match)."""
+        if self.twin is None:
+            return None, None
+        resp = float(np.asarray(self.respiration.signal(np.array([t])), np.float64)[0])
+        return resp, float(self.twin.rhythm.phase(t))
 
     def tip_pose_now(self) -> Array | None:
         """(4, 4) the EM-measured tip pose now (one sample, mm; None if it dropped out)."""
