@@ -231,6 +231,13 @@ def catheter_nodes(
     return pts, tan
 
 
+_NORMAL_STEP_MM = 0.25
+"""Step of the central differences of the walls' normals (mm)."""
+_NORMAL_PROBES = np.concatenate([np.eye(3), -np.eye(3)]) * _NORMAL_STEP_MM
+"""(6, 3) offsets of the probes of a normal: +h and -h along each axis (mm)."""
+_NORMAL_PROBES.setflags(write=False)
+
+
 class Walls:
     """The walls around the catheter (C2): blood of the RA, IVC and SVC, moving with the
     phantom's displacement field.
@@ -287,9 +294,8 @@ class Walls:
         """Outward unit normals (N, 3) of the walls at material points (N, 3), in the base
         frame (central differences of the union distance; the walls' small strain is
         neglected); zero where the distance has no slope."""
-        h = 0.25
-        offs = np.concatenate([np.eye(3), -np.eye(3)]) * h
-        probe = (material[:, None, :] + offs[None]).reshape(-1, 3)
+        h = _NORMAL_STEP_MM
+        probe = (material[:, None, :] + _NORMAL_PROBES[None]).reshape(-1, 3)
         dp, _ = self.sdf_material(probe)
         dp = dp.reshape(-1, 6)
         g = (dp[:, :3] - dp[:, 3:]) / (2 * h)
