@@ -573,15 +573,21 @@ class ContactModel:
         n = len(shape.s)
         r_c = self.params.catheter_radius_mm
         rot, off = g[:3, :3], g[:3, 3]
-        d, idx, mat = self.walls.distance(shape.points @ rot.T + off, t)
         f_n = np.zeros(n)
         normals = np.zeros((n, 3))
-        if not np.any(d + r_c > -2.0):  # the flow moves a node by well under 2 mm
-            return f_n, normals, idx, mat
         free = shape.points
-        if loads is not None:
-            free = free + np.einsum("ijab,jb->ia", shape.compliance, loads)
+        if loads is None:
             d, idx, mat = self.walls.distance(free @ rot.T + off, t)
+            if not np.any(d + r_c > -2.0):  # the flow moves a node by well under 2 mm
+                return f_n, normals, idx, mat
+        else:
+            # the nodes of the catheter held straight and bent by the flow, in one call of
+            # the walls (each row is evaluated on its own: the same numbers as two calls)
+            free = free + np.einsum("ijab,jb->ia", shape.compliance, loads)
+            d, idx, mat = self.walls.distance(np.concatenate([shape.points, free]) @ rot.T + off, t)
+            if not np.any(d[:n] + r_c > -2.0):
+                return f_n, normals, idx[:n], mat[:n]
+            d, idx, mat = d[n:], idx[n:], mat[n:]
         pen = d + r_c
         cand = np.flatnonzero(pen > 0.0)
         if cand.size == 0:
