@@ -222,7 +222,7 @@ class Breathing:
         """Breathing level r(t) (P4) at one time ``t`` (s): :meth:`signal` of a scalar, to
         the bit (the same operations on Python floats, the sine and its power on a
         one-element array as there), without the array set-up that dominated its cost
-        (up to 130,000 calls in an in-vivo ``eval recovery``)."""
+        (``docs/digital-twin.md`` section 8)."""
         tf = float(t)
         self._extend(tf)
         starts, periods = self._starts, self._periods
@@ -317,7 +317,7 @@ class CardiacRhythm:
         """Index of the beat that contains time ``t`` (s)."""
         self._extend(t)
         # bisect on the list: the index np.searchsorted(side="right") gives, without the
-        # array call (350,000 calls in an in-vivo ``eval recovery``)
+        # array call (a hot path of the walls, `docs/digital-twin.md` section 8)
         return bisect.bisect_right(self._starts, t) - 1
 
     def beat_start(self, k: int) -> float:
