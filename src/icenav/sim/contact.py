@@ -624,7 +624,7 @@ class ContactModel:
         M = np.einsum("ia,ijab,jb->ij", normals, C, normals)
         M = 0.5 * (M + M.T) + np.eye(len(pen)) / self.params.wall_stiffness_n_per_mm
         # finite by construction (compliances, unit normals, penetrations of a finite
-        # catheter): scipy's finiteness checks cost 15 % of a contact solve
+        # catheter): scipy's finiteness checks are skipped (a hot path, same results)
         low = scipy.linalg.cholesky(M, lower=True, check_finite=False)
         rhs = scipy.linalg.solve_triangular(low, pen, lower=True, check_finite=False)
         f, _ = scipy.optimize.nnls(low.T, rhs)

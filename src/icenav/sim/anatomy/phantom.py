@@ -161,7 +161,7 @@ def _bump(phase: Array | float, start: float, end: float) -> Array:
 def _bump_at(phase: float, start: float, end: float) -> float:
     """:func:`_bump` of one phase, to the bit (the modulo of Python floats is numpy's; the
     cosine on numpy's scalar path as there), without its array set-up (the displacement
-    field asks it twice a call, some 60,000 times in an in-vivo ``eval recovery``)."""
+    field asks it twice a call; ``docs/digital-twin.md`` section 8)."""
     w = end - start
     s = (float(phase) - start) % 1.0
     if not s < w:

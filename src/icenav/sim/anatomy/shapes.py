@@ -64,8 +64,8 @@ class Chamber:
     _axis_aligned: bool = field(init=False, repr=False, compare=False)
     """Whether ``rotation`` is the identity (skips a matrix product)."""
     _centre: Array = field(init=False, repr=False, compare=False)
-    """``centre`` as an array (3,) (mm): the contact solve asks :meth:`sdf` some 40,000
-    times a run, its constants are made once."""
+    """``centre`` as an array (3,) (mm): the contact solve asks :meth:`sdf` at every
+    solve, its constants are made once."""
     _axes: Array = field(init=False, repr=False, compare=False)
     """``semi_axes`` as an array (3,) (mm)."""
     _min_axis: float = field(init=False, repr=False, compare=False)
