@@ -25,6 +25,7 @@ from icenav.sim.anatomy import (
     default_phantom,
     tip2anatomy,
 )
+from icenav.sim.anatomy.phantom import _bump, _bump_at
 from icenav.sim.ultrasound import UltrasoundRenderer
 
 STILL = CardiacMotion(
@@ -112,6 +113,27 @@ def test_valves_open_and_close_over_the_beat(
     centre_open = ph.roi_centroid(valve, t_open)
     assert ph.labels_at(centre_closed, t_closed) == ROI_LABELS[valve]
     assert int(ph.labels_at(centre_open, t_open)) in {int(b) for b in BLOOD_LABELS}
+
+
+def test_the_unbounded_chamber_distance_is_the_bounded_formula_to_the_bit() -> None:
+    """The contact solve's unbounded distance (every point, no subsets) equals the bounded
+    path with a bound no point reaches; a non-finite point stays at the bound."""
+    rng = np.random.default_rng(7)
+    pts = rng.normal(0.0, 40.0, (500, 3))
+    for ch in default_phantom().chambers:  # axis-aligned and rotated chambers
+        fast = ch.sdf(pts)
+        assert np.array_equal(fast, ch.sdf(pts, beyond_mm=1e300))
+        near = ch.sdf(pts, beyond_mm=5.0)
+        assert np.array_equal(near[near < 5.0], fast[near < 5.0])
+        assert ch.sdf(np.array([[np.nan, 0.0, 0.0]]))[0] == np.inf
+
+
+def test_the_scalar_bump_is_the_array_bump_to_the_bit() -> None:
+    """The displacement field's bumps of one phase equal the array form exactly."""
+    phases = np.concatenate([np.random.default_rng(8).uniform(-2.0, 3.0, 4000), [0.0, 0.45]])
+    for p in phases:
+        for start, end in ((0.0, 0.45), (0.82, 0.98)):
+            assert _bump_at(float(p), start, end) == float(_bump(float(p), start, end))
 
 
 def test_material_and_spatial_points_round_trip() -> None:

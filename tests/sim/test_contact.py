@@ -11,6 +11,7 @@ import pytest
 from icenav.errors import ConfigurationError
 from icenav.geometry.kinematics import forward
 from icenav.sim.anatomy import BASE2ANATOMY, EXAMPLE_VIEWS, default_phantom
+from icenav.sim.conditions import build_twin
 from icenav.sim.contact import (
     STRUCTURES,
     ContactModel,
@@ -116,6 +117,23 @@ def test_flow_drag_moves_the_tip_over_the_beat() -> None:
     assert loads is not None
     per_mm = 0.5 * 1060 * 1.1 * 3.3e-3 * 0.25**2 * 1e-3  # N per mm of catheter at most
     assert np.linalg.norm(loads, axis=1).max() <= per_mm * 10.0 + 1e-12
+
+
+def test_the_walls_evaluate_each_point_on_its_own() -> None:
+    """The contact solve asks the moving walls for the free and the flow-bent nodes in one
+    call: each row's distance, shape and material point equal those of a call of its own
+    (in vivo: beat, beat-to-beat shape and breathing)."""
+    twin = build_twin("in-vivo", 100, 0, lambda: 0.0)
+    walls = twin.plant.contact.walls if twin.plant.contact is not None else None
+    assert walls is not None
+    rng = np.random.default_rng(9)
+    for _ in range(50):
+        a = rng.normal(0.0, 15.0, (8, 3))
+        b = a + rng.normal(0.0, 0.3, (8, 3))
+        t = float(rng.uniform(0.0, 60.0))
+        both = walls.distance(np.concatenate([a, b]), t)
+        for got, one, two in zip(both, walls.distance(a, t), walls.distance(b, t), strict=True):
+            assert np.array_equal(got, np.concatenate([one, two]))
 
 
 def test_bad_parameters_are_refused() -> None:

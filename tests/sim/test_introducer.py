@@ -5,9 +5,11 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
 import pytest
 
 from icenav.errors import ConfigurationError
+from icenav.sim import introducer
 from icenav.sim.introducer import ShaftFriction, ShaftParams
 
 P = ShaftParams(
@@ -109,6 +111,40 @@ def test_a_breathing_wall_drags_the_shaft_and_past_times_are_answered() -> None:
     values = [shaft.lost_motion(t)[0] for t in (12.0, 13.0, 14.0)]
     assert max(values) - min(values) > 0.05
     assert all(abs(v) <= 0.4 + 1e-9 for v in values)
+
+
+def test_the_wall_is_asked_once_per_time_and_its_answer_kept_exact(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """(S5) is a function of time: a time asked again (the last check of an advance, then
+    the state at that time, then a past sample) is not evaluated again, and the shaft
+    follows the same path as one that remembers only the last time asked."""
+    calls: list[float] = []
+
+    def wall(t: float) -> float:
+        calls.append(t)
+        return 4.0 * math.sin(2 * math.pi * t / 4.0)
+
+    params = ShaftParams(**{**P.__dict__, "entrainment": 0.5})
+    shaft = ShaftFriction(params, (0,), wall)
+    shaft.advance(30.0)
+    asked = len(calls)
+    shaft.lost_motion(30.0)  # the time the advance ended on
+    assert len(calls) == asked
+    times = np.linspace(25.0, 30.0, 51)  # past times, twice: asked once
+    path = [shaft.lost_motion(t) for t in times]
+    assert [shaft.lost_motion(t) for t in times] == path
+    assert len(calls) <= asked + len(times)
+    # more distinct times than the memo holds: it is cleared, the answers stay the wall's
+    for t in np.linspace(30.0, 60.0, 1500):
+        shaft.advance(float(t))
+    monkeypatch.setattr(introducer, "_WALL_MEMO", 0)  # cleared at every new time
+    fresh = ShaftFriction(params, (0,), lambda t: 4.0 * math.sin(2 * math.pi * t / 4.0))
+    fresh.advance(30.0)
+    assert [fresh.lost_motion(t) for t in times] == path
+    for t in np.linspace(30.0, 60.0, 1500):
+        fresh.advance(float(t))
+    assert fresh.slips == shaft.slips and fresh.lost_motion(60.0) == shaft.lost_motion(60.0)
 
 
 def test_settling_follows_a_slip_with_the_time_constant() -> None:

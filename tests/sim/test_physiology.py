@@ -57,6 +57,19 @@ def test_breathing_follows_lujan_and_varies_per_breath() -> None:
     assert np.std(np.diff(starts)) / 4.0 == pytest.approx(0.1, rel=0.35)
 
 
+def test_the_scalar_level_and_beat_index_are_the_array_paths_to_the_bit() -> None:
+    """The hot paths of the contact solve: ``level(t)`` is ``signal(t)`` and ``beat_index``
+    is ``np.searchsorted`` on the beat starts, exactly (before, inside and past the draws)."""
+    b = Breathing(BreathingParams(period_sd=0.2, amplitude_sd=0.3, baseline_sd=0.2), seed=5)
+    rhythm = CardiacRhythm(RhythmParams(rr_sd=0.05, rsa=0.05), seed=5, breathing=b)
+    times = np.random.default_rng(5).uniform(-65.0, 300.0, 2000)
+    for t in times:
+        assert b.level(float(t)) == float(b.signal(float(t)))
+        k = rhythm.beat_index(float(t))
+        assert k == int(np.searchsorted(np.asarray(rhythm._starts), t, side="right") - 1)  # noqa: SLF001
+    assert b.level(t0 := float(b.breath_starts(0.0, 10.0)[0])) == float(b.signal(np.array([t0]))[0])
+
+
 def test_the_heart_moves_as_shechter_measured() -> None:
     """(P5): at a nominal breath's peak the heart has moved 4.9 mm caudally and 1.3 mm
     anteriorly, and turned by 1.5 deg."""

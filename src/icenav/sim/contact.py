@@ -231,6 +231,13 @@ def catheter_nodes(
     return pts, tan
 
 
+_NORMAL_STEP_MM = 0.25
+"""Step of the central differences of the walls' normals (mm)."""
+_NORMAL_PROBES = np.concatenate([np.eye(3), -np.eye(3)]) * _NORMAL_STEP_MM
+"""(6, 3) offsets of the probes of a normal: +h and -h along each axis (mm)."""
+_NORMAL_PROBES.setflags(write=False)
+
+
 class Walls:
     """The walls around the catheter (C2): blood of the RA, IVC and SVC, moving with the
     phantom's displacement field.
@@ -287,9 +294,8 @@ class Walls:
         """Outward unit normals (N, 3) of the walls at material points (N, 3), in the base
         frame (central differences of the union distance; the walls' small strain is
         neglected); zero where the distance has no slope."""
-        h = 0.25
-        offs = np.concatenate([np.eye(3), -np.eye(3)]) * h
-        probe = (material[:, None, :] + offs[None]).reshape(-1, 3)
+        h = _NORMAL_STEP_MM
+        probe = (material[:, None, :] + _NORMAL_PROBES[None]).reshape(-1, 3)
         dp, _ = self.sdf_material(probe)
         dp = dp.reshape(-1, 6)
         g = (dp[:, :3] - dp[:, 3:]) / (2 * h)
@@ -567,15 +573,21 @@ class ContactModel:
         n = len(shape.s)
         r_c = self.params.catheter_radius_mm
         rot, off = g[:3, :3], g[:3, 3]
-        d, idx, mat = self.walls.distance(shape.points @ rot.T + off, t)
         f_n = np.zeros(n)
         normals = np.zeros((n, 3))
-        if not np.any(d + r_c > -2.0):  # the flow moves a node by well under 2 mm
-            return f_n, normals, idx, mat
         free = shape.points
-        if loads is not None:
-            free = free + np.einsum("ijab,jb->ia", shape.compliance, loads)
+        if loads is None:
             d, idx, mat = self.walls.distance(free @ rot.T + off, t)
+            if not np.any(d + r_c > -2.0):  # the flow moves a node by well under 2 mm
+                return f_n, normals, idx, mat
+        else:
+            # the nodes of the catheter held straight and bent by the flow, in one call of
+            # the walls (each row is evaluated on its own: the same numbers as two calls)
+            free = free + np.einsum("ijab,jb->ia", shape.compliance, loads)
+            d, idx, mat = self.walls.distance(np.concatenate([shape.points, free]) @ rot.T + off, t)
+            if not np.any(d[:n] + r_c > -2.0):
+                return f_n, normals, idx[:n], mat[:n]
+            d, idx, mat = d[n:], idx[n:], mat[n:]
         pen = d + r_c
         cand = np.flatnonzero(pen > 0.0)
         if cand.size == 0:
@@ -590,13 +602,18 @@ class ContactModel:
             # free shape, with the penetration the free catheter would have there)
             moved = free - np.einsum("ijab,jb->ia", C, f_n[:, None] * normals)
             d2, idx2, mat2 = self.walls.distance(moved @ rot.T + off, t)
-            new = np.setdiff1d(np.flatnonzero(d2 + r_c > 0.5), cand)
+            entered = d2 + r_c > 0.5
+            entered[cand] = False
+            new = np.flatnonzero(entered)  # np.setdiff1d's sorted indices, without sorting
             if new.size == 0:
                 break
             idx[new], mat[new] = idx2[new], mat2[new]
             normals[new] = self.walls.normals(mat2[new]) @ rot
             pen[new] = d2[new] + r_c + np.einsum("ia,ia->i", normals[new], free[new] - moved[new])
-            cand = np.union1d(cand, new)
+            joined = np.zeros(n, dtype=bool)
+            joined[cand] = True
+            joined[new] = True
+            cand = np.flatnonzero(joined)  # np.union1d's sorted indices
         return f_n, normals, idx, mat
 
     def _lcp(self, C: Array, normals: Array, pen: Array) -> Array:
@@ -606,8 +623,10 @@ class ContactModel:
             return np.zeros(len(pen))
         M = np.einsum("ia,ijab,jb->ij", normals, C, normals)
         M = 0.5 * (M + M.T) + np.eye(len(pen)) / self.params.wall_stiffness_n_per_mm
-        low = scipy.linalg.cholesky(M, lower=True)
-        rhs = scipy.linalg.solve_triangular(low, pen, lower=True)
+        # finite by construction (compliances, unit normals, penetrations of a finite
+        # catheter): scipy's finiteness checks are skipped (a hot path, same results)
+        low = scipy.linalg.cholesky(M, lower=True, check_finite=False)
+        rhs = scipy.linalg.solve_triangular(low, pen, lower=True, check_finite=False)
         f, _ = scipy.optimize.nnls(low.T, rhs)
         out: Array = f
         return out

@@ -42,6 +42,9 @@ from icenav.errors import ConfigurationError
 
 __all__ = ["ShaftFriction", "ShaftParams"]
 
+_WALL_MEMO = 512
+"""Times whose wall displacement is remembered (then forgotten all at once)."""
+
 
 @dataclass(frozen=True)
 class ShaftParams:
@@ -116,6 +119,9 @@ class ShaftFriction:
         self.params = params
         self._rng = np.random.default_rng([*seed, 0x5F])
         self._wall = wall_mm if params.entrainment > 0.0 else None
+        self._wall_memo: dict[float, float] = {}
+        """w(t) of the times asked lately: a slip's check, the state and the tracker's samples
+        ask the same times again (w is a function of time alone)."""
         self.reset(0.0, 0.0, 0.0)
 
     def reset(self, d_mm: float, psi_rad: float, t: float) -> None:
@@ -139,7 +145,14 @@ class ShaftFriction:
         self._history.append((self._t_event, self._xw, self._phi, self._lag))
 
     def _wall_at(self, t: float) -> float:
-        return 0.0 if self._wall is None else self.params.entrainment * float(self._wall(t))
+        if self._wall is None:
+            return 0.0
+        w = self._wall_memo.get(t)
+        if w is None:
+            if len(self._wall_memo) >= _WALL_MEMO:
+                self._wall_memo.clear()
+            w = self._wall_memo[t] = self.params.entrainment * float(self._wall(t))
+        return w
 
     def _new_stick(self, t: float) -> None:
         p = self.params

@@ -33,6 +33,7 @@ breaths are generated in order, so a value depends only on the seed and the time
 
 from __future__ import annotations
 
+import bisect
 import math
 from dataclasses import dataclass, replace
 
@@ -227,6 +228,21 @@ class Breathing:
         out: Array = level.reshape(tt.shape)
         return out
 
+    def level(self, t: float) -> float:
+        """Breathing level r(t) (P4) at one time ``t`` (s): :meth:`signal` of a scalar, to
+        the bit (the same operations on Python floats, the sine and its power on a
+        one-element array as there), without the array set-up that dominated its cost
+        (``docs/digital-twin.md`` section 8)."""
+        tf = float(t)
+        self._extend(tf)
+        starts, periods = self._starts, self._periods
+        k = min(max(bisect.bisect_right(starts, tf) - 1, 0), len(periods) - 1)
+        tau = min(max((tf - starts[k]) / periods[k], 0.0), 1.0)
+        bases = self._bases
+        level = (1.0 - tau) * bases[k] + tau * bases[k + 1]
+        wave = np.sin(np.array([np.pi * tau])) ** (2 * self.params.shape_n)
+        return float(level + self._depths[k] * float(wave[0]))
+
     def breath_starts(self, t0: float, t1: float) -> Array:
         """Start times (s) of the breaths that begin in [t0, t1)."""
         self._extend(t1)
@@ -236,26 +252,22 @@ class Breathing:
 
     def displacement(self, points: Array, t: float) -> Array:
         """Rigid respiratory displacement (P5) of ``points`` (N, 3) at time ``t`` (mm, anatomy)."""
-        r = float(self.signal(t))
+        r = self.level(t)
         if r == 0.0:
             return np.zeros_like(points)
         # axis x (p - pivot), written out: np.cross costs 45 us a call on (N, 3) points
         a, v = self._axis, points - self._pivot
-        cross = np.stack(
-            (
-                a[1] * v[..., 2] - a[2] * v[..., 1],
-                a[2] * v[..., 0] - a[0] * v[..., 2],
-                a[0] * v[..., 1] - a[1] * v[..., 0],
-            ),
-            axis=-1,
-        )
+        cross = np.empty(v.shape)  # filled per component: np.stack cost as much again
+        cross[..., 0] = a[1] * v[..., 2] - a[2] * v[..., 1]
+        cross[..., 1] = a[2] * v[..., 0] - a[0] * v[..., 2]
+        cross[..., 2] = a[0] * v[..., 1] - a[1] * v[..., 0]
         rot = cross * self.params.rotation_rad
         out: Array = r * (self._d + rot)
         return out
 
     def translation_mm(self, t: float) -> Array:
         """The heart's respiratory translation (3,) at time ``t`` (mm, anatomy frame)."""
-        out: Array = float(self.signal(t)) * self._d
+        out: Array = self.level(t) * self._d
         return out
 
 
@@ -299,7 +311,7 @@ class CardiacRhythm:
             g = self._rng.standard_normal(2)
             # Eq. (P1): AR(1) RR deviations, shortened in inspiration
             self._e = rho * self._e + math.sqrt(1.0 - rho * rho) * p.rr_sd * g[0]
-            r = float(self.breathing.signal(start)) if self.breathing is not None else 0.0
+            r = self.breathing.level(start) if self.breathing is not None else 0.0
             rr = p.period_s * max(0.5, 1.0 + self._e - p.rsa * r)
             # Eq. (P3): beat-to-beat and respiratory variation of the contraction
             amp = max(0.0, 1.0 + p.amplitude_sd * g[1]) * (1.0 - p.stroke_variation * r)
@@ -314,7 +326,9 @@ class CardiacRhythm:
     def beat_index(self, t: float) -> int:
         """Index of the beat that contains time ``t`` (s)."""
         self._extend(t)
-        return int(np.searchsorted(self._starts_arr, t, side="right") - 1)
+        # bisect on the list: the index np.searchsorted(side="right") gives, without the
+        # array call (a hot path of the walls, `docs/digital-twin.md` section 8)
+        return bisect.bisect_right(self._starts, t) - 1
 
     def beat_start(self, k: int) -> float:
         """Start time (s) of beat ``k`` (the R wave)."""

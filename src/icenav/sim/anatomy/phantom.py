@@ -158,6 +158,17 @@ def _bump(phase: Array | float, start: float, end: float) -> Array:
     return out
 
 
+def _bump_at(phase: float, start: float, end: float) -> float:
+    """:func:`_bump` of one phase, to the bit (the modulo of Python floats is numpy's; the
+    cosine on numpy's scalar path as there), without its array set-up (the displacement
+    field asks it twice a call; ``docs/digital-twin.md`` section 8)."""
+    w = end - start
+    s = (float(phase) - start) % 1.0
+    if not s < w:
+        return 0.0
+    return float(0.5 * (1.0 - np.cos(2.0 * np.pi * s / w)))
+
+
 def _plateau(phase: float, start: float, end: float, ramp: float = 0.04) -> float:
     """Smooth 0 -> 1 -> 0 window over [start, end] (phases, wrapping) with cosine ramps."""
     w = (end - start) % 1.0
@@ -270,8 +281,8 @@ class HeartPhantom:
         """Displacement u(x, t) (mm) at spatial ``points`` (N, 3), anatomy frame."""
         m = self.motion
         phase = self.cardiac_phase(t)
-        systole = float(_bump(phase, 0.0, 0.45))
-        atrial_kick = float(_bump(phase, 0.82, 0.98))
+        systole = _bump_at(phase, 0.0, 0.45)
+        atrial_kick = _bump_at(phase, 0.82, 0.98)
         u = np.zeros_like(points)
         for name, c in self._centres.items():
             if name in ("lv", "rv"):

@@ -63,6 +63,13 @@ class Chamber:
     """(3, 3) local-to-anatomy rotation, derived from ``long_axis``."""
     _axis_aligned: bool = field(init=False, repr=False, compare=False)
     """Whether ``rotation`` is the identity (skips a matrix product)."""
+    _centre: Array = field(init=False, repr=False, compare=False)
+    """``centre`` as an array (3,) (mm): the contact solve asks :meth:`sdf` at every
+    solve, its constants are made once."""
+    _axes: Array = field(init=False, repr=False, compare=False)
+    """``semi_axes`` as an array (3,) (mm)."""
+    _min_axis: float = field(init=False, repr=False, compare=False)
+    """Smallest semi-axis (mm)."""
 
     def __post_init__(self) -> None:
         for a in self.semi_axes:
@@ -75,6 +82,11 @@ class Chamber:
         rot.setflags(write=False)
         object.__setattr__(self, "rotation", rot)
         object.__setattr__(self, "_axis_aligned", bool(np.array_equal(rot, np.eye(3))))
+        for name, value in (("_centre", self.centre), ("_axes", self.semi_axes)):
+            arr = np.asarray(value)
+            arr.setflags(write=False)
+            object.__setattr__(self, name, arr)
+        object.__setattr__(self, "_min_axis", float(np.min(self._axes)))
 
     def sdf(self, points: Array, *, beyond_mm: float = np.inf) -> Array:
         """Approximate signed distance (mm, negative inside) of ``points`` (N, 3).
@@ -82,20 +94,31 @@ class Chamber:
         The bound ``k0 (k0 - 1) / k1`` (k0 = |p / a|, k1 = |p / a^2|) is exact on the
         surface. Points certainly farther than ``beyond_mm`` get ``beyond_mm`` (cheap).
         """
-        local = points - np.asarray(self.centre)
+        local = points - self._centre
         if not self._axis_aligned:
             local = local @ self.rotation
-        a = np.asarray(self.semi_axes)
+        a = self._axes
+        a_min = self._min_axis
         scaled = local / a
         k0 = np.sqrt(np.einsum("ij,ij->i", scaled, scaled))
-        out: Array = np.full(k0.shape, float(beyond_mm))
         # sdf >= (k0 - 1) min(a): only points below the bound need the full formula
-        near = np.flatnonzero((k0 - 1.0) * float(np.min(a)) < beyond_mm)
+        below = (k0 - 1.0) * a_min < beyond_mm
+        if beyond_mm == np.inf:
+            # no bound (the contact solve's few points): every point, no subset copies
+            s2 = scaled / a
+            k1 = np.sqrt(np.einsum("ij,ij->i", s2, s2))
+            safe = k1 > 1e-9
+            full: Array = np.where(safe, k0 * (k0 - 1.0) / np.where(safe, k1, 1.0), -a_min)
+            if not below.all():  # not finite
+                full[~below] = beyond_mm
+            return full
+        out: Array = np.full(k0.shape, float(beyond_mm))
+        near = np.flatnonzero(below)
         k0n = k0[near]
         s2 = scaled[near] / a
         k1 = np.sqrt(np.einsum("ij,ij->i", s2, s2))
         safe = k1 > 1e-9
-        out[near] = np.where(safe, k0n * (k0n - 1.0) / np.where(safe, k1, 1.0), -float(np.min(a)))
+        out[near] = np.where(safe, k0n * (k0n - 1.0) / np.where(safe, k1, 1.0), -a_min)
         return out
 
 
@@ -115,14 +138,27 @@ class BloodVessel:
     """Wall thickness (mm); 0 for a lumen without wall (an outflow tract)."""
     blood: Tissue
     """Label of the lumen."""
+    _start: Array = field(init=False, repr=False, compare=False)
+    """``start`` as an array (3,) (mm): the constants of :meth:`sdf`, made once."""
+    _axis: Array = field(init=False, repr=False, compare=False)
+    """Unit axis (3,) from ``start`` to ``end``."""
+    _length: float = field(init=False, repr=False, compare=False)
+    """Length (mm)."""
+
+    def __post_init__(self) -> None:
+        a = np.asarray(self.start)
+        ax = np.asarray(self.end) - a
+        length = float(np.linalg.norm(ax))
+        ax = ax / length
+        a.setflags(write=False)
+        ax.setflags(write=False)
+        object.__setattr__(self, "_start", a)
+        object.__setattr__(self, "_axis", ax)
+        object.__setattr__(self, "_length", length)
 
     def sdf(self, points: Array) -> Array:
         """Signed distance (mm) to the lumen of the capped cylinder, for ``points`` (N, 3)."""
-        a = np.asarray(self.start)
-        b = np.asarray(self.end)
-        ax = b - a
-        length = float(np.linalg.norm(ax))
-        ax = ax / length
+        a, ax, length = self._start, self._axis, self._length
         rel = points - a
         s = rel @ ax
         radial = np.sqrt(np.maximum(np.einsum("ij,ij->i", rel, rel) - s * s, 0.0))
