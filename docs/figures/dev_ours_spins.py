@@ -7,6 +7,9 @@ commit). Session 10's before / after of the tension's form (docs/results.md):
     python docs/figures/dev_ours_spins.py --json before.json default:213 ...   # at b4a65da
     python docs/figures/dev_ours_spins.py --json after.json default:213 ...    # after
 
+``--cache DIR`` keeps each catheter's recording (deterministic: the same at every commit) so
+a second run fits and spins without recording again.
+
 Each record: the transmission fit's residual (deg), its form and held-out scores, the fit's
 wall time and per bend (EM mm, EM deg, true mm, true deg). Development seeds only. (The
 session-10 records were written by this loop before it kept the held-out scores.)
@@ -17,6 +20,8 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import os
+import pickle
 import time
 from typing import Any
 
@@ -31,11 +36,19 @@ from icenav.geometry.kinematics import forward
 from icenav.geometry.trajectories import spin_trajectory
 
 
-def one(family: str, seed: int) -> dict[str, Any]:
-    rig, tracker = make_rig(seed, "straight", family)
-    rig.reset()
+def one(family: str, seed: int, cache: str | None = None) -> dict[str, Any]:
     proc = make_procedure("dense+hysteresis")
-    rec = run_procedure(proc, rig.move, tracker)
+    path = None if cache is None else os.path.join(cache, f"{family}_{seed}.pkl")
+    if path is not None and os.path.exists(path):
+        with open(path, "rb") as f:
+            rec = pickle.load(f)  # noqa: S301 (our own cache of a deterministic recording)
+    else:
+        rig, tracker = make_rig(seed, "straight", family)
+        rig.reset()
+        rec = run_procedure(proc, rig.move, tracker)
+        if path is not None:
+            with open(path, "wb") as f:
+                pickle.dump(rec, f)
     t = time.time()
     cat = fit_catheter(proc.catheter_plan, rec, geometry=G)
     fit = cat.transmission.fit
@@ -61,11 +74,12 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("catheters", nargs="+", help="family:seed")
     ap.add_argument("--json", required=True)
+    ap.add_argument("--cache", help="directory of recordings kept between runs (pickles)")
     args = ap.parse_args()
     res = {}
     for spec in args.catheters:
         family, seed = spec.split(":")
-        res[spec] = one(family, int(seed))
+        res[spec] = one(family, int(seed), args.cache)
         print(spec, res[spec]["fit_rms_deg"], res[spec]["spins"], flush=True)
         with open(args.json, "w") as f:
             json.dump(res, f, indent=1)
