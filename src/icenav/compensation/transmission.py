@@ -405,37 +405,49 @@ class TendonTransmission:
     def _step_two(
         self, d: Sequence[float], x_from: Sequence[float], x_to: Sequence[float]
     ) -> list[float]:
-        """:meth:`step` with two play elements per tendon (TR4b-c); state (8,)."""
+        """:meth:`step` with two play elements per tendon (TR4b-c); state (8,): the first
+        elements of A-D, then the second ones. Unrolled over the tendons (hot loop: the
+        identification simulates it a few hundred times per fit)."""
         a0, b0 = float(x_from[0]), float(x_from[1])
         a1, b1 = float(x_to[0]), float(x_to[1])
         n = max(1, math.ceil(max(abs(a1 - a0), abs(b1 - b0)) / self.max_substep))
-        e1 = [float(t) for t in d[:4]]
-        e2 = [float(t) for t in d[4:8]]
+        eA, eB, eC, eD, fA, fB, fC, fD = (float(t) for t in d)
         ap, rl = self.ap, self.rl
-        slack = (ap.slack, ap.slack, rl.slack, rl.slack)
-        seal = (ap.seal_play, ap.seal_play, rl.seal_play, rl.seal_play)
-        kap = (ap.tension_play, ap.tension_play, rl.tension_play, rl.tension_play)
-        sig = (1.0, -1.0, 1.0, -1.0)
-        c1, c2 = ap.coupling, rl.coupling
+        s1, w1, k1, c1 = ap.slack, ap.seal_play, ap.tension_play, ap.coupling
+        s2, w2, k2, c2 = rl.slack, rl.seal_play, rl.tension_play, rl.coupling
         wrap, mu = self.wrap, self.friction
         a, rho = self.second_weight, self.second_width
+        b = 1.0 - a
         stretch = self.coupling_form == "stretch"
         for i in range(1, n + 1):
             f = i / n
-            x = (a0 + f * (a1 - a0), b0 + f * (b1 - b0))
-            dd = [(1.0 - a) * e1[k] + a * e2[k] for k in range(4)]  # (TR4c)
-            z1 = max(dd[0], 0.0) - max(dd[1], 0.0)
-            z2 = max(dd[2], 0.0) - max(dd[3], 0.0)
+            x1 = a0 + f * (a1 - a0)
+            x2 = b0 + f * (b1 - b0)
+            # (TR4c) each tendon's pull from its two elements
+            dA, dB, dC, dD = b * eA + a * fA, b * eB + a * fB, b * eC + a * fC, b * eD + a * fD
+            z1 = max(dA, 0.0) - max(dB, 0.0)
+            z2 = max(dC, 0.0) - max(dD, 0.0)
             e = wrap + mu * math.hypot(z1, z2)  # (TR2)
             gp, gm = g_plus(e), g_minus(e)
-            ts = _tensions(dd[0], dd[1], dd[2], dd[3], c1 * z2, c2 * z1, stretch)
-            for k in range(4):
-                p = sig[k] * x[k // 2] - slack[k]  # (TR1)
-                lo = seal[k] + kap[k] * ts[k] * gp
-                hi = seal[k] + kap[k] * ts[k] * gm
-                e1[k] = min(max(e1[k], p - lo), p + hi)  # (TR4)
-                e2[k] = min(max(e2[k], p - rho * lo), p + rho * hi)  # (TR4b)
-        return e1 + e2
+            tA, tB, tC, tD = _tensions(dA, dB, dC, dD, c1 * z2, c2 * z1, stretch)
+            # (TR1), (TR4) element 1 and (TR4b) element 2, rho times as wide
+            p = x1 - s1
+            lo, hi = w1 + k1 * tA * gp, w1 + k1 * tA * gm
+            eA = min(max(eA, p - lo), p + hi)
+            fA = min(max(fA, p - rho * lo), p + rho * hi)
+            p = -x1 - s1
+            lo, hi = w1 + k1 * tB * gp, w1 + k1 * tB * gm
+            eB = min(max(eB, p - lo), p + hi)
+            fB = min(max(fB, p - rho * lo), p + rho * hi)
+            p = x2 - s2
+            lo, hi = w2 + k2 * tC * gp, w2 + k2 * tC * gm
+            eC = min(max(eC, p - lo), p + hi)
+            fC = min(max(fC, p - rho * lo), p + rho * hi)
+            p = -x2 - s2
+            lo, hi = w2 + k2 * tD * gp, w2 + k2 * tD * gm
+            eD = min(max(eD, p - lo), p + hi)
+            fD = min(max(fD, p - rho * lo), p + rho * hi)
+        return [eA, eB, eC, eD, fA, fB, fC, fD]
 
     def effective(self, d: Sequence[float]) -> tuple[float, float]:
         """Effective knob angles (z1, z2) (rad) of a tendon state d (:attr:`state_size`,)."""
@@ -456,11 +468,68 @@ class TendonTransmission:
         start = x[0] if x_start is None else check_finite(x_start, "x_start", "rad").ravel()[:2]
         d = self.relaxed_state(start).tolist()
         prev = [float(start[0]), float(start[1])]
+        if self.state_size == 4:
+            return np.array(self._simulate_one(x.tolist(), d, prev))
         out = np.empty((x.shape[0], 2))
         for k, row in enumerate(x.tolist()):
             d = self.step(d, prev, row)
             prev = row
             out[k] = self.effective(d)
+        return out
+
+    def _simulate_one(
+        self, rows: list[list[float]], d: list[float], prev: list[float]
+    ) -> list[tuple[float, float]]:
+        """:meth:`step` along every row of ``rows`` (n, 2) from state ``d`` (4,) at ``prev``
+        (2,), with the effective knobs after each row: the same arithmetic in one loop,
+        the parameters read once (the identification's hot loop)."""
+        dA, dB, dC, dD = (float(t) for t in d)
+        ap, rl = self.ap, self.rl
+        s1, w1, k1, c1 = ap.slack, ap.seal_play, ap.tension_play, ap.coupling
+        s2, w2, k2, c2 = rl.slack, rl.seal_play, rl.tension_play, rl.coupling
+        wrap, mu, eta = self.wrap, self.friction, self.bend_tension
+        stretch = self.coupling_form == "stretch"
+        sub = self.max_substep
+        expm1 = math.expm1
+        a1, b1 = float(prev[0]), float(prev[1])
+        out = []
+        for row in rows:
+            a0, b0 = a1, b1
+            a1, b1 = row[0], row[1]
+            n = max(1, math.ceil(max(abs(a1 - a0), abs(b1 - b0)) / sub))
+            for i in range(1, n + 1):
+                f = i / n
+                x1 = a0 + f * (a1 - a0)
+                x2 = b0 + f * (b1 - b0)
+                z1 = (dA if dA > 0.0 else 0.0) - (dB if dB > 0.0 else 0.0)
+                z2 = (dC if dC > 0.0 else 0.0) - (dD if dD > 0.0 else 0.0)
+                bend = math.hypot(z1, z2)
+                e = wrap + mu * bend  # (TR2)
+                if e < 1e-6:  # g_plus, g_minus inlined
+                    gp = gm = 0.5 * e
+                else:
+                    gp, gm = expm1(e) / e - 1.0, 1.0 + expm1(-e) / e
+                cz1, cz2 = c1 * z2, c2 * z1
+                if stretch:  # (TR3s)
+                    tA, tB = max(dA + cz1, 0.0), max(dB - cz1, 0.0)
+                    tC, tD = max(dC + cz2, 0.0), max(dD - cz2, 0.0)
+                else:  # (TR3)
+                    tA = (dA if dA > 0.0 else 0.0) + (cz1 if cz1 > 0.0 else 0.0)
+                    tB = (dB if dB > 0.0 else 0.0) + (-cz1 if cz1 < 0.0 else 0.0)
+                    tC = (dC if dC > 0.0 else 0.0) + (cz2 if cz2 > 0.0 else 0.0)
+                    tD = (dD if dD > 0.0 else 0.0) + (-cz2 if cz2 < 0.0 else 0.0)
+                if eta > 0.0:  # (TR3b)
+                    tb = eta * bend
+                    tA, tB, tC, tD = tA + tb, tB + tb, tC + tb, tD + tb
+                p = x1 - s1  # (TR1), (TR4)
+                dA = min(max(dA, p - w1 - k1 * tA * gp), p + w1 + k1 * tA * gm)
+                p = -x1 - s1
+                dB = min(max(dB, p - w1 - k1 * tB * gp), p + w1 + k1 * tB * gm)
+                p = x2 - s2
+                dC = min(max(dC, p - w2 - k2 * tC * gp), p + w2 + k2 * tC * gm)
+                p = -x2 - s2
+                dD = min(max(dD, p - w2 - k2 * tD * gp), p + w2 + k2 * tD * gm)
+            out.append((max(dA, 0.0) - max(dB, 0.0), max(dC, 0.0) - max(dD, 0.0)))  # (TR5)
         return out
 
 
