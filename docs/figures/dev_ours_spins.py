@@ -7,6 +7,12 @@ commit). Session 10's before / after of the tension's form (docs/results.md):
     python docs/figures/dev_ours_spins.py --json before.json default:213 ...   # at b4a65da
     python docs/figures/dev_ours_spins.py --json after.json default:213 ...    # after
 
+Session 11's after (the band's extensions; before = session 10's frozen records):
+
+    python docs/figures/dev_ours_spins.py --cache /tmp/rec \
+        --before docs/figures/families_dev213-218_s10_smoothing.json \
+        --json docs/figures/families_dev213-218_s11_after.json default:213 ...
+
 ``--cache DIR`` keeps each catheter's recording (deterministic: the same at every commit) so
 a second run fits and spins without recording again; ``--before FILE`` (records of the same
 catheters) keeps their spins where the fitted model is the same (a deterministic repeat).
