@@ -10,8 +10,10 @@ the knob commands (a chattering map) and gives the EM and true RMSE as the eval 
     python docs/figures/diagnose_family_spins.py --families default,rate-dependent \
         --seeds 210-212 [--bends 20,40,60] [--map-from bcf73ae] [--cache /tmp/cal] [--json F]
 
-``--map-from REV`` spins through ``TendonKnobMap`` as it was at git revision REV (the same
-calibration), for a before / after of the map alone. Development seeds only.
+``--both-ways`` also spins the other way and splits the bend's size and direction errors
+into the part that does not depend on the sense of turning (static) and the part that flips
+with it (a lag). ``--map-from REV`` spins through ``TendonKnobMap`` as it was at git
+revision REV (the same calibration), for a before / after of the map alone. Development seeds only.
 """
 
 from __future__ import annotations
@@ -94,9 +96,15 @@ def reversals(cmd: Any) -> int:
     return n
 
 
-def spin(cat: Any, cls: Any, family: str, seed: int, bend: int) -> dict[str, Any]:
-    """One spin: EM / true RMSE, reversals and the decomposition of the true position error."""
-    sp = spin_trajectory([math.radians(bend), 0.0, 0.0, 0.0], 360, include_end=True)
+def spin(
+    cat: Any, cls: Any, family: str, seed: int, bend: int, direction: int = -1
+) -> dict[str, Any]:
+    """One spin: EM / true RMSE, reversals and the decomposition of the true position error
+    (the per-sample bend size and direction errors, deg, and the intended azimuth, rad, under
+    the keys starting with ``_``)."""
+    sp = spin_trajectory(
+        [math.radians(bend), 0.0, 0.0, 0.0], 360, include_end=True, direction=direction
+    )
     q = sp.q_model
     cmd = knob_map_commands(cls(cat.transmission), _approach_path(q))
     rig, tracker = make_rig(seed, "straight", family)
@@ -154,7 +162,38 @@ def spin(cat: Any, cls: Any, family: str, seed: int, bend: int) -> dict[str, Any
         "bend_size_err_mean_deg": float(np.mean(d_size)),
         "bend_direction_err_rms_deg": float(np.sqrt(np.mean(d_az**2))),
         "translation_err_mean_mm": float(np.mean(trans_a - q[:, 3])),
+        "_d_size": d_size,
+        "_d_az": d_az,
+        "_azimuth": np.arctan2(q[:, 1], q[:, 0]),
     }
+
+
+def split_both_ways(one: dict[str, Any], other: dict[str, Any]) -> dict[str, float]:
+    """The bend's size and direction errors of two spins turned opposite ways, on a common
+    grid of intended azimuths (knob plane, 1 deg): their mean is the part that does not
+    depend on the sense of turning (static: F, G, the section's length, a static share of
+    the transmission), half their difference the part that flips with it (the
+    transmission's lag). RMS of each (deg); the static size error's mean and its first and
+    second harmonics' amplitudes over the azimuth (deg)."""
+    grid = np.radians(np.arange(-180.0, 180.0, 1.0))
+
+    def on_grid(r: dict[str, Any], key: str) -> Any:
+        az = np.asarray(r["_azimuth"])
+        order = np.argsort(az)
+        return np.interp(grid, az[order], np.asarray(r[key])[order], period=2 * np.pi)
+
+    out: dict[str, float] = {}
+    for key, name in (("_d_size", "size"), ("_d_az", "direction")):
+        a, b = on_grid(one, key), on_grid(other, key)
+        static, flip = 0.5 * (a + b), 0.5 * (a - b)
+        out[f"{name}_static_rms_deg"] = float(np.sqrt(np.mean(static**2)))
+        out[f"{name}_reversing_rms_deg"] = float(np.sqrt(np.mean(flip**2)))
+        if name == "size":
+            out["size_static_mean_deg"] = float(np.mean(static))
+            for k in (1, 2):
+                c = 2.0 * np.mean(static * np.exp(-1j * k * grid))
+                out[f"size_static_h{k}_deg"] = float(abs(c))
+    return out
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -165,6 +204,12 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--map-from", default=None, help="git revision of TendonKnobMap")
     ap.add_argument("--cache", type=Path, default=None)
     ap.add_argument("--json", type=Path, default=None)
+    ap.add_argument(
+        "--both-ways",
+        action="store_true",
+        help="also spin the other way and split the bend's errors into the part that does "
+        "not depend on the sense of turning and the part that flips with it",
+    )
     a = ap.parse_args(argv)
     if "-" in a.seeds:
         lo, hi = (int(x) for x in a.seeds.split("-"))
@@ -180,6 +225,9 @@ def main(argv: list[str] | None = None) -> None:
             cat = calibrated(family, seed, a.cache)
             for bend in (int(b) for b in a.bends.split(",")):
                 r = spin(cat, cls, family, seed, bend)
+                if a.both_ways:
+                    r.update(split_both_ways(r, spin(cat, cls, family, seed, bend, direction=1)))
+                r = {k: v for k, v in r.items() if not k.startswith("_")}
                 rows.append(r)
                 print(
                     json.dumps(

@@ -362,3 +362,20 @@ def test_the_tension_form_and_its_scores_come_back_and_old_files_keep_the_added_
     doc["transmission"]["fit"]["held_out_rms"] = [["added", "small"]]
     with pytest.raises(FileFormatError, match="held_out_rms"):
         decode_model("dense+hysteresis", doc, "x.json")
+
+
+def test_a_models_extension_comes_back_and_old_files_have_none(
+    twin_catheter_calibration: CatheterCalibration,
+) -> None:
+    cat = twin_catheter_calibration
+    t0 = cat.transmission
+    model = t0.fit.model.with_extension("two-play", [0.3, 0.2])
+    fit = dataclasses.replace(t0.fit, model=model)
+    two = dataclasses.replace(cat, transmission=dataclasses.replace(t0, fit=fit))
+    doc = json.loads(json.dumps(encode_model("dense+hysteresis", two)))
+    back = decode_model("dense+hysteresis", doc, "x.json").transmission.fit
+    assert back.model == model and back.model.state_size == 8
+    for key in ("extension", "bend_tension", "second_weight", "second_width"):
+        del doc["transmission"]["fit"]["model"][key]
+    old = decode_model("dense+hysteresis", doc, "x.json").transmission.fit
+    assert old.model.extension == "none" and old.model.second_weight == 0.0

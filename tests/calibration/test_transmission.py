@@ -193,9 +193,35 @@ def test_the_tension_form_is_chosen_by_held_out_residual() -> None:
     truth = TendonTransmission(ap=pair, rl=pair, wrap=0.5, friction=0.3, coupling_form="stretch")
     motion = synthetic_catheter(truth, rng, circles, 0.05 * DEG)
     middle = circle_blocks(circles) == 2
-    fit = identify_transmission_form([motion], [middle], degree=3, train_nfev=12, refit_nfev=4)
+    fit = identify_transmission_form(
+        [motion], [middle], degree=3, train_nfev=12, refit_nfev=4, extensions=()
+    )
     scores = dict(fit.held_out_rms)
     assert fit.model.coupling_form == "stretch"
     assert scores["stretch"] < 0.5 * scores["added"]
     with pytest.raises(ConfigurationError, match="held_out"):
         identify_transmission_form([motion], [np.zeros(circles.shape[0], dtype=bool)])
+
+
+def test_an_extension_is_kept_where_it_predicts_held_out_data_better() -> None:
+    """Data of a catheter whose tendons have two play elements of very different widths
+    (half the pull play-free): a model with a second element predicts the held-out middle
+    circle better than the one-element forms and is kept; the bend-tension extension,
+    tried too, is scored and not kept."""
+    rng = np.random.default_rng(12)
+    circles = circle_path((25 * DEG, 45 * DEG, 65 * DEG), step=10 * DEG)
+    pair = PairTransmission(slack=0.5 * DEG, seal_play=3.0 * DEG, tension_play=0.1, coupling=0.0)
+    truth = TendonTransmission(ap=pair, rl=pair, wrap=0.3, friction=0.2).with_extension(
+        "two-play", [0.5, 0.0]
+    )
+    motion = synthetic_catheter(truth, rng, circles, 0.05 * DEG)
+    middle = circle_blocks(circles) == 2
+    fit = identify_transmission_form(
+        [motion], [middle], forms=("added",), degree=3, train_nfev=8, extension_nfev=8, refit_nfev=3
+    )
+    scores = dict(fit.held_out_rms)
+    assert fit.model.form == "added+two-play"
+    assert scores["added+two-play"] < 0.7 * scores["added"]
+    assert scores["added+two-play"] < scores["added+bend-tension"]
+    with pytest.raises(ConfigurationError, match="extensions"):
+        identify_transmission_form([motion], [middle], extensions=("none",))

@@ -228,3 +228,69 @@ def test_the_stretch_form_lets_the_other_pairs_bend_relieve_a_tendon() -> None:
     assert ap_lag("added", -0.6, bend) > 1.5 * free
     with pytest.raises(ConfigurationError, match="coupling_form"):
         TendonTransmission(coupling_form="mixed")
+
+
+def backlash(x: np.ndarray, half_width: float) -> np.ndarray:
+    """A play operator of half-width ``half_width`` (rad) along x (n,), from rest at x[0]."""
+    p, out = float(x[0]), []
+    for v in x:
+        p = min(max(p, v - half_width), v + half_width)
+        out.append(p)
+    return np.array(out)
+
+
+def test_two_play_elements_are_a_weighted_mean_of_two_backlashes() -> None:
+    """(TR4b-c): with a tension-free band each tendon is a Prandtl-Ishlinskii operator of two
+    elements, weights 1 - a and a, half-widths w and rho w; a = 0 is the one-element model."""
+    w, a, rho = 2.0 * DEG, 0.4, 0.25
+    one = TendonTransmission(ap=PairTransmission(seal_play=w))
+    two = one.with_extension("two-play", [a, rho])
+    assert two.state_size == 8 and two.form == "added+two-play"
+    x = np.zeros((300, 2))
+    x[:, 0] = 30 * DEG * np.sin(np.linspace(0.1, 6 * math.pi, 300)) + 30 * DEG  # tendon A pulled
+    z = two.simulate(x, x_start=[0.0, 0.0])[:, 0]
+    expected = (1 - a) * backlash(x[:, 0], w) + a * backlash(x[:, 0], rho * w)
+    np.testing.assert_allclose(z[5:], expected[5:], atol=1e-12)
+    np.testing.assert_array_equal(
+        one.with_extension("two-play", [0.0, rho]).simulate(x), one.simulate(x)
+    )
+    with pytest.raises(ConfigurationError, match="second_weight"):
+        TendonTransmission(second_weight=0.3)
+    with pytest.raises(ShapeError, match="2 parameters"):
+        one.with_extension("two-play", [0.3])
+
+
+def test_bend_tension_widens_a_band_with_the_other_knobs_bend_without_coupling() -> None:
+    """(TR3b): a share eta of the total bend loads every tendon, so AP's play grows when the
+    RL knob bends the section even with no coupling (gamma = 0) and no capstan growth (mu = 0)."""
+    pair = PairTransmission(seal_play=0.3 * DEG, tension_play=0.5)
+    base = TendonTransmission(ap=pair, rl=pair, wrap=0.3, friction=0.0)  # no capstan growth
+    loaded = base.with_extension("bend-tension", [0.5])
+
+    def ap_loop(m: TendonTransmission, rl_bend: float) -> float:
+        """Width (rad) of the z1 loop of a small AP sweep about 10 deg, RL held."""
+        x1 = 10 * DEG + 3 * DEG * np.sin(np.linspace(0, 4 * math.pi, 241))
+        x = np.stack([x1, np.full_like(x1, rl_bend)], axis=-1)
+        z = m.simulate(x, x_start=[0.0, rl_bend])[120:, 0] - x1[120:]
+        return float(np.max(z) - np.min(z))
+
+    assert ap_loop(base, 50 * DEG) == pytest.approx(ap_loop(base, 0.0), rel=0.1)
+    assert ap_loop(loaded, 50 * DEG) > 1.5 * ap_loop(loaded, 0.0)
+    assert loaded.form == "added+bend-tension"
+
+
+@pytest.mark.parametrize("extension", ["two-play", "bend-tension"])
+def test_compensator_cancels_a_model_with_an_extension(extension: str) -> None:
+    rng = np.random.default_rng(31)
+    m = random_model(rng).with_extension(extension, [0.5, 0.2][: len(EXTRA[extension])])
+    comp = TendonCompensator(m, dead_zone_ramp=0.5 * DEG)
+    wanted = spin_like(50 * DEG, n=120)
+    wanted[:, :2] += rng.normal(0, 0.3 * DEG, (wanted.shape[0], 2))
+    cmd = comp.command_path(wanted)
+    z = m.simulate(cmd, x_start=[0.0, 0.0])
+    outside = np.all(np.abs(wanted[:, :2]) >= 0.5 * DEG, axis=1)
+    assert np.max(np.abs(z - wanted[:, :2])[outside]) < 0.1 * DEG
+    assert len(comp.state()[0]) == m.state_size
+
+
+EXTRA = {"two-play": ("second_weight", "second_width"), "bend-tension": ("bend_tension",)}

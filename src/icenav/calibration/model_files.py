@@ -480,6 +480,11 @@ def _decode_tendons(r: _Field) -> TendonTransmission:
             max_substep=r.number("max_substep"),
             # files written before the form was chosen hold the added form (TR3)
             coupling_form=r.text("coupling_form") if "coupling_form" in r.doc else "added",
+            # files written before the extensions hold none
+            extension=r.text("extension") if "extension" in r.doc else "none",
+            bend_tension=r.number("bend_tension") if "bend_tension" in r.doc else 0.0,
+            second_weight=r.number("second_weight") if "second_weight" in r.doc else 0.0,
+            second_width=r.number("second_width") if "second_width" in r.doc else 1.0,
         )
     )
 

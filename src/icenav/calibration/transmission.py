@@ -36,6 +36,7 @@ from icenav.compensation.tracker_bias import TrackerBias
 from icenav.compensation.transmission import (
     _MAX_PLAY,
     COUPLING_FORMS,
+    EXTENSIONS,
     PairTransmission,
     TendonCompensator,
     TendonTransmission,
@@ -51,6 +52,7 @@ __all__ = [
     "FIT_LIMIT",
     "KNOB_CIRCLES",
     "FORM_MARGIN",
+    "TRIED_EXTENSIONS",
     "build_transmission",
     "circle_blocks",
     "circle_path",
@@ -220,6 +222,9 @@ def _poly_basis(z: Array, degree: int) -> Array:
     return np.stack(cols, axis=-1)
 
 
+_EXTRA_HIGH = {"none": (), "bend-tension": (2.0,), "two-play": (0.95, 5.0)}
+"""Upper bounds of each extension's parameters (their lower bounds are 0)."""
+
 FIT_LIMIT = math.radians(70.0)
 """Default ``fit_limit`` (rad): commanded knobs beyond it stay out of the residual."""
 
@@ -260,6 +265,7 @@ def identify_transmission(
     max_nfev: int = 60,
     static_coefficients: ArrayLike | None = None,
     coupling_form: str | None = None,
+    extension: str | None = None,
     masks: Sequence[ArrayLike] | None = None,
 ) -> TransmissionFit:
     """Identify a :class:`TendonTransmission` from commanded motions and the tracked tip.
@@ -290,6 +296,11 @@ def identify_transmission(
     coupling_form : str, optional
         The tension form (:data:`~icenav.compensation.transmission.COUPLING_FORMS`); default:
         ``initial``'s (``"added"`` without ``initial``).
+    extension : str, optional
+        The model's extension (:data:`~icenav.compensation.transmission.EXTENSIONS`), whose
+        parameters are fitted too; default: ``initial``'s (``"none"`` without ``initial``).
+        Started from ``initial``'s values, or eta = 0.05, (a, rho) = (0.3, 0.5) where they
+        are neutral.
     masks : sequence of bool arrays (n_i,), optional
         Per motion, the samples that may enter the residual (e.g. a held-out part left out);
         every motion is still simulated whole.
@@ -318,17 +329,32 @@ def identify_transmission(
     form = init.coupling_form if coupling_form is None else coupling_form
     if form not in COUPLING_FORMS:
         raise ConfigurationError(f"coupling_form must be one of {COUPLING_FORMS}, got {form!r}")
+    ext = init.extension if extension is None else extension
+    if ext not in EXTENSIONS:
+        raise ConfigurationError(f"extension must be one of {EXTENSIONS}, got {ext!r}")
+    start = init if init.extension == ext else init.with_extension(ext)
+    x_extra = start.extra_vector()
+    if ext == "bend-tension" and x_extra[0] == 0.0:
+        x_extra = np.array([0.05])
+    if ext == "two-play" and x_extra[0] == 0.0:
+        x_extra = np.array([0.3, 0.5])
     b = float(max_gain)
-    lo = np.array([0, 0, 0, -b, 0, 0, 0, -b, 0, 0])
-    hi = np.array([_MAX_PLAY, _MAX_PLAY, b, b, _MAX_PLAY, _MAX_PLAY, b, b, 5.0, 3.0])
-    x0 = np.clip(init.to_vector(), lo, hi - 1e-9)
+    lo = np.array([0, 0, 0, -b, 0, 0, 0, -b, 0, 0] + [0.0] * x_extra.size)
+    hi = np.array(
+        [_MAX_PLAY, _MAX_PLAY, b, b, _MAX_PLAY, _MAX_PLAY, b, b, 5.0, 3.0] + list(_EXTRA_HIGH[ext])
+    )
+    x0 = np.clip(np.concatenate([init.to_vector(), x_extra]), lo, hi - 1e-9)
     step = init.max_substep
     count = [0]
 
-    def effective(theta: Array) -> Array:
-        model = TendonTransmission.from_vector(
-            np.clip(theta, lo, hi), max_substep=step, coupling_form=form
+    def model_of(theta: Array) -> TendonTransmission:
+        t = np.clip(theta, lo, hi)
+        return TendonTransmission.from_vector(
+            t[:10], max_substep=step, coupling_form=form, extension=ext, extra=t[10:]
         )
+
+    def effective(theta: Array) -> Array:
+        model = model_of(theta)
         count[0] += 1
         zs = [
             model.simulate(m.q_motor, m.q_start[:2])[k] for m, k in zip(motions, masks, strict=True)
@@ -358,7 +384,7 @@ def identify_transmission(
     sol = least_squares(
         resid, x0, bounds=(lo, hi), x_scale="jac", diff_step=1e-3, max_nfev=max_nfev
     )
-    model = TendonTransmission.from_vector(sol.x, max_substep=step, coupling_form=form)
+    model = model_of(sol.x)
     r, coef = resid_for(effective(sol.x))
     x_cmd = np.concatenate([m.q_motor[k, :2] for m, k in zip(motions, masks, strict=True)])
     r0, _ = resid_for(x_cmd)
@@ -387,8 +413,13 @@ def circle_blocks(q_motor: ArrayLike, rest: float = math.radians(0.5)) -> Array:
 
 
 FORM_MARGIN = 0.02
-"""The stretch form (TR3s) is kept only where its held-out residual is this fraction below
-the added form's (TR3): a tie keeps the form the project used before."""
+"""A form is kept over the one before it in the order tried (the added tension, TR3, then the
+stretch form, TR3s, then each extension of the tension form kept) only where its held-out
+residual is this fraction below the best so far: a tie keeps the simpler form."""
+
+TRIED_EXTENSIONS = ("bend-tension", "two-play")
+"""The extensions :func:`identify_transmission_form` tries by default on the tension form it
+keeps (:data:`~icenav.compensation.transmission.EXTENSIONS`)."""
 
 
 def identify_transmission_form(
@@ -396,46 +427,76 @@ def identify_transmission_form(
     held_out: Sequence[ArrayLike],
     *,
     forms: Sequence[str] = COUPLING_FORMS,
+    extensions: Sequence[str] = TRIED_EXTENSIONS,
     train_nfev: int = 20,
+    extension_nfev: int = 12,
     refit_nfev: int = 20,
     **identify_kwargs: Any,
 ) -> TransmissionFit:
-    """Choose the tension form of the transmission by held-out residual, then fit it on all.
+    """Choose the transmission's form by held-out residual, then fit it on all the data.
 
-    Each form of ``forms`` is identified (:func:`identify_transmission`) without the samples
-    marked in ``held_out`` (one bool array (n_i,) per motion) and scored by the RMS residual
-    of those samples, their static map G the training fit's; the form with the smallest
-    residual (the first of ``forms`` unless another is :data:`FORM_MARGIN` lower) is refitted
-    on every sample from its training solution. ``train_nfev`` and ``refit_nfev`` bound the
-    optimiser's evaluations of each training fit and of the refit (``max_nfev`` of
-    :func:`identify_transmission`; the three together cost about one fit of 60: on
-    development catheter 214 of `default` the added form's residual is 3.05 / 3.01 deg after
-    15 / 30 evaluations and does not fall further). The returned fit's ``held_out_rms``
-    lists each form's held-out residual (rad).
+    Each tension form of ``forms`` is identified (:func:`identify_transmission`) without the
+    samples marked in ``held_out`` (one bool array (n_i,) per motion) and scored by the RMS
+    residual of those samples, their static map G the training fit's; the tension form with
+    the smallest residual (the first of ``forms`` unless another is :data:`FORM_MARGIN`
+    lower) is kept. Then each of ``extensions`` is added to it, fitted the same way from the
+    kept form's training solution (at most ``extension_nfev`` evaluations) and scored; an
+    extension replaces the best so far only if its residual is :data:`FORM_MARGIN` lower.
+    The winner is refitted on every sample from its training solution. ``train_nfev`` and
+    ``refit_nfev`` bound the optimiser's evaluations of each tension form's training fit and
+    of the refit (``max_nfev`` of :func:`identify_transmission`; on development catheter 214
+    of `default` the added form's residual is 3.05 / 3.01 deg after 15 / 30 evaluations and
+    does not fall further). The returned fit's ``held_out_rms`` lists each form's held-out
+    residual (rad), named as :attr:`TendonTransmission.form`.
     """
     if len(held_out) != len(motions):
         raise ShapeError(f"held_out must have one array per motion ({len(motions)})")
     test = [np.asarray(h, dtype=bool).ravel() for h in held_out]
     if not any(np.any(t) for t in test):
         raise ConfigurationError("held_out marks no sample: nothing to choose the form by")
-    kwargs = {k: v for k, v in identify_kwargs.items() if k not in ("coupling_form", "max_nfev")}
+    bad = [e for e in extensions if e not in EXTENSIONS or e == "none"]
+    if bad:
+        raise ConfigurationError(f"extensions must be among {EXTENSIONS[1:]}, got {bad!r}")
+    kwargs = {
+        k: v
+        for k, v in identify_kwargs.items()
+        if k not in ("coupling_form", "extension", "max_nfev")
+    }
+    limit = float(kwargs.get("fit_limit", FIT_LIMIT))
+    train = [~t for t in test]
     fits: dict[str, TransmissionFit] = {}
     scores: list[tuple[str, float]] = []
+    best_form, best = "", math.inf
     for form in forms:
         fit = identify_transmission(
             motions,
             coupling_form=form,
-            masks=[~t for t in test],
+            extension="none",
+            masks=train,
             max_nfev=int(train_nfev),
             **kwargs,
         )
         fits[form] = fit
-        limit = float(kwargs.get("fit_limit", FIT_LIMIT))
-        scores.append((form, _held_out_rms(fit, motions, test, limit)))
-    best_form, best = scores[0]
-    for form, v in scores[1:]:
-        if v < best * (1.0 - FORM_MARGIN):
+        v = _held_out_rms(fit, motions, test, limit)
+        scores.append((form, v))
+        if not scores[:-1] or v < best * (1.0 - FORM_MARGIN):
             best_form, best = form, v
+    base = fits[best_form].model
+    ext_kwargs = {k: v for k, v in kwargs.items() if k != "initial"}
+    for ext in extensions:
+        fit = identify_transmission(
+            motions,
+            initial=base,
+            extension=ext,
+            masks=train,
+            max_nfev=int(extension_nfev),
+            **ext_kwargs,
+        )
+        fits[fit.model.form] = fit
+        v = _held_out_rms(fit, motions, test, limit)
+        scores.append((fit.model.form, v))
+        if v < best * (1.0 - FORM_MARGIN):
+            best_form, best = fit.model.form, v
     kwargs.pop("initial", None)
     kwargs["max_nfev"] = int(refit_nfev)
     final = identify_transmission(motions, initial=fits[best_form].model, **kwargs)

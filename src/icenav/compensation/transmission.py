@@ -18,9 +18,18 @@ equations, the capstan form of the tendon-sheath literature, not the paper's)::
     Theta = wrap + friction * hypot(z1, z2)                  # (TR2) capstan exponent mu Theta
     T_i = max(d_i, 0) + max(sigma_i gamma_j z_k, 0)          # (TR3) tension (rad of pull)
     T_i = max(d_i + sigma_i gamma_j z_k, 0)                  # (TR3s) the "stretch" form
+    T_i <- T_i + eta hypot(z1, z2)                           # (TR3b) "bend-tension" only
     d_i = clip(d_i, p_i - w_j - kappa_j T_i g+(Theta),       # (TR4) friction band
                     p_i + w_j + kappa_j T_i g-(Theta))
     z_j = max(d_A, 0) - max(d_B, 0)                          # (TR5) effective knob
+
+With the ``"two-play"`` extension each tendon has two play elements side by side (a
+Prandtl-Ishlinskii operator of two elements), the second of band ``rho`` times the first's,
+and its distal pull is their weighted mean::
+
+    d'_i  = clip(d'_i,  p_i - b+_i, p_i + b-_i)              # (TR4) element 1, b the band above
+    d''_i = clip(d''_i, p_i - rho b+_i, p_i + rho b-_i)      # (TR4b) element 2
+    d_i = (1 - a) d'_i + a d''_i                             # (TR4c) the tendon's pull
 
     g+(x) = (e^x - 1) / x - 1,   g-(x) = 1 - (1 - e^-x) / x   # pulled / released tendon
 
@@ -37,6 +46,14 @@ as the tendon's stretch beyond its path, which the other pair's bend lengthens o
 (a tendon routed off its pair's plane), and which cannot be negative. Neither is assumed: the
 identification keeps the one that predicts held-out calibration data better
 (:func:`icenav.calibration.transmission.identify_transmission_form`).
+
+Two extensions (``extension``), each a generic change of shape, not a family's law, chosen the
+same way: ``"bend-tension"`` (TR3b) adds a share ``eta`` of the section's total bend to every
+tendon's tension (the sheath pressed against the bent lumen loads every tendon, whatever its
+pair), so every band widens with the bend's size, not only with the tendon's own pull;
+``"two-play"`` (TR4b-c) gives each tendon's band a shape (a narrow and a wide element: a
+rounded loop instead of a parallelogram, as in Prandtl-Ishlinskii models of tendon-sheath
+friction, Do et al. 2014). ``"none"`` keeps eta = 0 and a = 0.
 
 Compensation (:class:`TendonCompensator`): for a wanted effective knob pair ``z*`` the motor
 knobs ``x`` are found by a 1-D root search per knob (``z_j`` is non-decreasing in ``x_j``)
@@ -68,6 +85,7 @@ from icenav.geometry.kinematics import DEFAULT_GEOMETRY
 
 __all__ = [
     "COUPLING_FORMS",
+    "EXTENSIONS",
     "PairTransmission",
     "TendonCompensator",
     "TendonTransmission",
@@ -80,6 +98,13 @@ __all__ = [
 _MAX_PLAY = math.radians(20.0)
 COUPLING_FORMS = ("added", "stretch")
 """The tension forms of (TR3) / (TR3s) (see the module docstring)."""
+EXTENSIONS = ("none", "bend-tension", "two-play")
+"""The model's optional extensions (module docstring): which extra parameters it has."""
+_EXTRA_NAMES = {
+    "none": (),
+    "bend-tension": ("bend_tension",),
+    "two-play": ("second_weight", "second_width"),
+}
 _PARAM_NAMES = (
     "ap.slack",
     "ap.seal_play",
@@ -113,6 +138,21 @@ def _check_range(name: str, v: float, lo: float, hi: float, unit: str) -> float:
     if not math.isfinite(f) or f < lo or f > hi:
         raise ConfigurationError(f"{name} must be in [{lo:.4g}, {hi:.4g}] {unit}, got {v!r}")
     return f
+
+
+def _tensions(
+    dA: float, dB: float, dC: float, dD: float, cz1: float, cz2: float, stretch: bool
+) -> tuple[float, float, float, float]:
+    """Tensions (rad of pull) of tendons A-D from their distal pulls and the other pairs'
+    signed shares ``cz1 = gamma_1 z2``, ``cz2 = gamma_2 z1``: (TR3s) if ``stretch`` else (TR3)."""
+    if stretch:  # (TR3s)
+        return max(dA + cz1, 0.0), max(dB - cz1, 0.0), max(dC + cz2, 0.0), max(dD - cz2, 0.0)
+    return (  # (TR3)
+        max(dA, 0.0) + max(cz1, 0.0),
+        max(dB, 0.0) + max(-cz1, 0.0),
+        max(dC, 0.0) + max(cz2, 0.0),
+        max(dD, 0.0) + max(-cz2, 0.0),
+    )
 
 
 @dataclass(frozen=True)
@@ -153,11 +193,39 @@ class TendonTransmission:
     coupling_form: str = "added"
     """How the other pair's bend enters a tendon's tension: ``"added"`` (TR3) or
     ``"stretch"`` (TR3s)."""
+    extension: str = "none"
+    """Which extension the model has (:data:`EXTENSIONS`): its parameters below are free in
+    the identification; the others stay at their neutral values."""
+    bend_tension: float = 0.0
+    """eta (TR3b): tension on every tendon per rad of the section's total effective bend
+    (rad/rad, >= 0; ``"bend-tension"`` only)."""
+    second_weight: float = 0.0
+    """a (TR4c): weight of each tendon's second play element ([0, 0.95]; ``"two-play"``
+    only)."""
+    second_width: float = 1.0
+    """rho (TR4b): the second element's band over the first's ([0, 5])."""
 
     def __post_init__(self) -> None:
         if self.coupling_form not in COUPLING_FORMS:
             raise ConfigurationError(
                 f"coupling_form must be one of {COUPLING_FORMS}, got {self.coupling_form!r}"
+            )
+        if self.extension not in EXTENSIONS:
+            raise ConfigurationError(
+                f"extension must be one of {EXTENSIONS}, got {self.extension!r}"
+            )
+        _check_range("bend_tension", self.bend_tension, 0.0, 2.0, "rad/rad")
+        _check_range("second_weight", self.second_weight, 0.0, 0.95, "(fraction)")
+        _check_range("second_width", self.second_width, 0.0, 5.0, "(ratio)")
+        if self.extension != "bend-tension" and self.bend_tension != 0.0:
+            raise ConfigurationError(
+                f"bend_tension must be 0 without the 'bend-tension' extension, got "
+                f"{self.bend_tension!r}"
+            )
+        if self.extension != "two-play" and self.second_weight != 0.0:
+            raise ConfigurationError(
+                f"second_weight must be 0 without the 'two-play' extension, got "
+                f"{self.second_weight!r}"
             )
         for name in ("ap", "rl"):
             if not isinstance(getattr(self, name), PairTransmission):
@@ -167,6 +235,38 @@ class TendonTransmission:
         _check_range("max_substep", self.max_substep, 1e-4, 0.5, "rad")
 
     # --- parameter vector (identification) -------------------------------------------------
+
+    @property
+    def form(self) -> str:
+        """The model's form: the tension form, and ``+extension`` unless ``"none"``."""
+        return (
+            self.coupling_form
+            if self.extension == "none"
+            else f"{self.coupling_form}+{self.extension}"
+        )
+
+    @property
+    def extra_names(self) -> tuple[str, ...]:
+        """Names of the extension's parameters, in the order of :meth:`extra_vector`."""
+        return _EXTRA_NAMES[self.extension]
+
+    def extra_vector(self) -> Array:
+        """The extension's parameters (k,) (see :attr:`extra_names`)."""
+        return np.array([float(getattr(self, n)) for n in self.extra_names])
+
+    def with_extra(self, v: ArrayLike) -> TendonTransmission:
+        """The same model with the extension's parameters ``v`` (k,)."""
+        x = check_finite(v, "extension parameters").ravel()
+        names = self.extra_names
+        if x.size != len(names):
+            raise ShapeError(f"{self.extension!r} has {len(names)} parameters, got {x.size}")
+        new = {n: float(t) for n, t in zip(names, x, strict=True)}
+        return replace(
+            self,
+            bend_tension=new.get("bend_tension", self.bend_tension),
+            second_weight=new.get("second_weight", self.second_weight),
+            second_width=new.get("second_width", self.second_width),
+        )
 
     def to_vector(self) -> Array:
         """The 10 parameters in the order of ``PARAM_NAMES``."""
@@ -188,9 +288,15 @@ class TendonTransmission:
 
     @classmethod
     def from_vector(
-        cls, v: ArrayLike, max_substep: float = math.radians(2.0), coupling_form: str = "added"
+        cls,
+        v: ArrayLike,
+        max_substep: float = math.radians(2.0),
+        coupling_form: str = "added",
+        extension: str = "none",
+        extra: ArrayLike = (),
     ) -> TendonTransmission:
-        """Inverse of :meth:`to_vector` (``coupling_form``: see the class)."""
+        """Inverse of :meth:`to_vector` (``coupling_form``, ``extension``: see the class;
+        ``extra``: the extension's parameters, :meth:`extra_vector`)."""
         x = check_finite(v, "parameter vector").ravel()
         if x.size != len(_PARAM_NAMES):
             raise ShapeError(f"parameter vector must have {len(_PARAM_NAMES)} values, got {x.size}")
@@ -201,7 +307,21 @@ class TendonTransmission:
             friction=float(x[9]),
             max_substep=max_substep,
             coupling_form=coupling_form,
+        ).with_extension(extension, extra)
+
+    def with_extension(self, extension: str, extra: ArrayLike = ()) -> TendonTransmission:
+        """The same model with ``extension`` (:data:`EXTENSIONS`) and its parameters ``extra``
+        (default: neutral, eta = 0 or a = 0 with rho = 0.5)."""
+        if extension not in EXTENSIONS:
+            raise ConfigurationError(f"extension must be one of {EXTENSIONS}, got {extension!r}")
+        base = replace(
+            self, extension="none", bend_tension=0.0, second_weight=0.0, second_width=1.0
         )
+        model = replace(base, extension=extension)
+        x = np.asarray(extra, dtype=np.float64).ravel()
+        if x.size == 0:
+            x = np.array({"none": [], "bend-tension": [0.0], "two-play": [0.0, 0.5]}[extension])
+        return model.with_extra(x)
 
     def with_vessel(self, vessel_curvature: float) -> TendonTransmission:
         """The same transmission with the shaft laid through a vessel that turns by
@@ -215,20 +335,31 @@ class TendonTransmission:
 
     # --- simulation ------------------------------------------------------------------------
 
+    @property
+    def state_size(self) -> int:
+        """Length of the tendon state: 4 distal pulls (A, B, C, D), or 8 with ``"two-play"``
+        (each tendon's two elements, d' then d'')."""
+        return 8 if self.extension == "two-play" else 4
+
     def relaxed_state(self, x: ArrayLike = (0.0, 0.0)) -> Array:
-        """Distal pulls (4,) of a relaxed transmission at motor knobs x (2,): d_i = p_i."""
+        """Tendon state (:attr:`state_size`,) of a relaxed transmission at motor knobs x (2,):
+        every element at d_i = p_i."""
         xx = check_finite(x, "x", "rad").ravel()
         if xx.size != 2:
             raise ShapeError(f"x must have 2 knob angles, got {xx.size}")
         s1, s2 = self.ap.slack, self.rl.slack
-        return np.array([xx[0] - s1, -xx[0] - s1, xx[1] - s2, -xx[1] - s2])
+        d = np.array([xx[0] - s1, -xx[0] - s1, xx[1] - s2, -xx[1] - s2])
+        return np.concatenate([d, d]) if self.state_size == 8 else d
 
     def step(
         self, d: Sequence[float], x_from: Sequence[float], x_to: Sequence[float]
     ) -> list[float]:
-        """Advance the distal pulls ``d`` (4,) while the knobs move from ``x_from`` to ``x_to``
-        (2,) along a straight line, in substeps of at most ``max_substep``. Returns the new d
-        (a list; the input is not modified). Pure float math (hot loop)."""
+        """Advance the tendon state ``d`` (:attr:`state_size`,) while the knobs move from
+        ``x_from`` to ``x_to`` (2,) along a straight line, in substeps of at most
+        ``max_substep``. Returns the new state (a list; the input is not modified). Pure float
+        math (hot loop)."""
+        if self.extension == "two-play":
+            return self._step_two(d, x_from, x_to)
         a0, b0 = float(x_from[0]), float(x_from[1])
         a1, b1 = float(x_to[0]), float(x_to[1])
         n = max(1, math.ceil(max(abs(a1 - a0), abs(b1 - b0)) / self.max_substep))
@@ -236,7 +367,7 @@ class TendonTransmission:
         ap, rl = self.ap, self.rl
         s1, w1, k1, c1 = ap.slack, ap.seal_play, ap.tension_play, ap.coupling
         s2, w2, k2, c2 = rl.slack, rl.seal_play, rl.tension_play, rl.coupling
-        wrap, mu = self.wrap, self.friction
+        wrap, mu, eta = self.wrap, self.friction, self.bend_tension
         stretch = self.coupling_form == "stretch"
         for i in range(1, n + 1):
             f = i / n
@@ -244,7 +375,8 @@ class TendonTransmission:
             x2 = b0 + f * (b1 - b0)
             z1 = (dA if dA > 0.0 else 0.0) - (dB if dB > 0.0 else 0.0)
             z2 = (dC if dC > 0.0 else 0.0) - (dD if dD > 0.0 else 0.0)
-            e = wrap + mu * math.hypot(z1, z2)  # (TR2) capstan exponent
+            bend = math.hypot(z1, z2)
+            e = wrap + mu * bend  # (TR2) capstan exponent
             gp, gm = g_plus(e), g_minus(e)
             # tensions (rad of pull): own pull and the other pair's bend (signed coupling)
             cz1, cz2 = c1 * z2, c2 * z1
@@ -256,6 +388,9 @@ class TendonTransmission:
                 tB = (dB if dB > 0.0 else 0.0) + (-cz1 if cz1 < 0.0 else 0.0)
                 tC = (dC if dC > 0.0 else 0.0) + (cz2 if cz2 > 0.0 else 0.0)
                 tD = (dD if dD > 0.0 else 0.0) + (-cz2 if cz2 < 0.0 else 0.0)
+            if eta > 0.0:  # (TR3b)
+                tb = eta * bend
+                tA, tB, tC, tD = tA + tb, tB + tb, tC + tb, tD + tb
             # (TR1), (TR4): each distal pull sticks inside its friction band
             p = x1 - s1
             dA = min(max(dA, p - w1 - k1 * tA * gp), p + w1 + k1 * tA * gm)
@@ -267,10 +402,60 @@ class TendonTransmission:
             dD = min(max(dD, p - w2 - k2 * tD * gp), p + w2 + k2 * tD * gm)
         return [dA, dB, dC, dD]
 
-    @staticmethod
-    def effective(d: Sequence[float]) -> tuple[float, float]:
-        """Effective knob angles (z1, z2) (rad) of distal pulls d (4,)."""
-        dA, dB, dC, dD = d
+    def _step_two(
+        self, d: Sequence[float], x_from: Sequence[float], x_to: Sequence[float]
+    ) -> list[float]:
+        """:meth:`step` with two play elements per tendon (TR4b-c); state (8,): the first
+        elements of A-D, then the second ones. Unrolled over the tendons (hot loop: the
+        identification simulates it a few hundred times per fit)."""
+        a0, b0 = float(x_from[0]), float(x_from[1])
+        a1, b1 = float(x_to[0]), float(x_to[1])
+        n = max(1, math.ceil(max(abs(a1 - a0), abs(b1 - b0)) / self.max_substep))
+        eA, eB, eC, eD, fA, fB, fC, fD = (float(t) for t in d)
+        ap, rl = self.ap, self.rl
+        s1, w1, k1, c1 = ap.slack, ap.seal_play, ap.tension_play, ap.coupling
+        s2, w2, k2, c2 = rl.slack, rl.seal_play, rl.tension_play, rl.coupling
+        wrap, mu = self.wrap, self.friction
+        a, rho = self.second_weight, self.second_width
+        b = 1.0 - a
+        stretch = self.coupling_form == "stretch"
+        for i in range(1, n + 1):
+            f = i / n
+            x1 = a0 + f * (a1 - a0)
+            x2 = b0 + f * (b1 - b0)
+            # (TR4c) each tendon's pull from its two elements
+            dA, dB, dC, dD = b * eA + a * fA, b * eB + a * fB, b * eC + a * fC, b * eD + a * fD
+            z1 = max(dA, 0.0) - max(dB, 0.0)
+            z2 = max(dC, 0.0) - max(dD, 0.0)
+            e = wrap + mu * math.hypot(z1, z2)  # (TR2)
+            gp, gm = g_plus(e), g_minus(e)
+            tA, tB, tC, tD = _tensions(dA, dB, dC, dD, c1 * z2, c2 * z1, stretch)
+            # (TR1), (TR4) element 1 and (TR4b) element 2, rho times as wide
+            p = x1 - s1
+            lo, hi = w1 + k1 * tA * gp, w1 + k1 * tA * gm
+            eA = min(max(eA, p - lo), p + hi)
+            fA = min(max(fA, p - rho * lo), p + rho * hi)
+            p = -x1 - s1
+            lo, hi = w1 + k1 * tB * gp, w1 + k1 * tB * gm
+            eB = min(max(eB, p - lo), p + hi)
+            fB = min(max(fB, p - rho * lo), p + rho * hi)
+            p = x2 - s2
+            lo, hi = w2 + k2 * tC * gp, w2 + k2 * tC * gm
+            eC = min(max(eC, p - lo), p + hi)
+            fC = min(max(fC, p - rho * lo), p + rho * hi)
+            p = -x2 - s2
+            lo, hi = w2 + k2 * tD * gp, w2 + k2 * tD * gm
+            eD = min(max(eD, p - lo), p + hi)
+            fD = min(max(fD, p - rho * lo), p + rho * hi)
+        return [eA, eB, eC, eD, fA, fB, fC, fD]
+
+    def effective(self, d: Sequence[float]) -> tuple[float, float]:
+        """Effective knob angles (z1, z2) (rad) of a tendon state d (:attr:`state_size`,)."""
+        if len(d) == 8:
+            a = self.second_weight
+            dA, dB, dC, dD = ((1.0 - a) * d[k] + a * d[k + 4] for k in range(4))  # (TR4c)
+        else:
+            dA, dB, dC, dD = d
         return max(dA, 0.0) - max(dB, 0.0), max(dC, 0.0) - max(dD, 0.0)
 
     def simulate(self, x_path: ArrayLike, x_start: ArrayLike | None = None) -> Array:
@@ -283,11 +468,68 @@ class TendonTransmission:
         start = x[0] if x_start is None else check_finite(x_start, "x_start", "rad").ravel()[:2]
         d = self.relaxed_state(start).tolist()
         prev = [float(start[0]), float(start[1])]
+        if self.state_size == 4:
+            return np.array(self._simulate_one(x.tolist(), d, prev))
         out = np.empty((x.shape[0], 2))
         for k, row in enumerate(x.tolist()):
             d = self.step(d, prev, row)
             prev = row
             out[k] = self.effective(d)
+        return out
+
+    def _simulate_one(
+        self, rows: list[list[float]], d: list[float], prev: list[float]
+    ) -> list[tuple[float, float]]:
+        """:meth:`step` along every row of ``rows`` (n, 2) from state ``d`` (4,) at ``prev``
+        (2,), with the effective knobs after each row: the same arithmetic in one loop,
+        the parameters read once (the identification's hot loop)."""
+        dA, dB, dC, dD = (float(t) for t in d)
+        ap, rl = self.ap, self.rl
+        s1, w1, k1, c1 = ap.slack, ap.seal_play, ap.tension_play, ap.coupling
+        s2, w2, k2, c2 = rl.slack, rl.seal_play, rl.tension_play, rl.coupling
+        wrap, mu, eta = self.wrap, self.friction, self.bend_tension
+        stretch = self.coupling_form == "stretch"
+        sub = self.max_substep
+        expm1 = math.expm1
+        a1, b1 = float(prev[0]), float(prev[1])
+        out = []
+        for row in rows:
+            a0, b0 = a1, b1
+            a1, b1 = row[0], row[1]
+            n = max(1, math.ceil(max(abs(a1 - a0), abs(b1 - b0)) / sub))
+            for i in range(1, n + 1):
+                f = i / n
+                x1 = a0 + f * (a1 - a0)
+                x2 = b0 + f * (b1 - b0)
+                z1 = (dA if dA > 0.0 else 0.0) - (dB if dB > 0.0 else 0.0)
+                z2 = (dC if dC > 0.0 else 0.0) - (dD if dD > 0.0 else 0.0)
+                bend = math.hypot(z1, z2)
+                e = wrap + mu * bend  # (TR2)
+                if e < 1e-6:  # g_plus, g_minus inlined
+                    gp = gm = 0.5 * e
+                else:
+                    gp, gm = expm1(e) / e - 1.0, 1.0 + expm1(-e) / e
+                cz1, cz2 = c1 * z2, c2 * z1
+                if stretch:  # (TR3s)
+                    tA, tB = max(dA + cz1, 0.0), max(dB - cz1, 0.0)
+                    tC, tD = max(dC + cz2, 0.0), max(dD - cz2, 0.0)
+                else:  # (TR3)
+                    tA = (dA if dA > 0.0 else 0.0) + (cz1 if cz1 > 0.0 else 0.0)
+                    tB = (dB if dB > 0.0 else 0.0) + (-cz1 if cz1 < 0.0 else 0.0)
+                    tC = (dC if dC > 0.0 else 0.0) + (cz2 if cz2 > 0.0 else 0.0)
+                    tD = (dD if dD > 0.0 else 0.0) + (-cz2 if cz2 < 0.0 else 0.0)
+                if eta > 0.0:  # (TR3b)
+                    tb = eta * bend
+                    tA, tB, tC, tD = tA + tb, tB + tb, tC + tb, tD + tb
+                p = x1 - s1  # (TR1), (TR4)
+                dA = min(max(dA, p - w1 - k1 * tA * gp), p + w1 + k1 * tA * gm)
+                p = -x1 - s1
+                dB = min(max(dB, p - w1 - k1 * tB * gp), p + w1 + k1 * tB * gm)
+                p = x2 - s2
+                dC = min(max(dC, p - w2 - k2 * tC * gp), p + w2 + k2 * tC * gm)
+                p = -x2 - s2
+                dD = min(max(dD, p - w2 - k2 * tD * gp), p + w2 + k2 * tD * gm)
+            out.append((max(dA, 0.0) - max(dB, 0.0), max(dC, 0.0) - max(dD, 0.0)))  # (TR5)
         return out
 
 
