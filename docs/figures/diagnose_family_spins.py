@@ -13,7 +13,12 @@ the knob commands (a chattering map) and gives the EM and true RMSE as the eval 
 ``--both-ways`` also spins the other way and splits the bend's size and direction errors
 into the part that does not depend on the sense of turning (static) and the part that flips
 with it (a lag). ``--map-from REV`` spins through ``TendonKnobMap`` as it was at git
-revision REV (the same calibration), for a before / after of the map alone. Development seeds only.
+revision REV (the same calibration), for a before / after of the map alone. ``--release
+limit:DEG`` spreads every knob step of the transmission's inverse larger than DEG over the next
+samples (at most DEG a sample; the model's state follows the command sent), ``--release
+scale:F`` makes every step larger than 8 deg (a band crossing) F times as large: session 12's
+test of whether the inverse's single-sample band crossings make the `out-of-tolerance` error.
+Development seeds only.
 """
 
 from __future__ import annotations
@@ -76,6 +81,40 @@ def map_class(rev: str | None) -> Any:
     return mod.TendonKnobMap
 
 
+def release_variant(cls: Any, spec: str | None) -> Any:
+    """``cls`` with its knob inverse's large steps spread (``limit:DEG``) or scaled
+    (``scale:F``, steps over 8 deg), or ``cls`` itself for None (see the module's doc)."""
+    if spec is None:
+        return cls
+    kind, value = spec.split(":")
+    v = float(value)
+    if kind not in ("limit", "scale"):
+        raise SystemExit(f"--release must be limit:DEG or scale:F, got {spec!r}")
+
+    class Released(cls):  # type: ignore[misc, valid-type]
+        def __init__(self, *args: Any, **kwargs: Any) -> None:
+            super().__init__(*args, **kwargs)
+            knobs = self._knobs
+            solve = knobs.knob_command
+
+            def knob_command(z1: float, z2: float) -> tuple[float, float]:
+                x = solve(z1, z2)
+                out = []
+                for j in (0, 1):
+                    step = x[j] - knobs._x[j]
+                    if kind == "limit":
+                        m = math.radians(v)
+                        step = min(max(step, -m), m)
+                    elif abs(step) > math.radians(8.0):
+                        step *= v
+                    out.append(knobs._x[j] + step)
+                return out[0], out[1]
+
+            knobs.knob_command = knob_command
+
+    return Released
+
+
 def pose_of(knobs: Any, roll: float, scale: float, trans: float) -> Any:
     """Eq. (T10) of the twin (twist left out: it does not move the tip)."""
     pose = forward(np.array([knobs[0], knobs[1], roll, 0.0]), G, check=False)
@@ -106,11 +145,22 @@ def spin(
         [math.radians(bend), 0.0, 0.0, 0.0], 360, include_end=True, direction=direction
     )
     q = sp.q_model
-    cmd = knob_map_commands(cls(cat.transmission), _approach_path(q))
+    km = cls(cat.transmission)
+    model_twist: list[float] = []
+
+    class Recording:  # the map as the controller drives it, noting the model's twist
+        def model_to_motor(self, q_model: Any, *, check: bool = True) -> Any:
+            return km.model_to_motor(q_model, check=check)
+
+        def observe(self, q_motor: Any) -> None:
+            km.observe(q_motor)
+            model_twist.append(getattr(km, "_i", 0.0) - getattr(km, "_p3", 0.0))
+
+    cmd = knob_map_commands(Recording(), _approach_path(q))
     rig, tracker = make_rig(seed, "straight", family)
     plant = rig.robot.plant
     rig.reset()
-    eff, roll, trans, true, em = [], [], [], [], []
+    eff, roll, trans, true, em, twist = [], [], [], [], [], []
     for i, c in enumerate(cmd):
         rig.move(c)
         if i < APPROACH_STEPS:
@@ -119,6 +169,7 @@ def spin(
         eff.append(s.effective_knobs)
         roll.append(s.roll)
         trans.append(s.translation_mm)
+        twist.append(s.twist)
         true.append(s.tip2base)
         m = tracker.measure_tip2base()
         em.append(np.full((4, 4), np.nan) if m is None else m)
@@ -141,6 +192,8 @@ def spin(
     d_size = np.degrees(size_eff - size)
     d_az = np.degrees((az - np.arctan2(q[:, 1], q[:, 0]) + np.pi) % (2 * np.pi) - np.pi)
     qk = q[:, :2]
+    # the distal twist (image about its own axis): the plant's against the map's model of it
+    d_twist = np.degrees(np.array(twist) - np.array(model_twist[APPROACH_STEPS:]))
     return {
         "family": family,
         "seed": seed,
@@ -162,6 +215,8 @@ def spin(
         "bend_size_err_mean_deg": float(np.mean(d_size)),
         "bend_direction_err_rms_deg": float(np.sqrt(np.mean(d_az**2))),
         "translation_err_mean_mm": float(np.mean(trans_a - q[:, 3])),
+        "twist_err_rms_deg": float(np.sqrt(np.mean(d_twist**2))),
+        "twist_err_mean_deg": float(np.mean(d_twist)),
         "_d_size": d_size,
         "_d_az": d_az,
         "_azimuth": np.arctan2(q[:, 1], q[:, 0]),
@@ -210,6 +265,7 @@ def main(argv: list[str] | None = None) -> None:
         help="also spin the other way and split the bend's errors into the part that does "
         "not depend on the sense of turning and the part that flips with it",
     )
+    ap.add_argument("--release", default=None, help="limit:DEG or scale:F (see above)")
     a = ap.parse_args(argv)
     if "-" in a.seeds:
         lo, hi = (int(x) for x in a.seeds.split("-"))
@@ -218,7 +274,7 @@ def main(argv: list[str] | None = None) -> None:
         seeds = [int(x) for x in a.seeds.split(",")]
     if a.cache is not None:
         a.cache.mkdir(parents=True, exist_ok=True)
-    cls = map_class(a.map_from)
+    cls = release_variant(map_class(a.map_from), a.release)
     rows = []
     for family in a.families.split(","):
         for seed in seeds:
@@ -228,6 +284,7 @@ def main(argv: list[str] | None = None) -> None:
                 if a.both_ways:
                     r.update(split_both_ways(r, spin(cat, cls, family, seed, bend, direction=1)))
                 r = {k: v for k, v in r.items() if not k.startswith("_")}
+                r["release"] = a.release
                 rows.append(r)
                 print(
                     json.dumps(

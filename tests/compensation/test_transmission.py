@@ -4,6 +4,7 @@ inverse, and bad input (identification: tests/calibration/test_transmission.py).
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -16,6 +17,7 @@ from icenav.calibration.transmission import (
 )
 from icenav.compensation.hysteresis import HysteresisCompensator, JointHysteresis
 from icenav.compensation.transmission import (
+    COUPLING_FORMS,
     PairTransmission,
     TendonCompensator,
     TendonTransmission,
@@ -294,3 +296,29 @@ def test_compensator_cancels_a_model_with_an_extension(extension: str) -> None:
 
 
 EXTRA = {"two-play": ("second_weight", "second_width"), "bend-tension": ("bend_tension",)}
+
+
+@pytest.mark.parametrize("coupling_form", COUPLING_FORMS)
+@pytest.mark.parametrize("extension", ["none", "bend-tension"])
+def test_simulate_in_one_loop_equals_stepping_row_by_row(
+    coupling_form: str, extension: str
+) -> None:
+    # simulate's one-loop path (4 pulls: the identification's hot loop) must be step +
+    # effective, bit for bit, on random models (one without capstan friction: the inlined
+    # small-exponent branch) along a random knob path
+    rng = np.random.default_rng(17)
+    for k in range(6):
+        model = replace(random_model(rng), coupling_form=coupling_form)
+        if k == 0:
+            model = replace(model, wrap=0.0, friction=0.0)
+        model = model.with_extension(extension, [rng.uniform(0.05, 0.5)] * (extension != "none"))
+        assert model.state_size == 4
+        path = np.clip(np.cumsum(rng.normal(0.0, 4.0 * DEG, (150, 2)), axis=0), -1.4, 1.4)
+        got = model.simulate(path)
+        d, prev, want = model.relaxed_state(path[0]).tolist(), path[0].tolist(), []
+        for row in path.tolist():
+            d = model.step(d, prev, row)
+            prev = row
+            want.append(model.effective(d))
+        np.testing.assert_array_equal(got, np.array(want))
+        assert np.ptp(got) > 0.1  # the path does bend the model
