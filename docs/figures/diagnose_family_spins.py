@@ -16,8 +16,9 @@ with it (a lag). ``--map-from REV`` spins through ``TendonKnobMap`` as it was at
 revision REV (the same calibration), for a before / after of the map alone. ``--release
 limit:DEG`` spreads every knob step of the transmission's inverse larger than DEG over the next
 samples (at most DEG a sample; the model's state follows the command sent), ``--release
-scale:F`` makes every step larger than 8 deg (a band crossing) F times as large: session 12's
-test of whether the inverse's single-sample band crossings make the `out-of-tolerance` error.
+scale:F`` makes every step larger than 8 deg (a band crossing) F times as large: plants8's
+(session 11) test of whether the inverse's single-sample band crossings make the
+`out-of-tolerance` error.
 Development seeds only.
 """
 
