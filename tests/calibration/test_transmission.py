@@ -14,6 +14,7 @@ from icenav.calibration.plans import MotionPlan, calibration_set_from, raster_gr
 from icenav.calibration.procedure import run_visits
 from icenav.calibration.procedures import plan_visits
 from icenav.calibration.transmission import (
+    FORM_MARGIN,
     KNOB_CIRCLES,
     CalibrationMotion,
     build_transmission,
@@ -225,3 +226,33 @@ def test_an_extension_is_kept_where_it_predicts_held_out_data_better() -> None:
     assert scores["added+two-play"] < scores["added+bend-tension"]
     with pytest.raises(ConfigurationError, match="extensions"):
         identify_transmission_form([motion], [middle], extensions=("none",))
+
+
+def test_a_held_wrap_stays_held_and_the_held_out_circle_decides_whether_it_is_kept() -> None:
+    """``wrap_range`` with equal bounds holds the capstan exponent through the fit; a wrap
+    tried by the form's choice is scored on the held-out circle (``form@wrap``) and, where
+    kept, held through the refit; elsewhere the refit's wrap is free."""
+    rng = np.random.default_rng(13)
+    circles = circle_path((25 * DEG, 45 * DEG, 65 * DEG), step=10 * DEG)
+    pair = PairTransmission(slack=0.5 * DEG, seal_play=1.0 * DEG, tension_play=0.3, coupling=0.0)
+    truth = TendonTransmission(ap=pair, rl=pair, wrap=0.9, friction=0.2)
+    motion = synthetic_catheter(truth, rng, circles, 0.05 * DEG)
+    held = identify_transmission([motion], degree=3, max_nfev=6, wrap_range=(0.45, 0.45))
+    assert held.model.wrap == pytest.approx(0.45, abs=1e-6)
+    with pytest.raises(ConfigurationError, match="wrap_range"):
+        identify_transmission([motion], degree=3, wrap_range=(0.6, 0.3))
+    middle = circle_blocks(circles) == 2
+    fit = identify_transmission_form(
+        [motion],
+        [middle],
+        forms=("added",),
+        extensions=(),
+        wraps=(0.0,),
+        degree=3,
+        train_nfev=8,
+        refit_nfev=3,
+    )
+    scores = dict(fit.held_out_rms)
+    assert set(scores) == {"added", "added@0"}
+    kept = scores["added@0"] < scores["added"] * (1.0 - FORM_MARGIN)
+    assert (fit.model.wrap < 1e-6) == kept

@@ -42,6 +42,7 @@ from icenav.compensation.transmission import (
     TendonTransmission,
     TransmissionCalibration,
     TransmissionFit,
+    g_plus,
 )
 from icenav.errors import ConfigurationError, ShapeError
 from icenav.geometry.kinematics import DEFAULT_GEOMETRY, CatheterGeometry
@@ -53,6 +54,7 @@ __all__ = [
     "KNOB_CIRCLES",
     "FORM_MARGIN",
     "TRIED_EXTENSIONS",
+    "TRIED_WRAPS",
     "build_transmission",
     "circle_blocks",
     "circle_path",
@@ -267,6 +269,7 @@ def identify_transmission(
     coupling_form: str | None = None,
     extension: str | None = None,
     masks: Sequence[ArrayLike] | None = None,
+    wrap_range: tuple[float, float] | None = None,
 ) -> TransmissionFit:
     """Identify a :class:`TendonTransmission` from commanded motions and the tracked tip.
 
@@ -304,6 +307,9 @@ def identify_transmission(
     masks : sequence of bool arrays (n_i,), optional
         Per motion, the samples that may enter the residual (e.g. a held-out part left out);
         every motion is still simulated whole.
+    wrap_range : (float, float), optional
+        Bounds of the straight catheter's capstan exponent ``wrap`` (default [0, 5]); equal
+        bounds hold it fixed (a profile of the fit along the wrap).
     """
     if not motions or not all(isinstance(m, CalibrationMotion) for m in motions):
         raise ConfigurationError("motions must be a non-empty sequence of CalibrationMotion")
@@ -343,6 +349,13 @@ def identify_transmission(
     hi = np.array(
         [_MAX_PLAY, _MAX_PLAY, b, b, _MAX_PLAY, _MAX_PLAY, b, b, 5.0, 3.0] + list(_EXTRA_HIGH[ext])
     )
+    if wrap_range is not None:
+        w_lo, w_hi = (float(v) for v in wrap_range)
+        if not (0.0 <= w_lo <= w_hi <= 5.0):
+            raise ConfigurationError(
+                f"wrap_range must satisfy 0 <= lo <= hi <= 5 (dimensionless), got {wrap_range}"
+            )
+        lo[8], hi[8] = w_lo, max(w_hi, w_lo + 1e-9)
     x0 = np.clip(np.concatenate([init.to_vector(), x_extra]), lo, hi - 1e-9)
     step = init.max_substep
     count = [0]
@@ -417,6 +430,12 @@ FORM_MARGIN = 0.02
 stretch form, TR3s, then each extension of the tension form kept) only where its held-out
 residual is this fraction below the best so far: a tie keeps the simpler form."""
 
+TRIED_WRAPS: tuple[float, ...] = ()
+"""The capstan exponents ``wrap`` (mu times the straight shaft's total wrap angle) at which
+:func:`identify_transmission_form` holds the kept tension form by default: none (holding it
+at 0.3 / 0.6, a friction coefficient of about 0.1 over 3-6 rad of the shaft's path, was tried
+and not adopted: docs/calibration.md section 4c)."""
+
 TRIED_EXTENSIONS = ("bend-tension", "two-play")
 """The extensions :func:`identify_transmission_form` tries by default on the tension form it
 keeps (:data:`~icenav.compensation.transmission.EXTENSIONS`)."""
@@ -431,6 +450,7 @@ def identify_transmission_form(
     train_nfev: int = 20,
     extension_nfev: int = 12,
     refit_nfev: int = 20,
+    wraps: Sequence[float] | None = None,
     **identify_kwargs: Any,
 ) -> TransmissionFit:
     """Choose the transmission's form by held-out residual, then fit it on all the data.
@@ -448,6 +468,14 @@ def identify_transmission_form(
     of `default` the added form's residual is 3.05 / 3.01 deg after 15 / 30 evaluations and
     does not fall further). The returned fit's ``held_out_rms`` lists each form's held-out
     residual (rad), named as :attr:`TendonTransmission.form`.
+
+    Between the tension form and its extensions, the straight catheter's capstan exponent
+    ``wrap`` may be held at each of ``wraps`` (default :data:`TRIED_WRAPS`, none) in turn: the
+    kept form refitted without the held-out samples from its training solution with the band's
+    width kept at a 45-deg bend (the wrap, the band's growth with bend and with tension
+    multiply in TR4), and scored the same way; a held wrap is kept only if
+    :data:`FORM_MARGIN` lower, and then stays held through the extensions and the refit
+    (named ``form@wrap``, e.g. ``"stretch@0.6"``).
     """
     if len(held_out) != len(motions):
         raise ShapeError(f"held_out must have one array per motion ({len(motions)})")
@@ -482,7 +510,26 @@ def identify_transmission_form(
         if not scores[:-1] or v < best * (1.0 - FORM_MARGIN):
             best_form, best = form, v
     base = fits[best_form].model
-    ext_kwargs = {k: v for k, v in kwargs.items() if k != "initial"}
+    ext_kwargs = {k: v for k, v in kwargs.items() if k not in ("initial", "wrap_range")}
+    held: tuple[float, float] | None = None
+    for w in TRIED_WRAPS if wraps is None else wraps:
+        fit = identify_transmission(
+            motions,
+            initial=_with_wrap(base, float(w)),
+            extension="none",
+            masks=train,
+            max_nfev=int(train_nfev),
+            wrap_range=(float(w), float(w)),
+            **ext_kwargs,
+        )
+        name = f"{base.form}@{float(w):g}"
+        fits[name] = fit
+        v = _held_out_rms(fit, motions, test, limit)
+        scores.append((name, v))
+        if v < best * (1.0 - FORM_MARGIN):
+            best_form, best, held = name, v, (float(w), float(w))
+    base = fits[best_form].model
+    suffix = "" if held is None else f"@{held[0]:g}"
     for ext in extensions:
         fit = identify_transmission(
             motions,
@@ -490,17 +537,39 @@ def identify_transmission_form(
             extension=ext,
             masks=train,
             max_nfev=int(extension_nfev),
+            wrap_range=held,
             **ext_kwargs,
         )
-        fits[fit.model.form] = fit
+        name = fit.model.form + suffix
+        fits[name] = fit
         v = _held_out_rms(fit, motions, test, limit)
-        scores.append((fit.model.form, v))
+        scores.append((name, v))
         if v < best * (1.0 - FORM_MARGIN):
-            best_form, best = fit.model.form, v
+            best_form, best = name, v
     kwargs.pop("initial", None)
     kwargs["max_nfev"] = int(refit_nfev)
+    if held is not None:
+        kwargs["wrap_range"] = held
     final = identify_transmission(motions, initial=fits[best_form].model, **kwargs)
     return replace(final, held_out_rms=tuple(scores))
+
+
+_WRAP_BEND = math.radians(45.0)
+"""The bend (rad) at which :func:`_with_wrap` keeps the band's width."""
+
+
+def _with_wrap(model: TendonTransmission, wrap: float) -> TendonTransmission:
+    """``model`` with its capstan exponent ``wrap`` set and each pair's band growth kappa
+    rescaled so that kappa g+(wrap + mu b) is unchanged at b = 45 deg (TR2, TR4): a start
+    whose band is the fitted one, the split between wrap and growth moved."""
+    old = g_plus(model.wrap + model.friction * _WRAP_BEND)
+    new = g_plus(wrap + model.friction * _WRAP_BEND)
+    r = old / new if new > 0.0 else 1.0
+
+    def pair(p: PairTransmission) -> PairTransmission:
+        return replace(p, tension_play=min(p.tension_play * r, 1.0))
+
+    return replace(model, wrap=wrap, ap=pair(model.ap), rl=pair(model.rl))
 
 
 def _held_out_rms(
