@@ -360,47 +360,8 @@ class TendonTransmission:
         math (hot loop)."""
         if self.extension == "two-play":
             return self._step_two(d, x_from, x_to)
-        a0, b0 = float(x_from[0]), float(x_from[1])
-        a1, b1 = float(x_to[0]), float(x_to[1])
-        n = max(1, math.ceil(max(abs(a1 - a0), abs(b1 - b0)) / self.max_substep))
-        dA, dB, dC, dD = (float(t) for t in d)
-        ap, rl = self.ap, self.rl
-        s1, w1, k1, c1 = ap.slack, ap.seal_play, ap.tension_play, ap.coupling
-        s2, w2, k2, c2 = rl.slack, rl.seal_play, rl.tension_play, rl.coupling
-        wrap, mu, eta = self.wrap, self.friction, self.bend_tension
-        stretch = self.coupling_form == "stretch"
-        for i in range(1, n + 1):
-            f = i / n
-            x1 = a0 + f * (a1 - a0)
-            x2 = b0 + f * (b1 - b0)
-            z1 = (dA if dA > 0.0 else 0.0) - (dB if dB > 0.0 else 0.0)
-            z2 = (dC if dC > 0.0 else 0.0) - (dD if dD > 0.0 else 0.0)
-            bend = math.hypot(z1, z2)
-            e = wrap + mu * bend  # (TR2) capstan exponent
-            gp, gm = g_plus(e), g_minus(e)
-            # tensions (rad of pull): own pull and the other pair's bend (signed coupling)
-            cz1, cz2 = c1 * z2, c2 * z1
-            if stretch:  # (TR3s)
-                tA, tB = max(dA + cz1, 0.0), max(dB - cz1, 0.0)
-                tC, tD = max(dC + cz2, 0.0), max(dD - cz2, 0.0)
-            else:  # (TR3)
-                tA = (dA if dA > 0.0 else 0.0) + (cz1 if cz1 > 0.0 else 0.0)
-                tB = (dB if dB > 0.0 else 0.0) + (-cz1 if cz1 < 0.0 else 0.0)
-                tC = (dC if dC > 0.0 else 0.0) + (cz2 if cz2 > 0.0 else 0.0)
-                tD = (dD if dD > 0.0 else 0.0) + (-cz2 if cz2 < 0.0 else 0.0)
-            if eta > 0.0:  # (TR3b)
-                tb = eta * bend
-                tA, tB, tC, tD = tA + tb, tB + tb, tC + tb, tD + tb
-            # (TR1), (TR4): each distal pull sticks inside its friction band
-            p = x1 - s1
-            dA = min(max(dA, p - w1 - k1 * tA * gp), p + w1 + k1 * tA * gm)
-            p = -x1 - s1
-            dB = min(max(dB, p - w1 - k1 * tB * gp), p + w1 + k1 * tB * gm)
-            p = x2 - s2
-            dC = min(max(dC, p - w2 - k2 * tC * gp), p + w2 + k2 * tC * gm)
-            p = -x2 - s2
-            dD = min(max(dD, p - w2 - k2 * tD * gp), p + w2 + k2 * tD * gm)
-        return [dA, dB, dC, dD]
+        row = [float(x_to[0]), float(x_to[1])]
+        return self._run_one([row], d, [float(x_from[0]), float(x_from[1])])[1]
 
     def _step_two(
         self, d: Sequence[float], x_from: Sequence[float], x_to: Sequence[float]
@@ -469,7 +430,7 @@ class TendonTransmission:
         d = self.relaxed_state(start).tolist()
         prev = [float(start[0]), float(start[1])]
         if self.state_size == 4:
-            return np.array(self._simulate_one(x.tolist(), d, prev))
+            return np.array(self._run_one(x.tolist(), d, prev)[0])
         out = np.empty((x.shape[0], 2))
         for k, row in enumerate(x.tolist()):
             d = self.step(d, prev, row)
@@ -477,12 +438,14 @@ class TendonTransmission:
             out[k] = self.effective(d)
         return out
 
-    def _simulate_one(
-        self, rows: list[list[float]], d: list[float], prev: list[float]
-    ) -> list[tuple[float, float]]:
-        """:meth:`step` along every row of ``rows`` (n, 2) from state ``d`` (4,) at ``prev``
-        (2,), with the effective knobs after each row: the same arithmetic in one loop,
-        the parameters read once (the identification's hot loop)."""
+    def _run_one(
+        self, rows: list[list[float]], d: Sequence[float], prev: list[float]
+    ) -> tuple[list[tuple[float, float]], list[float]]:
+        """The one-element transmission (state (4,)) driven along every row of ``rows``
+        (n, 2) from state ``d`` at ``prev`` (2,), each row a straight knob line in substeps of
+        at most ``max_substep``: the effective knobs after each row (n, 2) and the final
+        state (4,). One loop with the parameters read once: :meth:`step` (one row) and
+        :meth:`simulate` (the identification's hot loop) both run it."""
         dA, dB, dC, dD = (float(t) for t in d)
         ap, rl = self.ap, self.rl
         s1, w1, k1, c1 = ap.slack, ap.seal_play, ap.tension_play, ap.coupling
@@ -504,11 +467,12 @@ class TendonTransmission:
                 z1 = (dA if dA > 0.0 else 0.0) - (dB if dB > 0.0 else 0.0)
                 z2 = (dC if dC > 0.0 else 0.0) - (dD if dD > 0.0 else 0.0)
                 bend = math.hypot(z1, z2)
-                e = wrap + mu * bend  # (TR2)
+                e = wrap + mu * bend  # (TR2) capstan exponent
                 if e < 1e-6:  # g_plus, g_minus inlined
                     gp = gm = 0.5 * e
                 else:
                     gp, gm = expm1(e) / e - 1.0, 1.0 + expm1(-e) / e
+                # tensions (rad of pull): own pull and the other pair's bend (signed coupling)
                 cz1, cz2 = c1 * z2, c2 * z1
                 if stretch:  # (TR3s)
                     tA, tB = max(dA + cz1, 0.0), max(dB - cz1, 0.0)
@@ -521,7 +485,8 @@ class TendonTransmission:
                 if eta > 0.0:  # (TR3b)
                     tb = eta * bend
                     tA, tB, tC, tD = tA + tb, tB + tb, tC + tb, tD + tb
-                p = x1 - s1  # (TR1), (TR4)
+                # (TR1), (TR4): each distal pull sticks inside its friction band
+                p = x1 - s1
                 dA = min(max(dA, p - w1 - k1 * tA * gp), p + w1 + k1 * tA * gm)
                 p = -x1 - s1
                 dB = min(max(dB, p - w1 - k1 * tB * gp), p + w1 + k1 * tB * gm)
@@ -530,7 +495,7 @@ class TendonTransmission:
                 p = -x2 - s2
                 dD = min(max(dD, p - w2 - k2 * tD * gp), p + w2 + k2 * tD * gm)
             out.append((max(dA, 0.0) - max(dB, 0.0), max(dC, 0.0) - max(dD, 0.0)))  # (TR5)
-        return out
+        return out, [dA, dB, dC, dD]
 
 
 # --- observations ----------------------------------------------------------------------------
