@@ -175,9 +175,9 @@ def run_random(
 ) -> HarnessReport:
     """Step ``ctrl`` ``cycles`` times on one thread as fast as it goes, while an e-stopper
     thread e-stops every 0-2 ms (seeded) and a script thread starts short tasks (go to view
-    "a" / "b", or spins) and resets after each e-stop; then a last reset. ``tick`` runs after
-    each cycle (emulated drives); ``expected_faults(text)`` says which cycle exceptions were
-    injected on purpose (a raising adapter / tracker)."""
+    "a" / "b", or spins) and resets after each e-stop; then a last reset, or a Stop if a task
+    still runs. ``tick`` runs after each cycle (emulated drives); ``expected_faults(text)``
+    says which cycle exceptions were injected on purpose (a raising adapter / tracker)."""
     report = HarnessReport()
     deaths = _Deaths()
     logger = logging.getLogger("icenav.control")
@@ -254,17 +254,18 @@ def run_random(
             t.join(timeout=30.0)
         sys.setswitchinterval(switch)
         logger.removeHandler(deaths)
-    # the last reset, with nobody pressing E-STOP: it must take effect
-    final = ctrl.reset_fault() if ctrl.machine.halted else None
+    # the run ends as an operator ends one, with nobody pressing E-STOP: a last reset if the
+    # loop is halted (it must take effect), else Stop for a task the script started just
+    # before the end (it must end it)
+    final = ctrl.reset_fault() if ctrl.machine.halted else ctrl.stop()
     for _ in range(50):
         ctrl.step()
         if tick is not None:
             tick()
-        if final is None or final.finished:
+        if final.finished:
             break
-    if final is not None:
-        result = final.final(timeout=5.0)
-        _count(report, final, result.outcome, result.reason)
+    result = final.final(timeout=5.0)
+    _count(report, final, result.outcome, result.reason)
     report.final_mode = ctrl.machine.mode.value
     report.injected_faults = sum(1 for t in deaths.texts if expected_faults(t))
     report.deaths = len(deaths.texts) - report.injected_faults
