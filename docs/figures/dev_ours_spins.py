@@ -138,7 +138,9 @@ def one(
         "spins": {},
     }
     # records written before the model's extensions have no extension fields in its repr
-    plain = str(fit.model).replace(NEUTRAL, "") if fit.model.extension == "none" else None
+    # and records written before the circle residual have no residual field
+    out["model"] = out["model"].replace(", residual=None", "")
+    plain = out["model"].replace(NEUTRAL, "") if fit.model.extension == "none" else None
     if before is not None and before.get("model") in (out["model"], plain):
         # the same model as the record before: the spins are deterministic, so they are its
         out["spins"] = before["spins"]
@@ -167,7 +169,21 @@ def main() -> None:
     )
     ap.add_argument("--wrap-profile", help="comma-separated wraps: profile the fit, no spins")
     ap.add_argument("--wraps", help="comma-separated wraps the form's choice tries (default none)")
+    ap.add_argument(
+        "--no-residual", action="store_true", help="do not try the circle residual (before)"
+    )
+    ap.add_argument("--max-gain", type=float, help="the bound of kappa and gamma (default 1)")
     args = ap.parse_args()
+    if args.no_residual:
+        tr.TRIED_RESIDUAL = False
+    if args.max_gain is not None:
+        plain_identify, gain = tr.identify_transmission, args.max_gain
+
+        def identify(*a: Any, **k: Any) -> Any:
+            k.setdefault("max_gain", gain)
+            return plain_identify(*a, **k)
+
+        tr.identify_transmission = identify
     if args.wraps:
         tr.TRIED_WRAPS = tuple(float(w) for w in args.wraps.split(","))
     before: dict[str, Any] = {}

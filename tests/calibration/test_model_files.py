@@ -27,6 +27,7 @@ from icenav.calibration.model_files import (
 from icenav.compensation.bend_play import BendPlay, KnobPlanePlay
 from icenav.compensation.elasticity import BuildReport, ElasticityMap
 from icenav.compensation.hysteresis import HysteresisCompensator, JointHysteresis
+from icenav.compensation.knob_residual import KnobResidual
 from icenav.compensation.tendon_map import TendonKnobMap
 from icenav.compensation.tracker_bias import TrackerBias
 from icenav.compensation.transmission import (
@@ -38,6 +39,7 @@ from icenav.compensation.transmission import (
 )
 from icenav.errors import ConfigurationError, FileFormatError, UnsupportedVersionError
 from icenav.geometry.kinematics import DEFAULT_GEOMETRY, CatheterGeometry
+from tests.support.transmission import wave_residual
 
 ROUNDING = 1e-12
 """rad, mm: how far the loaded compensation may differ from the fitted one. The tables of F
@@ -379,3 +381,23 @@ def test_a_models_extension_comes_back_and_old_files_have_none(
         del doc["transmission"]["fit"]["model"][key]
     old = decode_model("dense+hysteresis", doc, "x.json").transmission.fit
     assert old.model.extension == "none" and old.model.second_weight == 0.0
+
+
+def test_a_models_circle_residual_comes_back_and_old_files_have_none(
+    twin_catheter_calibration: CatheterCalibration,
+) -> None:
+    cat = twin_catheter_calibration
+    t0 = cat.transmission
+    model = dataclasses.replace(t0.fit.model, residual=wave_residual())
+    fit = dataclasses.replace(t0.fit, model=model)
+    res = dataclasses.replace(cat, transmission=dataclasses.replace(t0, fit=fit))
+    doc = json.loads(json.dumps(encode_model("dense+hysteresis", res)))
+    assert set(doc["transmission"]["fit"]["model"]["residual"]) == _init_fields(KnobResidual)
+    back = decode_model("dense+hysteresis", doc, "x.json").transmission.fit
+    assert back.model == model and back.model.form.endswith("+residual")
+    del doc["transmission"]["fit"]["model"]["residual"]
+    old = decode_model("dense+hysteresis", doc, "x.json").transmission.fit
+    assert old.model.residual is None
+    doc["transmission"]["fit"]["model"]["residual"] = {"radii": [0.5], "harmonics": 0}
+    with pytest.raises(FileFormatError, match="coefficients"):
+        decode_model("dense+hysteresis", doc, "x.json")

@@ -8,6 +8,7 @@ import math
 import numpy as np
 
 from icenav.calibration.transmission import CalibrationMotion
+from icenav.compensation.knob_residual import KnobResidual
 from icenav.compensation.transmission import PairTransmission, TendonTransmission
 from icenav.geometry.kinematics import forward
 
@@ -73,3 +74,21 @@ class SyntheticCatheter:
 
     def measure_tip2base(self, n_average: int = 1) -> np.ndarray:
         return self.pose.copy()
+
+
+def wave_residual(
+    amplitude: float = 3.0 * DEG,
+    radii: tuple[float, ...] = (30 * DEG, 60 * DEG),
+    grow: bool = True,
+) -> KnobResidual:
+    """A circle residual (KnobResidual, 2 harmonics) whose AP knob lags by a wave over the
+    azimuth that flips with the sense of turning (growing with the radius if ``grow``), and
+    whose RL knob has a static offset: a miss no capstan band makes."""
+    table = np.zeros((len(radii), 2, 5, 2))
+    for c, r in enumerate(radii):
+        g = r / radii[-1] if grow else 1.0
+        for s, sign in enumerate((1.0, -1.0)):
+            table[c, s, 2, 0] = sign * amplitude * g  # AP: sin psi, flips with the sense
+            table[c, s, 3, 0] = 0.5 * amplitude * g  # AP: cos 2 psi, static
+            table[c, s, 0, 1] = 0.3 * amplitude * g  # RL: offset
+    return KnobResidual(radii=radii, harmonics=2, coefficients=tuple(table.ravel()))

@@ -56,6 +56,7 @@ from icenav.compensation.elasticity import (
     table_nodes,
 )
 from icenav.compensation.hysteresis import HysteresisCompensator, JointHysteresis
+from icenav.compensation.knob_residual import KnobResidual
 from icenav.compensation.section_length import SectionLength
 from icenav.compensation.tracker_bias import TrackerBias
 from icenav.compensation.transmission import (
@@ -455,7 +456,21 @@ def _decode_bias(r: _Field) -> TrackerBias:
 
 
 def _encode_tendons(t: TendonTransmission) -> dict[str, Any]:
-    return _data(t, ap=_data(t.ap), rl=_data(t.rl))
+    r = t.residual
+    res = None if r is None else _data(r, radii=list(r.radii), coefficients=list(r.coefficients))
+    return _data(t, ap=_data(t.ap), rl=_data(t.rl), residual=res)
+
+
+def _decode_residual(r: _Field | None) -> KnobResidual | None:
+    if r is None:
+        return None
+    return r.build(
+        lambda: KnobResidual(
+            radii=r.floats("radii", -1),
+            harmonics=r.integer("harmonics"),
+            coefficients=r.floats("coefficients", -1),
+        )
+    )
 
 
 def _decode_pair(r: _Field) -> PairTransmission:
@@ -485,6 +500,8 @@ def _decode_tendons(r: _Field) -> TendonTransmission:
             bend_tension=r.number("bend_tension") if "bend_tension" in r.doc else 0.0,
             second_weight=r.number("second_weight") if "second_weight" in r.doc else 0.0,
             second_width=r.number("second_width") if "second_width" in r.doc else 1.0,
+            # files written before the circle residual hold none
+            residual=_decode_residual(r.optional("residual")) if "residual" in r.doc else None,
         )
     )
 

@@ -28,6 +28,7 @@ from scipy.optimize import least_squares
 
 from icenav._typing import Array
 from icenav._validation import check_finite
+from icenav.calibration.knob_residual import circle_residual
 from icenav.calibration.plans import MotionPlan, Recording
 from icenav.compensation.elasticity import CalibrationSet, ElasticityMap
 from icenav.compensation.hysteresis import HysteresisCompensator
@@ -54,6 +55,7 @@ __all__ = [
     "KNOB_CIRCLES",
     "FORM_MARGIN",
     "TRIED_EXTENSIONS",
+    "TRIED_RESIDUAL",
     "TRIED_WRAPS",
     "build_transmission",
     "circle_blocks",
@@ -441,12 +443,18 @@ TRIED_EXTENSIONS = ("bend-tension", "two-play")
 keeps (:data:`~icenav.compensation.transmission.EXTENSIONS`)."""
 
 
+TRIED_RESIDUAL = True
+"""Whether :func:`identify_transmission_form` tries the circle residual (KR1-KR3 of
+:mod:`icenav.compensation.knob_residual`) on the form it keeps."""
+
+
 def identify_transmission_form(
     motions: Sequence[CalibrationMotion],
     held_out: Sequence[ArrayLike],
     *,
     forms: Sequence[str] = COUPLING_FORMS,
     extensions: Sequence[str] = TRIED_EXTENSIONS,
+    residual: bool | None = None,
     train_nfev: int = 20,
     extension_nfev: int = 12,
     refit_nfev: int = 20,
@@ -476,6 +484,13 @@ def identify_transmission_form(
     multiply in TR4), and scored the same way; a held wrap is kept only if
     :data:`FORM_MARGIN` lower, and then stays held through the extensions and the refit
     (named ``form@wrap``, e.g. ``"stretch@0.6"``).
+
+    Last, with ``residual`` (default :data:`TRIED_RESIDUAL`) and the held-out samples in one
+    motion of knob circles (:func:`circle_blocks`): the table of the kept form's miss on the
+    other circles (:func:`~icenav.calibration.knob_residual.circle_residual`), interpolated
+    in radius, is added to its effective knobs and scored on the held-out circle; kept only
+    if :data:`FORM_MARGIN` lower, and then refitted on every circle with the final model
+    (named ``form+residual``).
     """
     if len(held_out) != len(motions):
         raise ShapeError(f"held_out must have one array per motion ({len(motions)})")
@@ -546,11 +561,39 @@ def identify_transmission_form(
         scores.append((name, v))
         if v < best * (1.0 - FORM_MARGIN):
             best_form, best = name, v
+    table_from = None  # (motion index, circle labels) of the circle residual, if kept
+    circ = [i for i, t in enumerate(test) if np.any(t)]
+    if (TRIED_RESIDUAL if residual is None else residual) and len(circ) == 1:
+        m = motions[circ[0]]
+        blocks = circle_blocks(m.q_motor)
+        outer = sorted(set(range(1, int(blocks.max()) + 1)) - set(blocks[test[circ[0]]].tolist()))
+        inside = np.max(np.abs(m.q_motor[:, :2]), axis=1) <= limit + 1e-9
+        try:
+            table = circle_residual(
+                fits[best_form], m.q_motor, m.observed, blocks, outer,
+                q_start=m.q_start[:2], keep=train[circ[0]] & inside,
+            )  # fmt: skip
+        except ConfigurationError:
+            table = None  # too few settled samples on a circle: not tried
+        if table is not None:
+            fit = fits[best_form]
+            fit = replace(fit, model=replace(fit.model, residual=table))
+            v = _held_out_rms(fit, motions, test, limit)
+            scores.append((fit.model.form + suffix, v))
+            if v < best * (1.0 - FORM_MARGIN):
+                table_from = (circ[0], list(range(1, int(blocks.max()) + 1)), inside, blocks)
     kwargs.pop("initial", None)
     kwargs["max_nfev"] = int(refit_nfev)
     if held is not None:
         kwargs["wrap_range"] = held
     final = identify_transmission(motions, initial=fits[best_form].model, **kwargs)
+    if table_from is not None:
+        i, every, inside, blocks = table_from
+        m = motions[i]
+        table = circle_residual(
+            final, m.q_motor, m.observed, blocks, every, q_start=m.q_start[:2], keep=inside
+        )
+        final = replace(final, model=replace(final.model, residual=table))
     return replace(final, held_out_rms=tuple(scores))
 
 
@@ -670,7 +713,8 @@ def build_transmission(
         )
     else:
         fit = identify_transmission(motions, **identify_kwargs)
-    eff = fit.model.simulate(path, x_start=[0.0, 0.0])
+    # the raster is labelled by the band alone: a circle residual is the circles' (KR3)
+    eff = replace(fit.model, residual=None).simulate(path, x_start=[0.0, 0.0])
     q_eff = np.zeros((keep.size, 4))
     q_eff[:, :2] = eff[keep]
     poses = [dense.tip2base]

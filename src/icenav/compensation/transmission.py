@@ -79,6 +79,7 @@ from icenav._typing import Array
 from icenav._validation import check_finite
 from icenav.compensation.elasticity import ElasticityMap
 from icenav.compensation.hysteresis import HysteresisCompensator
+from icenav.compensation.knob_residual import KnobResidual, update_sense
 from icenav.compensation.section_length import SectionLength
 from icenav.errors import ConfigurationError, ShapeError
 from icenav.geometry.kinematics import DEFAULT_GEOMETRY
@@ -204,8 +205,16 @@ class TendonTransmission:
     only)."""
     second_width: float = 1.0
     """rho (TR4b): the second element's band over the first's ([0, 5])."""
+    residual: KnobResidual | None = None
+    """The effective knobs' residual along knob circles by sense of turning (KR1-KR3 of
+    :mod:`icenav.compensation.knob_residual`), added to the band's effective knobs; None: the
+    band alone. Its sense of turning is the last element of the state."""
 
     def __post_init__(self) -> None:
+        if self.residual is not None and not isinstance(self.residual, KnobResidual):
+            raise ConfigurationError(
+                f"residual must be a KnobResidual or None, got {type(self.residual).__name__}"
+            )
         if self.coupling_form not in COUPLING_FORMS:
             raise ConfigurationError(
                 f"coupling_form must be one of {COUPLING_FORMS}, got {self.coupling_form!r}"
@@ -238,12 +247,14 @@ class TendonTransmission:
 
     @property
     def form(self) -> str:
-        """The model's form: the tension form, and ``+extension`` unless ``"none"``."""
-        return (
+        """The model's form: the tension form, ``+extension`` unless ``"none"``, and
+        ``+residual`` with a circle residual."""
+        name = (
             self.coupling_form
             if self.extension == "none"
             else f"{self.coupling_form}+{self.extension}"
         )
+        return name if self.residual is None else f"{name}+residual"
 
     @property
     def extra_names(self) -> tuple[str, ...]:
@@ -339,6 +350,11 @@ class TendonTransmission:
     def state_size(self) -> int:
         """Length of the tendon state: 4 distal pulls (A, B, C, D), or 8 with ``"two-play"``
         (each tendon's two elements, d' then d'')."""
+        return self._band_size + (0 if self.residual is None else 1)
+
+    @property
+    def _band_size(self) -> int:
+        """The band's part of the state: 4 distal pulls, or 8 with ``"two-play"``."""
         return 8 if self.extension == "two-play" else 4
 
     def relaxed_state(self, x: ArrayLike = (0.0, 0.0)) -> Array:
@@ -349,7 +365,8 @@ class TendonTransmission:
             raise ShapeError(f"x must have 2 knob angles, got {xx.size}")
         s1, s2 = self.ap.slack, self.rl.slack
         d = np.array([xx[0] - s1, -xx[0] - s1, xx[1] - s2, -xx[1] - s2])
-        return np.concatenate([d, d]) if self.state_size == 8 else d
+        d = np.concatenate([d, d]) if self._band_size == 8 else d
+        return d if self.residual is None else np.append(d, 0.0)  # the sense: never turned
 
     def step(
         self, d: Sequence[float], x_from: Sequence[float], x_to: Sequence[float]
@@ -357,7 +374,20 @@ class TendonTransmission:
         """Advance the tendon state ``d`` (:attr:`state_size`,) while the knobs move from
         ``x_from`` to ``x_to`` (2,) along a straight line, in substeps of at most
         ``max_substep``. Returns the new state (a list; the input is not modified). Pure float
-        math (hot loop)."""
+        math (hot loop). With a residual the last element is the sense of turning
+        (:func:`~icenav.compensation.knob_residual.update_sense` of the band's effective
+        knobs before and after)."""
+        if self.residual is not None:
+            band = list(d[: self._band_size])
+            new = self._band_step(band, x_from, x_to)
+            z0, z1 = self._band_effective(band), self._band_effective(new)
+            return [*new, update_sense(float(d[-1]), z0, z1)]
+        return self._band_step(d, x_from, x_to)
+
+    def _band_step(
+        self, d: Sequence[float], x_from: Sequence[float], x_to: Sequence[float]
+    ) -> list[float]:
+        """:meth:`step` of the band alone (state 4 or 8)."""
         if self.extension == "two-play":
             return self._step_two(d, x_from, x_to)
         row = [float(x_to[0]), float(x_to[1])]
@@ -411,7 +441,16 @@ class TendonTransmission:
         return [eA, eB, eC, eD, fA, fB, fC, fD]
 
     def effective(self, d: Sequence[float]) -> tuple[float, float]:
-        """Effective knob angles (z1, z2) (rad) of a tendon state d (:attr:`state_size`,)."""
+        """Effective knob angles (z1, z2) (rad) of a tendon state d (:attr:`state_size`,):
+        the band's (TR5), plus the residual (KR3) if the model has one."""
+        if self.residual is None:
+            return self._band_effective(d)
+        z1, z2 = self._band_effective(d[: self._band_size])
+        e1, e2 = self.residual.delta(z1, z2, float(d[-1]))
+        return z1 + e1, z2 + e2
+
+    def _band_effective(self, d: Sequence[float]) -> tuple[float, float]:
+        """(TR5) of the band's state (4 or 8)."""
         if len(d) == 8:
             a = self.second_weight
             dA, dB, dC, dD = ((1.0 - a) * d[k] + a * d[k + 4] for k in range(4))  # (TR4c)
@@ -427,16 +466,21 @@ class TendonTransmission:
             raise ShapeError(f"x_path must have shape (n, 2) or (n, 4), got {x.shape}")
         x = x[:, :2]
         start = x[0] if x_start is None else check_finite(x_start, "x_start", "rad").ravel()[:2]
-        d = self.relaxed_state(start).tolist()
+        band = replace(self, residual=None)
+        d = band.relaxed_state(start).tolist()
         prev = [float(start[0]), float(start[1])]
-        if self.state_size == 4:
-            return np.array(self._run_one(x.tolist(), d, prev)[0])
-        out = np.empty((x.shape[0], 2))
-        for k, row in enumerate(x.tolist()):
-            d = self.step(d, prev, row)
-            prev = row
-            out[k] = self.effective(d)
-        return out
+        if band.state_size == 4:
+            out = np.array(band._run_one(x.tolist(), d, prev)[0])
+        else:
+            out = np.empty((x.shape[0], 2))
+            for k, row in enumerate(x.tolist()):
+                d = band.step(d, prev, row)
+                prev = row
+                out[k] = band.effective(d)
+        if self.residual is None:
+            return out
+        z0 = band.effective(band.relaxed_state(start).tolist())
+        return out + self.residual.along(out, 0.0, z0)  # (KR3)
 
     def _run_one(
         self, rows: list[list[float]], d: Sequence[float], prev: list[float]
