@@ -488,7 +488,8 @@ def identify_transmission_form(
     Last, with ``residual`` (default :data:`TRIED_RESIDUAL`) and the held-out samples in one
     motion of knob circles (:func:`circle_blocks`): the table of the kept form's miss on the
     other circles (:func:`~icenav.calibration.knob_residual.circle_residual`), interpolated
-    in radius, is added to its effective knobs and scored on the held-out circle; kept only
+    in radius, is added to its effective knobs and scored on the held-out circle (not where
+    the kept form has the ``"two-play"`` extension: docs/calibration.md, 4c); kept only
     if :data:`FORM_MARGIN` lower, and then refitted on every circle with the final model
     (named ``form+residual``).
     """
@@ -563,7 +564,8 @@ def identify_transmission_form(
             best_form, best = name, v
     table_from = None  # (motion index, circle labels) of the circle residual, if kept
     circ = [i for i, t in enumerate(test) if np.any(t)]
-    if (TRIED_RESIDUAL if residual is None else residual) and len(circ) == 1:
+    two_play = fits[best_form].model.extension == "two-play"  # a fitted shape: not tried
+    if (TRIED_RESIDUAL if residual is None else residual) and len(circ) == 1 and not two_play:
         m = motions[circ[0]]
         blocks = circle_blocks(m.q_motor)
         outer = sorted(set(range(1, int(blocks.max()) + 1)) - set(blocks[test[circ[0]]].tolist()))
