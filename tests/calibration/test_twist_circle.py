@@ -8,10 +8,12 @@ from typing import Any
 import numpy as np
 import pytest
 
-from icenav.calibration.hysteresis import fit_hysteresis, hysteresis_plan
+from icenav.calibration.hysteresis import _circle_law, fit_hysteresis, hysteresis_plan
+from icenav.calibration.plans import MotionPlan, Recording
 from icenav.calibration.procedure import run_visits
 from icenav.calibration.procedures import plan_visits
 from icenav.calibration.twist_circle import (
+    AGREEMENT,
     CIRCLE_KNOB,
     CIRCLE_LEAD,
     CIRCLE_STEP,
@@ -123,3 +125,28 @@ def test_the_full_plan_s_twist_law_is_read_off_the_circle_over_the_whole_plane()
     # a plan without it keeps the 180-deg law of the sweeps
     assert not hysteresis_plan(joints=(2,)).spin_circle
     assert not hysteresis_plan(joints=(0, 1), spin_circle=True).spin_circle
+
+
+def test_the_sweeps_law_is_kept_where_it_predicts_the_circle_and_replaced_where_not() -> None:
+    """(TC3): the circle is held out from the sweeps' law; a law that predicts its readings
+    within AGREEMENT RMS is kept as it is, one 1.5x too wide (here 4-6 deg) is replaced by
+    the circle's 360-deg law through the readings (default twin 213, the image frame's
+    whole play: no roll law)."""
+    path, poses, _, _ = _drive("default", 213)
+    rec = Recording(
+        plan=MotionPlan.make(path, SPIN_CIRCLE, n_average=1, retries=0),
+        tip2base=poses,
+        attempts=np.ones(path.shape[0], dtype=np.int64),
+    )
+    circle = _circle_law(None, None, 0.0, rec)
+    assert isinstance(circle, KnobPlanePlay) and circle.period == 2 * math.pi
+    assert _circle_law(circle, None, 0.0, rec) is circle
+    wide = KnobPlanePlay(
+        circle.directions, tuple(x.scaled(1.5) for x in circle.laws), period=circle.period
+    )
+    again = _circle_law(wide, None, 0.0, rec)
+    assert again is not wide and isinstance(again, KnobPlanePlay)
+    b = np.radians(np.linspace(20.0, 80.0, 7))
+    for d in circle.directions:
+        np.testing.assert_allclose(again(b, d), circle(b, d), atol=0.5 * DEG)
+    assert pytest.approx(1.0 * DEG) == AGREEMENT

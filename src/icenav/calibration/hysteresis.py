@@ -25,7 +25,12 @@ from scipy.optimize import least_squares
 from icenav._typing import Array
 from icenav._validation import check_finite
 from icenav.calibration.plans import MotionPlan, Recording, _check_counts
-from icenav.calibration.twist_circle import SPIN_CIRCLE, circle_twist_readings, spin_circle_path
+from icenav.calibration.twist_circle import (
+    AGREEMENT,
+    SPIN_CIRCLE,
+    circle_twist_readings,
+    spin_circle_path,
+)
 from icenav.compensation.bend_play import BendPlay, KnobPlanePlay, PlayLaw, select_bend_play
 from icenav.compensation.hysteresis import HysteresisCompensator, JointHysteresis, _play
 from icenav.errors import ConfigurationError
@@ -555,11 +560,19 @@ def _circle_law(
 ) -> PlayLaw | None:
     """The twist's law over the whole knob plane from the spin circle (TC1)-(TC2): in each
     direction read, the AP knob's law (the first of ``twist``) scaled to the reading (B6),
-    period 360 deg; ``twist`` itself where the circle was not read in every direction."""
+    period 360 deg. ``twist`` itself where the circle was not read in every direction, or
+    where ``twist`` (the sweeps' law, which the circle did not fit) predicts its readings
+    within :data:`~icenav.calibration.twist_circle.AGREEMENT` RMS (TC3)."""
     q, poses = recording.part(SPIN_CIRCLE)
     dirs, bends, extra = circle_twist_readings(q, poses, roll, roll_base)
     if not np.all(np.isfinite(extra)):
         return twist
+    if twist is not None:
+        predicted = np.array(
+            [twist.at(float(b), float(d)) for b, d in zip(bends, dirs, strict=True)]
+        )
+        if math.sqrt(float(np.mean((predicted - extra) ** 2))) <= AGREEMENT:  # (TC3)
+            return twist
     ap = twist.laws[0] if isinstance(twist, KnobPlanePlay) else twist
     laws = [
         _direction_law(ap, (float(b), math.nan, float(e)), 2)

@@ -24,11 +24,13 @@ plane) it is the twist's (TC2)::
     h (psi)     = max(w + h (psi) - w(b, psi), 0)                                  (TC2)
 
 so that the image's total lag, which is what a spin's image rotation meets, is the one read
-while turning. What it assumes: the plays are those of a steady turn in each sense (a stop's
-reading after ``lead`` of turning one way), the twist depends on the direction of the bending
-plane over the whole plane (period 360 deg) and on the bend through the AP knob's shape, and
-the roll's play law is right (its error passes into the twist's, so the image's total is
-kept). Nothing in it is a friction law.
+while turning. The circle is held out from the sweeps' law; where that law predicts the
+circle's readings within :data:`AGREEMENT` RMS, it is kept (it has three bends, the circle
+one), else the circle's readings replace it (TC3). What it assumes: the plays are those of
+a steady turn in each sense (a stop's reading after ``lead`` of turning one way), the twist
+depends on the direction of the bending plane over the whole plane (period 360 deg) and on
+the bend through the AP knob's shape, and the roll's play law is right (its error passes
+into the twist's, so the image's total is kept). Nothing in it is a friction law.
 """
 
 from __future__ import annotations
@@ -44,6 +46,7 @@ from icenav.geometry.kinematics import DEFAULT_GEOMETRY, CatheterGeometry
 from icenav.geometry.kinematics import inverse as kin_inverse
 
 __all__ = [
+    "AGREEMENT",
     "CIRCLE_DIRECTIONS",
     "CIRCLE_KNOB",
     "CIRCLE_LEAD",
@@ -69,6 +72,11 @@ plays together are up to about 30 deg at the circle's bend on the development ca
 
 CIRCLE_DIRECTIONS = 12
 """Directions (evenly over 360 deg) at which the twist's play is read off the circle."""
+
+AGREEMENT = math.radians(1.0)
+"""RMS (rad) over the circle's directions within which the sweeps' twist law, which the circle
+did not fit, predicts the circle's readings well enough to be kept (TC3): about the readings'
+own error (1.1 deg RMS against the plant's own play on two families of other forms, tested)."""
 
 
 def spin_circle_path(
