@@ -27,6 +27,12 @@ wraps (not adopted: docs/results.md):
     python docs/figures/dev_ours_spins.py --cache /tmp/rec --wrap-profile 0,0.15,0.3,0.6,1 \
         --json docs/figures/families_dev210-214_s11_wrap_profile.json out-of-tolerance:210 ...
 
+Session 12 (plants11): the spin circle changes the plan, so every catheter is recorded
+anew (its own cache); the before is session 11's frozen records (the methods identical since):
+
+    python docs/figures/dev_ours_spins.py --cache /tmp/rec12 \
+        --json docs/figures/families_dev213-218_s12_circle.json default:213 ...
+
 Each record: the transmission fit's residual (deg), its form and held-out scores, the fit's
 wall time and per bend (EM mm, EM deg, true mm, true deg). Development seeds only. (The
 session-10 records were written by this loop before it kept the held-out scores.)

@@ -309,6 +309,33 @@ def test_plays_over_the_knob_plane_are_version_4_and_a_version_3_file_still_load
     assert np.all(np.isfinite(knob_map.model_to_motor(_random_states(5))))
 
 
+def test_a_twist_law_over_the_whole_knob_plane_keeps_its_period_and_a_file_without_it_is_pi(
+    document: dict[str, Any], tmp_path: Path
+) -> None:
+    """The spin circle's twist law (period 360 deg) is saved with its period and loads with
+    it; a version 4 file written before the period was stored (no key) loads with 180 deg."""
+    doc = copy.deepcopy(document)
+    comp = doc["model"]["hysteresis"]["compensator"]
+    assert comp["twist_play"]["period"] == math.pi
+    laws = comp["twist_play"]["laws"]
+    comp["twist_play"] = {
+        "directions": [k * math.pi / 4 for k in range(8)],
+        "laws": [*laws, *laws[::-1]],
+        "period": 2 * math.pi,
+    }
+    path = tmp_path / "p.json"
+    path.write_text(json.dumps(doc), encoding="utf-8")
+    back = CalibrationFile.load(path)
+    twist = back.model.hysteresis.compensator.twist_play
+    assert isinstance(twist, KnobPlanePlay) and twist.period == 2 * math.pi
+    assert back.to_dict()["model"]["hysteresis"]["compensator"]["twist_play"] == comp["twist_play"]
+    del comp["twist_play"]["period"]
+    comp["twist_play"]["directions"] = [k * math.pi / 8 for k in range(8)]
+    path.write_text(json.dumps(doc), encoding="utf-8")
+    twist = CalibrationFile.load(path).model.hysteresis.compensator.twist_play
+    assert isinstance(twist, KnobPlanePlay) and twist.period == math.pi
+
+
 def test_dense_files_keep_f_and_version_2_files_still_load(
     twin_catheter_calibration: CatheterCalibration, tmp_path: Path
 ) -> None:

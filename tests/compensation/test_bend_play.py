@@ -224,3 +224,24 @@ def test_bad_knob_plane_laws_are_refused(
 ) -> None:
     with pytest.raises(ConfigurationError, match=message):
         KnobPlanePlay(directions, (BendPlay.linear(0.1),) * n_laws)
+
+
+def test_a_knob_plane_law_of_period_360_deg_tells_the_two_senses_of_an_axis_apart() -> None:
+    """Period 2 pi (the spin circle's twist, read over the whole knob plane): psi and psi +
+    180 deg are different directions, each its own law, interpolated (B5) across 360 deg."""
+    laws = _plane().laws
+    dirs = tuple(k * math.pi / 4 for k in range(8))
+    plane = KnobPlanePlay(dirs, (*laws, *(law.scaled(2.0) for law in laws)), period=2 * math.pi)
+    b = np.radians(np.linspace(0.0, 130.0, 27))
+    for d, law in zip(dirs, plane.laws, strict=True):
+        np.testing.assert_allclose(plane(b, d), law(b), atol=1e-15)
+        np.testing.assert_allclose(plane(b, d - 2 * math.pi), law(b), atol=1e-15)
+    np.testing.assert_allclose(plane(b, math.pi), 2.0 * laws[0](b), atol=1e-15)
+    np.testing.assert_allclose(
+        plane(b, math.radians(337.5)), 0.5 * (2.0 * laws[3](b) + laws[0](b)), atol=1e-15
+    )
+    assert "360" in plane.describe() and "360" not in _plane().describe()
+    with pytest.raises(ConfigurationError, match="period"):
+        KnobPlanePlay((0.0,), (laws[0],), period=1.0)
+    with pytest.raises(ConfigurationError, match=r"\[0, 6.2832\)"):
+        KnobPlanePlay((0.0, 2 * math.pi), laws[:2], period=2 * math.pi)

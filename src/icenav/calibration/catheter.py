@@ -3,10 +3,11 @@ one fit (beyond the paper).
 
 :func:`catheter_plan` strings together, from rest at zeros: the paper's dense raster, the
 roll sweeps straight, at three bends and along three further bend directions
-(:func:`icenav.calibration.hysteresis.hysteresis_plan`),
+(:func:`icenav.calibration.hysteresis.hysteresis_plan`, with the spin circle of
+:mod:`icenav.calibration.twist_circle`),
 the roll circles that separate the tracker's field bias
 (:func:`icenav.calibration.tracker_bias.roll_circle_plan`) and the knob circles of the
-per-tendon model (:func:`icenav.calibration.transmission.circle_plan`): 1,206 states.
+per-tendon model (:func:`icenav.calibration.transmission.circle_plan`): 1,199 states.
 :func:`fit_catheter` turns its :class:`~icenav.calibration.plans.Recording` into
 :class:`CatheterCalibration` -- F, the roll's and the twist's plays, the tracker bias and the
 per-tendon transmission. :meth:`CatheterCalibration.knob_map` is the controller's compensation
@@ -25,6 +26,7 @@ from numpy.typing import ArrayLike
 
 from icenav._typing import Array
 from icenav.calibration.hysteresis import (
+    DIRECTION_AMPLITUDE,
     HysteresisIdentification,
     HysteresisPlan,
     fit_hysteresis,
@@ -93,7 +95,7 @@ def catheter_plan(
     per-knob model of :func:`icenav.calibration.hysteresis.hysteresis_plan` with joints 0, 1
     is an ablation's)."""
     raster = raster_grid(raster_step, geometry.knob_limit)
-    hplan = hysteresis_plan(joints=(2,))
+    hplan = hysteresis_plan(joints=(2,), spin_circle=True, direction_amplitude=DIRECTION_AMPLITUDE)
     plan = MotionPlan.concat(
         [
             MotionPlan.make(raster, DENSE_RASTER, n_average=raster_n_average, retries=10),

@@ -25,6 +25,12 @@ from scipy.optimize import least_squares
 from icenav._typing import Array
 from icenav._validation import check_finite
 from icenav.calibration.plans import MotionPlan, Recording, _check_counts
+from icenav.calibration.twist_circle import (
+    AGREEMENT,
+    SPIN_CIRCLE,
+    circle_twist_readings,
+    spin_circle_path,
+)
 from icenav.compensation.bend_play import BendPlay, KnobPlanePlay, PlayLaw, select_bend_play
 from icenav.compensation.hysteresis import HysteresisCompensator, JointHysteresis, _play
 from icenav.errors import ConfigurationError
@@ -35,6 +41,7 @@ __all__ = [
     "HysteresisFit",
     "HysteresisIdentification",
     "HysteresisPlan",
+    "DIRECTION_AMPLITUDE",
     "DIRECTION_STEP",
     "PLAY_DIRECTIONS",
     "fit_hysteresis",
@@ -273,11 +280,21 @@ class HysteresisPlan:
     each at the knob angle ``bend`` (segments ``sweep phi3, bent N deg`` and ``bend check N
     deg``, N the direction in deg): the plays over the knob plane
     (:class:`icenav.compensation.bend_play.KnobPlanePlay`)."""
+    spin_circle: bool = False
+    """Whether the plan holds the spin circle (segment ``spin circle``,
+    :mod:`icenav.calibration.twist_circle`): the twist's play over the whole knob plane."""
 
 
 PLAY_DIRECTIONS = (math.pi / 4, math.pi / 2, 3 * math.pi / 4)
 """The directions of the bend (rad in the knob plane: the diagonal, the RL knob, the
 anti-diagonal) swept besides the AP knob's in the full calibration's plan."""
+
+
+DIRECTION_AMPLITUDE = math.radians(50.0)
+"""Swing of the further directions' roll sweeps in the full calibration's plan (rad): wide
+enough for the roll's play there (its reading's bound 40 deg); the twist's play over the knob
+plane is read off the spin circle instead (:mod:`icenav.calibration.twist_circle`), whose robot
+time this narrower swing pays for (docs/calibration.md section 7)."""
 
 
 DIRECTION_STEP = math.radians(10.0)
@@ -303,6 +320,8 @@ def hysteresis_plan(
     play_directions: Sequence[float] | None = None,
     direction_step: float | None = None,
     bent_step: float | None = None,
+    spin_circle: bool = False,
+    direction_amplitude: float | None = None,
 ) -> HysteresisPlan:
     """The sweeps: each knob of ``joints`` 0 -> +A -> -A -> +A -> 0 (``amplitude``, in
     ``step``) with the others at 0, one tracker sample per step; phi1 again with phi2 at
@@ -317,7 +336,11 @@ def hysteresis_plan(
     the roll is swept once more per direction with the knobs bent ``roll_bend`` along it
     (``phi1, phi2 = roll_bend (cos psi, sin psi)``; in ``direction_step``, default
     ``roll_step``), for the plays over the knob plane. The bent roll sweeps go in
-    ``bent_step`` (default ``roll_step``). The robot starts and ends at zeros
+    ``bent_step`` (default ``roll_step``). With ``spin_circle`` (and the roll among
+    ``joints``), the spin circle of :func:`icenav.calibration.twist_circle.spin_circle_path`
+    follows the roll's sweeps (the twist's play over the whole knob plane, read while
+    turning). The further directions' sweeps swing ``direction_amplitude`` (rad; default
+    that of the AP knob's sweep at ``roll_bend``). The robot starts and ends at zeros
     (unread moves)."""
     _check_counts(retries, 1)
     if not (0.0 <= roll_widening <= 2.0):
@@ -353,6 +376,17 @@ def hysteresis_plan(
 
     def bent_roll_sweep(knob: float, step: float = bstep) -> Array:
         return sweep_path(min(roll_amplitude + roll_widening * knob, math.pi), step)
+
+    if direction_amplitude is not None and not (0.0 < direction_amplitude <= math.pi):
+        raise ConfigurationError(
+            f"direction_amplitude must be in (0, 180] deg, got "
+            f"{math.degrees(direction_amplitude):.1f} deg"
+        )
+    dpath = (
+        bent_roll_sweep(roll_bend, dstep)
+        if direction_amplitude is None
+        else sweep_path(float(direction_amplitude), dstep)
+    )
 
     zero = np.zeros((1, 4))
     parts: list[MotionPlan] = []
@@ -393,11 +427,18 @@ def hysteresis_plan(
                 tag = _direction_tag(psi)
                 parts += [
                     unread(base, "to zero"),
-                    swept(bent_roll_sweep(roll_bend, dstep), 2, base, f"sweep phi3, bent{tag}"),
+                    swept(dpath, 2, base, f"sweep phi3, bent{tag}"),
                     MotionPlan.make(
                         base[None, :], f"bend check{tag}", n_average=5, retries=retries
                     ),
                 ]
+    circle = bool(spin_circle) and 2 in js
+    if circle:
+        path = spin_circle_path()
+        parts += [
+            unread(np.array([path[-1, 0], path[-1, 1], 0.0, 0.0]), "to zero"),
+            MotionPlan.make(path, SPIN_CIRCLE, n_average=1, retries=retries),
+        ]
     parts.append(unread(zero, "to zero"))
     return HysteresisPlan(
         plan=MotionPlan.concat(parts),
@@ -407,6 +448,7 @@ def hysteresis_plan(
         bend=float(roll_bend),
         more_bends=more,
         play_directions=dirs if 2 in js else (),
+        spin_circle=circle,
     )
 
 
@@ -513,6 +555,32 @@ def _knob_plane_law(
     return KnobPlanePlay((0.0, *dirs), tuple(laws))
 
 
+def _circle_law(
+    twist: PlayLaw | None, roll: PlayLaw | None, roll_base: float, recording: Recording
+) -> PlayLaw | None:
+    """The twist's law over the whole knob plane from the spin circle (TC1)-(TC2): in each
+    direction read, the AP knob's law (the first of ``twist``) scaled to the reading (B6),
+    period 360 deg. ``twist`` itself where the circle was not read in every direction, or
+    where ``twist`` (the sweeps' law, which the circle did not fit) predicts its readings
+    within :data:`~icenav.calibration.twist_circle.AGREEMENT` RMS (TC3)."""
+    q, poses = recording.part(SPIN_CIRCLE)
+    dirs, bends, extra = circle_twist_readings(q, poses, roll, roll_base)
+    if not np.all(np.isfinite(extra)):
+        return twist
+    if twist is not None:
+        predicted = np.array(
+            [twist.at(float(b), float(d)) for b, d in zip(bends, dirs, strict=True)]
+        )
+        if math.sqrt(float(np.mean((predicted - extra) ** 2))) <= AGREEMENT:  # (TC3)
+            return twist
+    ap = twist.laws[0] if isinstance(twist, KnobPlanePlay) else twist
+    laws = [
+        _direction_law(ap, (float(b), math.nan, float(e)), 2)
+        for b, e in zip(bends, extra, strict=True)
+    ]
+    return KnobPlanePlay(tuple(float(d) for d in dirs), tuple(laws), period=2.0 * math.pi)
+
+
 def short_hysteresis_plan() -> HysteresisPlan:
     """The short calibration's sweeps (78 moves): the roll only, 0 -> +-30 deg in 5 deg
     steps, straight and with the AP knob at 50 deg (the roll's play and the twist's, as
@@ -610,6 +678,8 @@ def fit_hysteresis(
                 ]
                 roll_play = _knob_plane_law(ap_roll, tagged, dirs, 1)
                 twist_play = _knob_plane_law(ap_twist, tagged, dirs, 2)
+            if hplan.spin_circle:
+                twist_play = _circle_law(twist_play, roll_play, fit.model.backlash, recording)
     return HysteresisIdentification(
         compensator=HysteresisCompensator(
             models,

@@ -320,7 +320,11 @@ def _encode_play(p: PlayLaw | None) -> dict[str, Any] | None:
     """A law of the bend alone as before (version 3); a law over the knob plane (version 4)
     as ``directions`` (rad) and one law of the bend per direction."""
     if isinstance(p, KnobPlanePlay):
-        return {"directions": list(p.directions), "laws": [_encode_bend_play(x) for x in p.laws]}
+        return {
+            "directions": list(p.directions),
+            "laws": [_encode_bend_play(x) for x in p.laws],
+            "period": p.period,  # absent in the files written before it: pi
+        }
     return _encode_bend_play(p)
 
 
@@ -335,7 +339,9 @@ def _decode_play(r: _Field | None) -> PlayLaw | None:
         raise r.error("laws", "must not hold null")
     return r.build(
         lambda: KnobPlanePlay(
-            directions=r.floats("directions", -1), laws=tuple(x for x in laws if x is not None)
+            directions=r.floats("directions", -1),
+            laws=tuple(x for x in laws if x is not None),
+            period=r.number("period") if "period" in r.doc else math.pi,
         )
     )
 

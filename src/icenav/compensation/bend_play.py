@@ -259,23 +259,30 @@ class KnobPlanePlay:
     A bend ``b`` of the section has a direction ``psi`` in the knob plane (``atan2(phi2,
     phi1)``: 0 the AP knob, pi/2 the RL knob). Where a play grows with the *total* tendon
     tension, one bend pulls harder in some directions than in others, so the play is
-    measured in several directions ``psi_i`` (rad, ascending in ``[0, pi)``), each a law of
+    measured in several directions ``psi_i`` (rad, ascending in ``[0, P)``), each a law of
     the bend (:class:`BendPlay`), and interpolated between them linearly and periodically::
 
-        e(b, psi) = (1 - w) e_i(b) + w e_{i+1}(b),   psi mod pi in [psi_i, psi_{i+1}],
-                    w = (psi - psi_i) / (psi_{i+1} - psi_i),  psi_{n} = psi_0 + pi   (B5)
+        e(b, psi) = (1 - w) e_i(b) + w e_{i+1}(b),   psi mod P in [psi_i, psi_{i+1}],
+                    w = (psi - psi_i) / (psi_{i+1} - psi_i),  psi_{n} = psi_0 + P    (B5)
+
+    with the period ``P`` pi (default) or 2 pi.
 
     A convex combination of non-negative laws non-decreasing in the bend is one too, for
-    every direction. What it assumes beyond each law's: the play depends on the axis of the
-    bending plane, not on its sense (period pi: the two tendons of a pair are mirror
-    images), and varies linearly in direction between the directions measured. One
+    every direction. What it assumes beyond each law's: with ``P = pi``, the play depends on
+    the axis of the bending plane, not on its sense (the two tendons of a pair are mirror
+    images); with ``P = 2 pi`` on both; and it varies linearly in direction between the
+    directions measured. One
     direction is a law of the bend alone (:meth:`uniform`).
     """
 
     directions: tuple[float, ...]
-    """Directions measured (rad), ascending in [0, pi)."""
+    """Directions measured (rad), ascending in [0, period)."""
     laws: tuple[BendPlay, ...]
     """The law of the bend in each direction."""
+    period: float = math.pi
+    """Period of the play in the direction (rad): pi (the axis of the bending plane, the
+    default) or 2 pi (the axis *and* its sense: a play read over the whole knob plane, e.g.
+    from the spin circle of :mod:`icenav.calibration.twist_circle`)."""
 
     def __post_init__(self) -> None:
         d = np.asarray(self.directions, dtype=np.float64)
@@ -284,10 +291,14 @@ class KnobPlanePlay:
                 f"need one law per direction (>= 1), got {len(self.directions)} directions and "
                 f"{len(self.laws)} laws"
             )
-        if not np.all(np.isfinite(d)) or np.any(d < 0.0) or np.any(d >= math.pi):
+        if self.period not in (math.pi, 2.0 * math.pi):
             raise ConfigurationError(
-                f"directions must be in [0, {math.pi:.4f}) rad ([0, 180) deg), got "
-                f"{self.directions!r}"
+                f"period must be pi or 2 pi rad (180 or 360 deg), got {self.period!r} rad"
+            )
+        if not np.all(np.isfinite(d)) or np.any(d < 0.0) or np.any(d >= self.period):
+            raise ConfigurationError(
+                f"directions must be in [0, {self.period:.4f}) rad "
+                f"([0, {math.degrees(self.period):.0f}) deg), got {self.directions!r}"
             )
         if np.any(np.diff(d) <= 0.0):
             raise ConfigurationError(f"directions must be ascending, got {self.directions!r}")
@@ -307,10 +318,11 @@ class KnobPlanePlay:
         if len(self.laws) == 1:
             return self.laws[0](b)
         psi = self.directions[0] if direction is None else direction
-        t = np.mod(np.asarray(psi, dtype=np.float64), math.pi)
+        period = self.period
+        t = np.mod(np.asarray(psi, dtype=np.float64), period)
         b, t = np.broadcast_arrays(b, t)
-        knots = np.append(np.asarray(self.directions), self.directions[0] + math.pi)
-        t = np.where(t < knots[0], t + math.pi, t)  # into [psi_0, psi_0 + pi)
+        knots = np.append(np.asarray(self.directions), self.directions[0] + period)
+        t = np.where(t < knots[0], t + period, t)  # into [psi_0, psi_0 + period)
         i = np.clip(np.searchsorted(knots, t, side="right") - 1, 0, len(self.laws) - 1)
         w = (t - knots[i]) / (knots[i + 1] - knots[i])
         values = np.stack([law(b) for law in (*self.laws, self.laws[0])])  # (n + 1, ...)
@@ -327,7 +339,7 @@ class KnobPlanePlay:
         return "; ".join(
             f"{math.degrees(d):.0f} deg: {law.describe()}"
             for d, law in zip(self.directions, self.laws, strict=True)
-        )
+        ) + ("" if self.period == math.pi else " (period 360 deg)")
 
 
 PlayLaw = BendPlay | KnobPlanePlay

@@ -56,7 +56,7 @@ class ControllerConfig:
     plan_settle_s: float = 0.1
     """Wait at each tracked state of a calibration before reading the tracker (s); the
     dense + hysteresis sweeps and circles move 5-6 deg at a time (the whole calibration
-    takes about 9.6 minutes at the controller's pace: ``icenav eval spin --costs``)."""
+    takes about 9.9 minutes at the controller's pace: ``icenav eval spin --costs``)."""
     calibration_ramp_s: float = 0.1
     """Ramp of each calibration move (s): most moves are short (5 rad/s^2 at 0.5 rad/s)."""
     stall_estop_s: float = 1.0
