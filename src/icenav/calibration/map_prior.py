@@ -1,0 +1,312 @@
+"""A prior of a catheter model's elasticity map F, for the short calibration (beyond the
+paper; an explicit option, never a default).
+
+The short calibration (:mod:`icenav.calibration.short`) builds F on the five points and a
+few ring stops: between them a thin-plate interpolant guesses the tip, and on development
+catheters most of its excess over the full calibration is there (docs/calibration.md
+section 7). A lab that owns several catheters of one product line can run the full
+calibration once on a few of them and store the line's *mean tip* over the motor knob
+plane: for each catheter ``j`` the full calibration's interpolant ``P_j`` of its dense raster
+(tip position in the knob frame, mm, its tracker's bias and its section's axial excess
+removed), averaged on a grid of motor knob pairs ``x``::
+
+    Pbar(x) = mean_j  P_j(x)                                                        (M0)
+
+A short calibration of another catheter of the line, with samples ``(x_i, p_i)`` (the five
+points and the ring stops of one sense, as :func:`~icenav.calibration.short.fit_short_rings`
+builds F on), then interpolates only its difference from the line's mean (the same
+thin-plate interpolant ``I[.]`` F uses on sparse samples)::
+
+    P(x) = Pbar(x) + I[p_i - Pbar(x_i)](x)                                          (M1)
+
+Because ``I`` is linear in the values, (M1) is the short calibration's own interpolant plus
+the product line's mean correction of it between the stops,
+``P = I[p_i] + mean_j (P_j - I[P_j(x_i)])``: what the short interpolant of each prior
+catheter missed between the same stops, averaged. With ``scaled`` the line's deviation from
+the model tip ``m(x)`` is first scaled by what the short samples show (least squares over
+the samples, clipped to [0, 2])::
+
+    D(x) = Pbar(x) - m(x),   a = sum_i <p_i - m(x_i), D(x_i)> / sum_i |D(x_i)|^2
+    P(x) = m(x) + a D(x) + I[p_i - m(x_i) - a D(x_i)](x)                           (M2)
+
+F is then built from ``P`` sampled on a grid of motor knobs (:meth:`MapPrior.build_map`:
+the paper's matching of :class:`~icenav.compensation.elasticity.ElasticityMap`, on a
+spline through the grid). What it assumes: the catheters of the line deviate from their
+mean map smoothly enough that the short samples' residual interpolates (the residual, not
+the map, is what ``I`` guesses between the stops). What it does not assume: any form of F
+(the prior is the full calibrations' tables), the new catheter's level (its samples pass
+through (M1) exactly). A catheter of another line gets the line's bends between its stops.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from scipy.interpolate import RBFInterpolator, RectBivariateSpline
+
+from icenav._typing import Array
+from icenav.compensation.elasticity import CalibrationSet, ElasticityMap
+from icenav.errors import ConfigurationError, FileFormatError
+from icenav.geometry.kinematics import DEFAULT_GEOMETRY, CatheterGeometry, forward
+
+__all__ = [
+    "MAP_GRID_STEP",
+    "MapPrior",
+    "TURN_RADIUS_STEP",
+    "TURN_STEP",
+    "make_map_prior",
+    "map_prior_from_dict",
+    "turned_positions",
+]
+
+TURN_STEP = math.radians(5.0)
+"""Angle step (rad) of the turned rings :func:`turned_positions` reads a catheter on."""
+TURN_RADIUS_STEP = math.radians(2.5)
+"""Radius step (rad) of those rings."""
+MAP_GRID_STEP = math.radians(5.0)
+"""Step (rad) of the grid of motor knobs the prior is tabulated on, and of the grid F is
+built from (:meth:`MapPrior.build_map`): half the raster's 10 deg."""
+
+
+def _model_positions(a: Array, b: Array, geometry: CatheterGeometry) -> Array:
+    """Model tip positions (..., 3) (mm, knob frame) at knobs ``a``, ``b`` (rad)."""
+    q = np.zeros((*np.broadcast_shapes(np.shape(a), np.shape(b)), 4))
+    q[..., 0] = a
+    q[..., 1] = b
+    return np.asarray(forward(q, geometry, check=False)[..., :3, 3])
+
+
+def _axis(limit: float, step: float = MAP_GRID_STEP) -> Array:
+    n = int(round(2.0 * limit / step))
+    return np.linspace(-limit, limit, n + 1)
+
+
+@dataclass(frozen=True, eq=False)
+class MapPrior:
+    """(M0) of one product line: the mean tip position over a grid of motor knob pairs."""
+
+    product: str
+    """The catheter model (product line) it describes."""
+    catheters: tuple[str, ...]
+    """The catheters whose full calibrations made it."""
+    knobs: tuple[float, ...]
+    """The grid's knob angles (rad, ascending), the same for phi1 and phi2."""
+    positions: Array
+    """(n, n, 3) the mean tip position (mm, knob frame) at (knobs[i], knobs[j]), the knobs
+    turned counter-clockwise about the knob origin to get there (M0)."""
+    reverse: Array
+    """(n, n, 3) the same, the knobs turned clockwise."""
+    spread_mm: float = math.nan
+    """The catheters' RMS distance from the mean (mm, over the grid and both senses)."""
+
+    def __post_init__(self) -> None:
+        k = np.asarray(self.knobs, dtype=np.float64)
+        if k.ndim != 1 or k.size < 4 or np.any(np.diff(k) <= 0.0):
+            raise ConfigurationError(f"map prior knobs must be >= 4 ascending angles, got {k!r}")
+        object.__setattr__(self, "knobs", tuple(float(x) for x in k))
+        splines = []
+        for name in ("positions", "reverse"):
+            p = np.array(getattr(self, name), dtype=np.float64)
+            if p.shape != (k.size, k.size, 3) or not np.all(np.isfinite(p)):
+                raise ConfigurationError(
+                    f"map prior {name} must be {k.size} x {k.size} x 3 finite mm, got {p.shape}"
+                )
+            p.setflags(write=False)
+            object.__setattr__(self, name, p)
+            splines.append(tuple(RectBivariateSpline(k, k, p[..., c], s=0.0) for c in range(3)))
+        object.__setattr__(self, "_splines", tuple(splines))
+
+    def mean_position(self, a: Any, b: Any, sense: int = 1) -> Array:
+        """(M0) ``Pbar`` (..., 3) (mm, knob frame) at motor knobs ``a``, ``b`` (rad, same
+        shape) reached turning counter-clockwise (``sense`` +1) or clockwise (-1); bicubic
+        through the grid, clamped at its edge."""
+        if sense not in (-1, 1):
+            raise ConfigurationError(f"sense must be +1 or -1, got {sense!r}")
+        lo, hi = self.knobs[0], self.knobs[-1]
+        aa = np.clip(np.asarray(a, dtype=np.float64), lo, hi)
+        bb = np.clip(np.asarray(b, dtype=np.float64), lo, hi)
+        sp = self._splines[0 if sense == 1 else 1]  # type: ignore[attr-defined]
+        return np.stack([s.ev(aa, bb) for s in sp], axis=-1)
+
+    def position(
+        self,
+        samples: CalibrationSet,
+        *,
+        sense: int = 1,
+        scaled: bool = False,
+        geometry: CatheterGeometry = DEFAULT_GEOMETRY,
+    ) -> Callable[[Array, Array], Array]:
+        """(M1) (or (M2) with ``scaled``): the catheter's tip position (..., 3) (mm, knob
+        frame) as a function of motor knobs (rad), from its short ``samples`` (>= 3) reached
+        turning in ``sense`` (+1 counter-clockwise, -1 clockwise)."""
+        knobs = samples.q_motor[:, :2]
+        p = samples.positions_in_knob_frame()
+        base = self.mean_position(knobs[:, 0], knobs[:, 1], sense)
+        gain = 1.0
+        if scaled:
+            m = _model_positions(knobs[:, 0], knobs[:, 1], geometry)
+            d = base - m
+            den = float(np.sum(d * d))
+            gain = float(np.clip(np.sum((p - m) * d) / den, 0.0, 2.0)) if den > 0.0 else 0.0
+            base = m + gain * d  # (M2)
+        uniq, inv = np.unique(np.round(knobs, 9), axis=0, return_inverse=True)
+        inv = inv.ravel()
+        resid = np.zeros((uniq.shape[0], 3))
+        np.add.at(resid, inv, p - base)
+        resid /= np.bincount(inv, minlength=uniq.shape[0])[:, None]
+        rbf = RBFInterpolator(uniq, resid, kernel="thin_plate_spline", degree=1)
+
+        def real_position(a: Array, b: Array) -> Array:
+            shape = np.broadcast_shapes(np.shape(a), np.shape(b))
+            aa = np.broadcast_to(np.asarray(a, np.float64), shape)
+            bb = np.broadcast_to(np.asarray(b, np.float64), shape)
+            line = self.mean_position(aa, bb, sense)
+            if scaled:
+                mm = _model_positions(aa, bb, geometry)
+                line = mm + gain * (line - mm)
+            pts = np.stack([aa.ravel(), bb.ravel()], axis=-1)
+            return line + np.asarray(rbf(pts)).reshape(*shape, 3)  # (M1)
+
+        return real_position
+
+    def build_map(
+        self,
+        samples: CalibrationSet,
+        *,
+        sense: int = 1,
+        scaled: bool = False,
+        geometry: CatheterGeometry = DEFAULT_GEOMETRY,
+    ) -> ElasticityMap:
+        """F from :meth:`position` sampled on the :data:`MAP_GRID_STEP` grid of motor knobs
+        (a spline through it, no smoothing); the map's ``calibration`` is that grid, its
+        method ``"<samples' method>+map-prior"``."""
+        ax = _axis(geometry.knob_limit)
+        ga, gb = np.meshgrid(ax, ax, indexing="ij")
+        at = self.position(samples, sense=sense, scaled=scaled, geometry=geometry)
+        pos = at(ga.ravel(), gb.ravel())
+        n = pos.shape[0]
+        q = np.zeros((n, 4))
+        q[:, 0], q[:, 1] = ga.ravel(), gb.ravel()
+        t = np.tile(np.eye(4), (n, 1, 1))
+        t[:, :3, 3] = pos
+        grid = CalibrationSet(
+            q_motor=q,
+            tip2base=t,
+            catheter_id=samples.catheter_id,
+            vessel=samples.vessel,
+            method=f"{samples.method}+map-prior",
+        )
+        return ElasticityMap.build(grid, geometry, interpolant="spline", smoothing=0.0)
+
+    def to_dict(self) -> dict[str, Any]:
+        """The JSON document (angles in deg, positions in mm, rounded to 1 um)."""
+        return {
+            "product": self.product,
+            "catheters": list(self.catheters),
+            "knobs_deg": [round(math.degrees(x), 9) for x in self.knobs],
+            "positions_mm": np.round(self.positions, 3).tolist(),
+            "reverse_mm": np.round(self.reverse, 3).tolist(),
+            "spread_mm": self.spread_mm,
+        }
+
+
+def map_prior_from_dict(doc: Any, where: str) -> MapPrior:
+    """The :class:`MapPrior` of :meth:`MapPrior.to_dict`'s document; FileFormatError naming
+    ``where`` (a file) on anything else."""
+    try:
+        return MapPrior(
+            product=str(doc["product"]),
+            catheters=tuple(str(c) for c in doc["catheters"]),
+            knobs=tuple(math.radians(float(x)) for x in doc["knobs_deg"]),
+            positions=np.asarray(doc["positions_mm"], dtype=np.float64),
+            reverse=np.asarray(doc["reverse_mm"], dtype=np.float64),
+            spread_mm=float(doc["spread_mm"]),
+        )
+    except (KeyError, TypeError, ValueError, IndexError, ConfigurationError) as exc:
+        raise FileFormatError(f"{where}: malformed map prior ({exc})") from exc
+
+
+def turned_positions(
+    drive: Callable[[Array], Array],
+    sense: int,
+    radius_step: float = TURN_RADIUS_STEP,
+    geometry: CatheterGeometry = DEFAULT_GEOMETRY,
+) -> Callable[[Array, Array], Array]:
+    """One catheter's tip (..., 3) (mm, knob frame) at motor knobs (rad) reached turning in
+    ``sense`` (+1 counter-clockwise): ``drive`` (a motor knob path (n, 2) rad, driven in
+    order from rest -> the tips (n, 3) mm along it; e.g. the full calibration's model) is
+    run once per ring of radius 0, ``radius_step``, ... up to the knob limit, out to the
+    ring and one turn in :data:`TURN_STEP` steps, then a second turn read at each step; a
+    spline over (radius, angle) of the readings (beyond the knob limit's radius: its
+    ring's)."""
+    if sense not in (-1, 1):
+        raise ConfigurationError(f"sense must be +1 or -1, got {sense!r}")
+    radii = np.arange(radius_step, geometry.knob_limit + 1e-9, radius_step)
+    n = int(round(2.0 * math.pi / TURN_STEP))
+    ang = 2.0 * math.pi * np.arange(1, n + 1) / n
+    table = np.empty((radii.size + 1, n, 3))
+    table[0] = np.asarray(drive(np.zeros((1, 2))), np.float64).reshape(1, 3)
+    for i, r in enumerate(radii):
+        out = np.linspace(0.0, r, max(2, int(np.ceil(r / TURN_STEP)) + 1))[1:]
+        turn = sense * np.concatenate([ang, 2.0 * math.pi + ang])
+        path = np.vstack(
+            [np.stack([out, 0.0 * out], -1), np.stack([r * np.cos(turn), r * np.sin(turn)], -1)]
+        )
+        tips = np.asarray(drive(path), np.float64)
+        table[i + 1] = tips[-n:] if sense == 1 else tips[-n:][::-1]
+    theta = ang if sense == 1 else np.sort(np.mod(-sense * ang, 2.0 * math.pi))
+    theta = np.mod(theta, 2.0 * math.pi)
+    order = np.argsort(theta)
+    theta, table = theta[order], table[:, order]
+    # periodic in the angle: three readings either side wrapped
+    th = np.concatenate([theta[-3:] - 2.0 * math.pi, theta, theta[:3] + 2.0 * math.pi])
+    vals = np.concatenate([table[:, -3:], table, table[:, :3]], axis=1)
+    rr = np.concatenate([[0.0], radii])
+    splines = [RectBivariateSpline(rr, th, vals[..., c], s=0.0) for c in range(3)]
+
+    def at(a: Array, b: Array) -> Array:
+        aa, bb = np.asarray(a, np.float64), np.asarray(b, np.float64)
+        r = np.minimum(np.hypot(aa, bb), rr[-1])
+        t = np.mod(np.arctan2(bb, aa), 2.0 * math.pi)
+        return np.stack([sp.ev(r, t) for sp in splines], axis=-1)
+
+    return at
+
+
+def make_map_prior(
+    drives: Sequence[Callable[[Array], Array]],
+    product: str,
+    catheters: Sequence[str],
+    geometry: CatheterGeometry = DEFAULT_GEOMETRY,
+) -> MapPrior:
+    """(M0) over the catheters' ``drives`` (one per catheter of ``catheters``: a motor knob
+    path (n, 2) rad from rest -> tips (n, 3) mm in the knob frame, e.g. the full
+    calibration's model of the transmission and F, bias- and section-free), each sense's
+    :func:`turned_positions` on the :data:`MAP_GRID_STEP` grid."""
+    if len(drives) == 0 or len(drives) != len(catheters):
+        raise ConfigurationError(
+            f"need one or more catheter drives and one name each, got {len(drives)} and "
+            f"{len(catheters)}"
+        )
+    ax = _axis(geometry.knob_limit)
+    ga, gb = np.meshgrid(ax, ax, indexing="ij")
+    means, dev = [], []
+    for sense in (1, -1):
+        stack = np.stack([turned_positions(d, sense, geometry=geometry)(ga, gb) for d in drives])
+        if not np.all(np.isfinite(stack)):
+            raise ConfigurationError("each catheter drive must give finite (n, 3) tips")
+        mean = np.mean(stack, axis=0)  # (M0)
+        means.append(mean)
+        dev.append(np.sum((stack - mean) ** 2, axis=-1))
+    return MapPrior(
+        product=str(product),
+        catheters=tuple(str(c) for c in catheters),
+        knobs=tuple(float(x) for x in ax),
+        positions=means[0],
+        reverse=means[1],
+        spread_mm=float(np.sqrt(np.mean(np.stack(dev)))),
+    )
