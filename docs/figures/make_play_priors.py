@@ -35,6 +35,7 @@ from icenav.calibration.map_prior import make_map_prior
 from icenav.calibration.play_prior import make_play_prior, save_play_prior
 from icenav.calibration.procedure import run_visits
 from icenav.calibration.procedures import plan_visits
+from icenav.calibration.short import short_ring_plan
 from icenav.eval import spin as S
 from icenav.geometry.kinematics import forward
 from icenav.sim.families import FAMILIES
@@ -76,7 +77,8 @@ for family in families:
         tips.append(functools.partial(model_drive, full))
     names = [f"{family} {s}" for s in seeds]
     prior = make_play_prior(comps, family, names)
-    prior = dataclasses.replace(prior, map=make_map_prior(tips, family, names))
+    rings = short_ring_plan().rings  # the short calibration's ring stops, in order
+    prior = dataclasses.replace(prior, map=make_map_prior(tips, family, names, rings))
     path = out_dir / f"play_prior_{family}.json"
     save_play_prior(prior, path)
     ap = prior.roll[0]

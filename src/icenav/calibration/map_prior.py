@@ -60,6 +60,7 @@ __all__ = [
     "TURN_STEP",
     "make_map_prior",
     "map_prior_from_dict",
+    "stop_senses",
     "turned_positions",
 ]
 
@@ -100,6 +101,15 @@ class MapPrior:
     turned counter-clockwise about the knob origin to get there (M0)."""
     reverse: Array
     """(n, n, 3) the same, the knobs turned clockwise."""
+    radial: Array
+    """(n, n, 3) the same, the knobs moved straight out from rest (as the five points)."""
+    stops: Array
+    """(m, 2) the short calibration's ring stops (motor knobs, rad, in the plan's order)."""
+    stop_sense: Array
+    """(m,) the sense each stop is reached in (+1 counter-clockwise, -1 clockwise, 0 a move
+    onto a ring)."""
+    stop_tips: Array
+    """(m, 3) the line's mean tip (mm, knob frame) at each stop as the plan reaches it."""
     spread_mm: float = math.nan
     """The catheters' RMS distance from the mean (mm, over the grid and both senses)."""
 
@@ -109,7 +119,7 @@ class MapPrior:
             raise ConfigurationError(f"map prior knobs must be >= 4 ascending angles, got {k!r}")
         object.__setattr__(self, "knobs", tuple(float(x) for x in k))
         splines = []
-        for name in ("positions", "reverse"):
+        for name in ("positions", "reverse", "radial"):
             p = np.array(getattr(self, name), dtype=np.float64)
             if p.shape != (k.size, k.size, 3) or not np.all(np.isfinite(p)):
                 raise ConfigurationError(
@@ -119,18 +129,47 @@ class MapPrior:
             object.__setattr__(self, name, p)
             splines.append(tuple(RectBivariateSpline(k, k, p[..., c], s=0.0) for c in range(3)))
         object.__setattr__(self, "_splines", tuple(splines))
+        st = np.array(self.stops, dtype=np.float64)
+        sense = np.array(self.stop_sense, dtype=np.float64)
+        tips = np.array(self.stop_tips, dtype=np.float64)
+        m = st.shape[0] if st.ndim == 2 else -1
+        if st.shape != (m, 2) or sense.shape != (m,) or tips.shape != (m, 3):
+            raise ConfigurationError(
+                f"map prior stops must be (m, 2), (m,) and (m, 3), got {st.shape}, "
+                f"{sense.shape}, {tips.shape}"
+            )
+        if not (np.all(np.isfinite(st)) and np.all(np.isfinite(tips))):
+            raise ConfigurationError("map prior stops and their tips must be finite")
+        for name, a in (("stops", st), ("stop_sense", sense), ("stop_tips", tips)):
+            a.setflags(write=False)
+            object.__setattr__(self, name, a)
 
     def mean_position(self, a: Any, b: Any, sense: int = 1) -> Array:
         """(M0) ``Pbar`` (..., 3) (mm, knob frame) at motor knobs ``a``, ``b`` (rad, same
-        shape) reached turning counter-clockwise (``sense`` +1) or clockwise (-1); bicubic
-        through the grid, clamped at its edge."""
-        if sense not in (-1, 1):
-            raise ConfigurationError(f"sense must be +1 or -1, got {sense!r}")
+        shape) reached turning counter-clockwise (``sense`` +1), clockwise (-1) or straight
+        out from rest (0); bicubic through the grid, clamped at its edge."""
+        if sense not in (-1, 0, 1):
+            raise ConfigurationError(f"sense must be +1, 0 or -1, got {sense!r}")
         lo, hi = self.knobs[0], self.knobs[-1]
         aa = np.clip(np.asarray(a, dtype=np.float64), lo, hi)
         bb = np.clip(np.asarray(b, dtype=np.float64), lo, hi)
-        sp = self._splines[0 if sense == 1 else 1]  # type: ignore[attr-defined]
+        sp = self._splines[{1: 0, -1: 1, 0: 2}[sense]]  # type: ignore[attr-defined]
         return np.stack([s.ev(aa, bb) for s in sp], axis=-1)
+
+    def expected(self, knobs: Any, sense: int) -> Array:
+        """(M1)'s ``s_i`` (m, 3) (mm, knob frame): the line's mean reading of samples at
+        motor ``knobs`` (m, 2) (rad) of an F of ``sense``: at a stored ring stop of that
+        sense (within 1e-6 rad) the line's mean tip there as the plan reached it, elsewhere
+        (the five points) the mean tip reached straight out from rest."""
+        k = np.asarray(knobs, dtype=np.float64).reshape(-1, 2)
+        out = self.mean_position(k[:, 0], k[:, 1], 0)
+        mine = np.flatnonzero(self.stop_sense == sense)
+        if mine.size:
+            d = np.max(np.abs(k[:, None, :] - self.stops[mine][None, :, :]), axis=-1)
+            j = np.argmin(d, axis=1)
+            hit = d[np.arange(k.shape[0]), j] < 1e-6
+            out[hit] = self.stop_tips[mine[j[hit]]]
+        return out
 
     def position(
         self,
@@ -145,7 +184,7 @@ class MapPrior:
         turning in ``sense`` (+1 counter-clockwise, -1 clockwise)."""
         knobs = samples.q_motor[:, :2]
         p = samples.positions_in_knob_frame()
-        base = self.mean_position(knobs[:, 0], knobs[:, 1], sense)
+        base = self.expected(knobs, sense)
         gain = 1.0
         if scaled:
             m = _model_positions(knobs[:, 0], knobs[:, 1], geometry)
@@ -210,6 +249,10 @@ class MapPrior:
             "knobs_deg": [round(math.degrees(x), 9) for x in self.knobs],
             "positions_mm": np.round(self.positions, 3).tolist(),
             "reverse_mm": np.round(self.reverse, 3).tolist(),
+            "radial_mm": np.round(self.radial, 3).tolist(),
+            "stops_deg": np.round(np.degrees(self.stops), 9).tolist(),
+            "stop_sense": [int(v) for v in self.stop_sense],
+            "stop_tips_mm": np.round(self.stop_tips, 3).tolist(),
             "spread_mm": self.spread_mm,
         }
 
@@ -224,10 +267,31 @@ def map_prior_from_dict(doc: Any, where: str) -> MapPrior:
             knobs=tuple(math.radians(float(x)) for x in doc["knobs_deg"]),
             positions=np.asarray(doc["positions_mm"], dtype=np.float64),
             reverse=np.asarray(doc["reverse_mm"], dtype=np.float64),
+            radial=np.asarray(doc["radial_mm"], dtype=np.float64),
+            stops=np.radians(np.asarray(doc["stops_deg"], dtype=np.float64)),
+            stop_sense=np.asarray(doc["stop_sense"], dtype=np.float64),
+            stop_tips=np.asarray(doc["stop_tips_mm"], dtype=np.float64),
             spread_mm=float(doc["spread_mm"]),
         )
     except (KeyError, TypeError, ValueError, IndexError, ConfigurationError) as exc:
         raise FileFormatError(f"{where}: malformed map prior ({exc})") from exc
+
+
+def _polar(radii: Array, theta: Array, table: Array) -> Callable[[Array, Array], Array]:
+    """A bicubic spline (..., 3) over (radius, angle) of readings ``table`` (n_r, n_t, 3) at
+    ``radii`` (ascending, the first 0) and ``theta`` (ascending in [0, 2 pi)), periodic in
+    the angle; beyond the last radius, its ring's values."""
+    th = np.concatenate([theta[-3:] - 2.0 * math.pi, theta, theta[:3] + 2.0 * math.pi])
+    vals = np.concatenate([table[:, -3:], table, table[:, :3]], axis=1)
+    splines = [RectBivariateSpline(radii, th, vals[..., c], s=0.0) for c in range(3)]
+
+    def at(a: Array, b: Array) -> Array:
+        aa, bb = np.asarray(a, np.float64), np.asarray(b, np.float64)
+        r = np.minimum(np.hypot(aa, bb), radii[-1])
+        t = np.mod(np.arctan2(bb, aa), 2.0 * math.pi)
+        return np.stack([sp.ev(r, t) for sp in splines], axis=-1)
+
+    return at
 
 
 def turned_positions(
@@ -237,76 +301,97 @@ def turned_positions(
     geometry: CatheterGeometry = DEFAULT_GEOMETRY,
 ) -> Callable[[Array, Array], Array]:
     """One catheter's tip (..., 3) (mm, knob frame) at motor knobs (rad) reached turning in
-    ``sense`` (+1 counter-clockwise): ``drive`` (a motor knob path (n, 2) rad, driven in
-    order from rest -> the tips (n, 3) mm along it; e.g. the full calibration's model) is
-    run once per ring of radius 0, ``radius_step``, ... up to the knob limit, out to the
-    ring and one turn in :data:`TURN_STEP` steps, then a second turn read at each step; a
-    spline over (radius, angle) of the readings (beyond the knob limit's radius: its
-    ring's)."""
-    if sense not in (-1, 1):
-        raise ConfigurationError(f"sense must be +1 or -1, got {sense!r}")
+    ``sense`` (+1 counter-clockwise, -1 clockwise) or straight out from rest (0):
+    ``drive`` (a motor knob path (n, 2) rad, driven in order from rest -> the tips (n, 3)
+    mm along it; e.g. the full calibration's model) is run once per ring of radius
+    ``radius_step``, ``2 radius_step``, ... up to the knob limit, out to the ring and one
+    turn in :data:`TURN_STEP` steps, then a second turn read at each step (sense 0: once
+    per angle of :data:`TURN_STEP`, straight out in ``radius_step`` steps, read at each);
+    a spline over (radius, angle) of the readings."""
+    if sense not in (-1, 0, 1):
+        raise ConfigurationError(f"sense must be +1, 0 or -1, got {sense!r}")
     radii = np.arange(radius_step, geometry.knob_limit + 1e-9, radius_step)
     n = int(round(2.0 * math.pi / TURN_STEP))
-    ang = 2.0 * math.pi * np.arange(1, n + 1) / n
+    theta = 2.0 * math.pi * np.arange(n) / n
     table = np.empty((radii.size + 1, n, 3))
     table[0] = np.asarray(drive(np.zeros((1, 2))), np.float64).reshape(1, 3)
+    if sense == 0:
+        for k, t in enumerate(theta):
+            spoke = np.stack([radii * math.cos(t), radii * math.sin(t)], -1)
+            table[1:, k] = np.asarray(drive(spoke), np.float64)
+        return _polar(np.concatenate([[0.0], radii]), theta, table)
     for i, r in enumerate(radii):
         out = np.linspace(0.0, r, max(2, int(np.ceil(r / TURN_STEP)) + 1))[1:]
-        turn = sense * np.concatenate([ang, 2.0 * math.pi + ang])
+        turn = sense * np.concatenate([theta[1:], 2.0 * math.pi + theta[1:], [4.0 * math.pi]])
         path = np.vstack(
             [np.stack([out, 0.0 * out], -1), np.stack([r * np.cos(turn), r * np.sin(turn)], -1)]
         )
-        tips = np.asarray(drive(path), np.float64)
-        table[i + 1] = tips[-n:] if sense == 1 else tips[-n:][::-1]
-    theta = ang if sense == 1 else np.sort(np.mod(-sense * ang, 2.0 * math.pi))
-    theta = np.mod(theta, 2.0 * math.pi)
-    order = np.argsort(theta)
-    theta, table = theta[order], table[:, order]
-    # periodic in the angle: three readings either side wrapped
-    th = np.concatenate([theta[-3:] - 2.0 * math.pi, theta, theta[:3] + 2.0 * math.pi])
-    vals = np.concatenate([table[:, -3:], table, table[:, :3]], axis=1)
-    rr = np.concatenate([[0.0], radii])
-    splines = [RectBivariateSpline(rr, th, vals[..., c], s=0.0) for c in range(3)]
+        tips = np.asarray(drive(path), np.float64)[-n:]  # angles 0, s step, ..., s (n-1) step
+        # readings at turn 2 pi + s theta_k (k >= 1) and 4 pi: angle index k (sense +1) or
+        # n - k (sense -1), the last one at angle 0
+        idx = np.concatenate([np.arange(1, n), [0]])
+        idx = idx if sense == 1 else np.mod(n - idx, n)
+        table[i + 1, idx] = tips
+    return _polar(np.concatenate([[0.0], radii]), theta, table)
 
-    def at(a: Array, b: Array) -> Array:
-        aa, bb = np.asarray(a, np.float64), np.asarray(b, np.float64)
-        r = np.minimum(np.hypot(aa, bb), rr[-1])
-        t = np.mod(np.arctan2(bb, aa), 2.0 * math.pi)
-        return np.stack([sp.ev(r, t) for sp in splines], axis=-1)
 
-    return at
+def stop_senses(path: Any) -> Array:
+    """(m,) the sense each stop of a motor knob ``path`` (m, 2) (rad, from rest) is reached
+    in: the sign of the turn about the knob origin from the stop before (+1
+    counter-clockwise, -1 clockwise, 0 a move along a radius or from rest)."""
+    x = np.asarray(path, dtype=np.float64)[:, :2]
+    prev = np.vstack([np.zeros((1, 2)), x[:-1]])
+    cross = prev[:, 0] * x[:, 1] - prev[:, 1] * x[:, 0]
+    scale = np.maximum(np.hypot(*prev.T) * np.hypot(*x.T), 1e-12)
+    return np.where(np.abs(cross / scale) < 1e-9, 0.0, np.sign(cross))
 
 
 def make_map_prior(
     drives: Sequence[Callable[[Array], Array]],
     product: str,
     catheters: Sequence[str],
+    rings: Any,
     geometry: CatheterGeometry = DEFAULT_GEOMETRY,
+    radius_step: float = TURN_RADIUS_STEP,
 ) -> MapPrior:
     """(M0) over the catheters' ``drives`` (one per catheter of ``catheters``: a motor knob
     path (n, 2) rad from rest -> tips (n, 3) mm in the knob frame, e.g. the full
-    calibration's model of the transmission and F, bias- and section-free), each sense's
-    :func:`turned_positions` on the :data:`MAP_GRID_STEP` grid."""
+    calibration's model of the transmission and F, bias- and section-free): each sense's
+    :func:`turned_positions` on the :data:`MAP_GRID_STEP` grid, and the mean tips of the
+    short calibration's ring stops ``rings`` ((m, 2+) motor knobs, rad, in the order
+    driven from rest; :func:`icenav.calibration.short.ring_path`); the rings read every
+    ``radius_step`` (rad)."""
     if len(drives) == 0 or len(drives) != len(catheters):
         raise ConfigurationError(
             f"need one or more catheter drives and one name each, got {len(drives)} and "
             f"{len(catheters)}"
         )
+    stops = np.asarray(rings, dtype=np.float64)
+    if stops.ndim != 2 or stops.shape[0] < 1 or stops.shape[1] < 2:
+        raise ConfigurationError(f"rings must be (m, 2) knob pairs, got {stops.shape}")
+    stops = stops[:, :2]
     ax = _axis(geometry.knob_limit)
     ga, gb = np.meshgrid(ax, ax, indexing="ij")
     means, dev = [], []
-    for sense in (1, -1):
-        stack = np.stack([turned_positions(d, sense, geometry=geometry)(ga, gb) for d in drives])
+    for sense in (1, -1, 0):
+        stack = np.stack(
+            [turned_positions(d, sense, radius_step, geometry)(ga, gb) for d in drives]
+        )
         if not np.all(np.isfinite(stack)):
             raise ConfigurationError("each catheter drive must give finite (n, 3) tips")
         mean = np.mean(stack, axis=0)  # (M0)
         means.append(mean)
         dev.append(np.sum((stack - mean) ** 2, axis=-1))
+    tips = np.mean([np.asarray(d(stops), np.float64) for d in drives], axis=0)
     return MapPrior(
         product=str(product),
         catheters=tuple(str(c) for c in catheters),
         knobs=tuple(float(x) for x in ax),
         positions=means[0],
         reverse=means[1],
+        radial=means[2],
+        stops=stops,
+        stop_sense=stop_senses(stops),
+        stop_tips=tips,
         spread_mm=float(np.sqrt(np.mean(np.stack(dev)))),
     )
