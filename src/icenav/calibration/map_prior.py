@@ -5,37 +5,46 @@ The short calibration (:mod:`icenav.calibration.short`) builds F on the five poi
 few ring stops: between them a thin-plate interpolant guesses the tip, and on development
 catheters most of its excess over the full calibration is there (docs/calibration.md
 section 7). A lab that owns several catheters of one product line can run the full
-calibration once on a few of them and store the line's *mean tip* over the motor knob
-plane: for each catheter ``j`` the full calibration's interpolant ``P_j`` of its dense raster
-(tip position in the knob frame, mm, its tracker's bias and its section's axial excess
-removed), averaged on a grid of motor knob pairs ``x``::
+calibration once on a few of them and store how the line's tip lies over the motor knob
+plane. For each catheter ``j`` its full calibration's model (a *drive*: a motor knob path
+from rest -> the tips along it, mm in the knob frame, tracker bias and section excess
+removed) is read three ways, each averaged over the catheters on a grid of motor knob
+pairs ``x`` (:func:`turned_positions`)::
 
-    Pbar(x) = mean_j  P_j(x)                                                        (M0)
+    Pbar_s(x) = mean_j P_j,s(x)    s = +1 / -1: reached turning counter-clockwise /
+                                   clockwise about the knob origin (a spin), 0: straight out
+    sbar_i    = mean_j P_j(stop i as the short plan reaches it, from rest)           (M0)
 
-A short calibration of another catheter of the line, with samples ``(x_i, p_i)`` (the five
-points and the ring stops of one sense, as :func:`~icenav.calibration.short.fit_short_rings`
-builds F on), then interpolates only its difference from the line's mean (the same
-thin-plate interpolant ``I[.]`` F uses on sparse samples)::
+(the knobs' lag on a spin's fine circle is not the lag at a stop reached by a 36 deg
+chord, nor at a point reached straight out: each is read as it is met). A short
+calibration of another catheter of the line, with samples ``(x_i, p_i)`` (the five points
+and the ring stops of one sense ``s``, as :func:`~icenav.calibration.short.fit_short_rings`
+builds F on), interpolates only its difference from the line's readings of the same
+samples, ``e_i`` = ``sbar_i`` at a stored stop of that sense, ``Pbar_0(x_i)`` elsewhere (the
+five points), with the thin-plate interpolant ``I[.]`` F uses on sparse samples::
 
-    P(x) = Pbar(x) + I[p_i - Pbar(x_i)](x)                                          (M1)
+    P_s(x) = Pbar_s(x) + I[p_i - e_i](x)                                            (M1)
 
 Because ``I`` is linear in the values, (M1) is the short calibration's own interpolant plus
-the product line's mean correction of it between the stops,
-``P = I[p_i] + mean_j (P_j - I[P_j(x_i)])``: what the short interpolant of each prior
-catheter missed between the same stops, averaged. With ``scaled`` the line's deviation from
-the model tip ``m(x)`` is first scaled by what the short samples show (least squares over
-the samples, clipped to [0, 2])::
+the product line's mean correction of it, ``P_s = I[p_i] + mean_j (P_j,s - I[e_j,i])``:
+what the short interpolant of each prior catheter missed between (and at) the same stops
+against a spin, averaged. With ``scaled`` the line's deviation from the model tip ``m(x)``
+is first scaled by what the short samples show (least squares over the samples, clipped to
+[0, 2])::
 
-    D(x) = Pbar(x) - m(x),   a = sum_i <p_i - m(x_i), D(x_i)> / sum_i |D(x_i)|^2
-    P(x) = m(x) + a D(x) + I[p_i - m(x_i) - a D(x_i)](x)                           (M2)
+    a = sum_i <p_i - m(x_i), e_i - m(x_i)> / sum_i |e_i - m(x_i)|^2
+    P_s(x) = m(x) + a (Pbar_s(x) - m(x)) + I[p_i - m(x_i) - a (e_i - m(x_i))](x)    (M2)
 
-F is then built from ``P`` sampled on a grid of motor knobs (:meth:`MapPrior.build_map`:
+F is then built from ``P_s`` sampled on a grid of motor knobs (:meth:`MapPrior.build_map`:
 the paper's matching of :class:`~icenav.compensation.elasticity.ElasticityMap`, on a
-spline through the grid). What it assumes: the catheters of the line deviate from their
-mean map smoothly enough that the short samples' residual interpolates (the residual, not
-the map, is what ``I`` guesses between the stops). What it does not assume: any form of F
-(the prior is the full calibrations' tables), the new catheter's level (its samples pass
-through (M1) exactly). A catheter of another line gets the line's bends between its stops.
+spline through the grid). What it assumes: the catheters of the line differ from their
+mean smoothly enough that the short samples' difference interpolates (the difference, not
+the map, is what ``I`` guesses between the stops), the short plan is the one the prior was
+made for (a ring stop not stored is read as if reached straight out), and the line's model
+predicts its catheters' lag (the full calibration's per-tendon transmission). What it does
+not assume: any form of F (the prior is the full calibrations' tables), the new
+catheter's level or offset (its samples' difference carries them). A catheter of another
+line gets the line's bends and lags between its stops.
 """
 
 from __future__ import annotations
