@@ -8,17 +8,20 @@ the short calibration's plan, and ours (``dense+hysteresis``) on the same cathet
 - ``plays+map``: both (``short+rings+prior`` since session 12; M1 of
   :mod:`icenav.calibration.map_prior`);
 - with ``all`` as a fourth argument also ``map`` (the map prior alone) and
-  ``plays+map-scaled`` (both, the line's deviation scaled to the samples, M2).
+  ``plays+map-scaled`` (both, the line's deviation scaled to the samples, M2); with
+  ``plays`` ``map+ours-plays`` (a diagnosis, not a method: the map prior's F with ours'
+  roll and twist plays, those of the full calibration's seven sweeps on the same catheter).
 
 Writes ``{"family", "seed", "set": "map", "rows": variant -> [EM mm, EM deg, true mm, true
 deg] per bend}`` (``make_short_spin_table.py`` reads a list of them under ``records``).
 Development catheters only (210-214, 218-229; 215-217 made the priors)::
 
-    python docs/figures/ablation_short_map.py default 210 [OUT.json [all]]
+    python docs/figures/ablation_short_map.py default 210 [OUT.json [all | plays]]
 """
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import sys
 from typing import Any
@@ -47,7 +50,12 @@ variants: dict[str, Any] = {
     "plays": fit_short_rings(plan, rec, five, prior=prior),
     "plays+map": fit_short_rings(plan, rec, five, prior=prior, map_prior=prior.map),
 }
-if len(sys.argv) > 4 and sys.argv[4] == "all":
+extra = sys.argv[4] if len(sys.argv) > 4 else ""
+if extra == "plays":
+    variants["map+ours-plays"] = dataclasses.replace(
+        variants["plays+map"], hysteresis=ours.hysteresis.compensator
+    )
+if extra == "all":
     variants["map"] = fit_short_rings(plan, rec, five, map_prior=prior.map)
     variants["plays+map-scaled"] = fit_short_rings(
         plan, rec, five, prior=prior, map_prior=prior.map, map_scaled=True
