@@ -211,8 +211,8 @@ def make_play_prior(
 
 
 def save_play_prior(prior: PlayPrior, path: str | Path) -> None:
-    """Write ``prior`` as JSON to ``path``."""
-    Path(path).write_text(json.dumps(prior.to_dict(), indent=1) + "\n", encoding="utf-8")
+    """Write ``prior`` as JSON to ``path`` (compact: one line)."""
+    Path(path).write_text(json.dumps(prior.to_dict()) + "\n", encoding="utf-8")
 
 
 def load_play_prior(path: str | Path) -> PlayPrior:
