@@ -280,5 +280,7 @@ def test_every_family_has_a_play_prior_and_a_plug_in_has_none() -> None:
     for name in FAMILIES:
         prior = family_play_prior(name)
         assert prior.product == name and len(prior.catheters) == 3
+        # the line's mean map, from the same catheters (docs/calibration.md section 7)
+        assert prior.map is not None and prior.map.catheters == prior.catheters
     with pytest.raises(InvalidValueError, match="no play prior"):
         family_play_prior(lambda seed, vessel: (None, None))

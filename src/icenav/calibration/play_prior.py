@@ -40,6 +40,7 @@ from typing import Any
 import numpy as np
 
 from icenav._typing import Array
+from icenav.calibration.map_prior import MapPrior, map_prior_from_dict
 from icenav.compensation.bend_play import BendPlay, KnobPlanePlay
 from icenav.compensation.hysteresis import HysteresisCompensator
 from icenav.errors import ConfigurationError, FileFormatError, UnsupportedVersionError
@@ -57,8 +58,8 @@ __all__ = [
     "save_play_prior",
 ]
 
-PRIOR_VERSION = 1
-"""Version of the prior's JSON file."""
+PRIOR_VERSION = 2
+"""Version of the prior's JSON file (2: with the map prior, ``map``; 1, without, is read)."""
 REFERENCE_BEND = math.radians(75.0)
 """Bend (rad) at which each catheter's AP law is normalised to 1 in (P0): about the tracked
 bend of the short calibration's bent sweep (50 deg of knob)."""
@@ -108,6 +109,8 @@ class PlayPrior:
     spread: tuple[float, float] = (math.nan, math.nan)
     """The catheters' RMS deviation from the mean shape (roll, twist; dimensionless, over
     the grid): how far one catheter's shape is from the line's."""
+    map: MapPrior | None = None
+    """The line's mean elasticity map (:mod:`icenav.calibration.map_prior`), if stored."""
 
     def __post_init__(self) -> None:
         d = np.asarray(self.directions, dtype=np.float64)
@@ -152,6 +155,7 @@ class PlayPrior:
             "roll": [list(r) for r in self.roll],
             "twist": [list(r) for r in self.twist],
             "spread": list(self.spread),
+            **({"map": self.map.to_dict()} if self.map is not None else {}),
         }
 
 
@@ -207,8 +211,8 @@ def make_play_prior(
 
 
 def save_play_prior(prior: PlayPrior, path: str | Path) -> None:
-    """Write ``prior`` as JSON to ``path``."""
-    Path(path).write_text(json.dumps(prior.to_dict(), indent=1) + "\n", encoding="utf-8")
+    """Write ``prior`` as JSON to ``path`` (compact: one line)."""
+    Path(path).write_text(json.dumps(prior.to_dict()) + "\n", encoding="utf-8")
 
 
 def load_play_prior(path: str | Path) -> PlayPrior:
@@ -221,7 +225,7 @@ def load_play_prior(path: str | Path) -> PlayPrior:
         raise FileFormatError(f"{p}: not a readable play prior ({exc})") from exc
     if not isinstance(doc, dict) or doc.get("format") != "icenav play prior":
         raise FileFormatError(f"{p}: not an icenav play prior")
-    if doc.get("version") != PRIOR_VERSION:
+    if doc.get("version") not in (1, PRIOR_VERSION):
         raise UnsupportedVersionError(
             f"{p}: play prior version {doc.get('version')!r}, this icenav reads {PRIOR_VERSION}"
         )
@@ -240,6 +244,7 @@ def load_play_prior(path: str | Path) -> PlayPrior:
             roll=doc["roll"],
             twist=doc["twist"],
             spread=(float(doc["spread"][0]), float(doc["spread"][1])),
+            map=map_prior_from_dict(doc["map"], str(p)) if "map" in doc else None,
         )
     except (KeyError, TypeError, ValueError, IndexError) as exc:
         raise FileFormatError(f"{p}: malformed play prior ({exc})") from exc

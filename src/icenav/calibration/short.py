@@ -58,6 +58,7 @@ from numpy.typing import ArrayLike
 
 from icenav._typing import Array
 from icenav.calibration.hysteresis import HysteresisPlan, fit_hysteresis, hysteresis_plan
+from icenav.calibration.map_prior import MapPrior
 from icenav.calibration.plans import MotionPlan, Recording
 from icenav.calibration.play_prior import PlayPrior
 from icenav.compensation.elasticity import CalibrationSet, ElasticityMap
@@ -251,6 +252,8 @@ class ShortRingCalibration:
     and :meth:`model_to_motor_path` sends it to the translation."""
     prior: PlayPrior | None = None
     """The play prior the roll's and the twist's plays were scaled from (None: lines)."""
+    map_prior: MapPrior | None = None
+    """The map prior F's interpolant was built around (None: the samples alone)."""
 
     def model_to_motor_path(self, q_model: ArrayLike) -> Array:
         """Motor joint states (n, 4) of a path of model joint states (n, 4) in the order
@@ -280,6 +283,8 @@ def fit_short_rings(
     *,
     fit_length: bool = True,
     prior: PlayPrior | None = None,
+    map_prior: MapPrior | None = None,
+    map_scaled: bool = False,
 ) -> ShortRingCalibration:
     """F on the five points (``five_point``, the paper's search) and the tracked ring stops,
     and the roll's plays from the sweeps, of a recording of ``splan``; with ``fit_length``
@@ -287,7 +292,10 @@ def fit_short_rings(
     over every tracked pose), its axial excess removed from F's samples. With ``prior`` (an
     explicit option: the catheter model's play shapes from full calibrations of other
     catheters, :mod:`icenav.calibration.play_prior`) the roll's and the twist's plays are
-    the prior's shapes scaled to the bent sweep's readings (P1) instead of lines."""
+    the prior's shapes scaled to the bent sweep's readings (P1) instead of lines. With
+    ``map_prior`` (an explicit option, :mod:`icenav.calibration.map_prior`) each F is the
+    product line's mean tip plus the interpolated difference of the samples from it (M1;
+    ``map_scaled``: the line's deviation from the model scaled to the samples first, M2)."""
     if recording.plan is not splan.plan and recording.plan.segments != splan.plan.segments:
         raise ConfigurationError("the recording is not of this short calibration's plan")
     roll = fit_short_plays(splan, recording, prior, geometry)
@@ -316,7 +324,7 @@ def fit_short_rings(
     second = k > splan.n_stops
     ccw_first = turn_sense(splan.rings[:, :2])[1] > 0.0
 
-    def f_over(stops: Any) -> ElasticityMap:
+    def f_over(stops: Any, sense: int = 1) -> ElasticityMap:
         keep = stops & tracked
         samples = CalibrationSet(
             q_motor=np.vstack([five_point.q_motor[keep_five], q[keep]]),
@@ -325,13 +333,15 @@ def fit_short_rings(
             vessel=five_point.vessel,
             method="five-point+rings",
         )
+        if map_prior is not None:
+            return map_prior.build_map(samples, sense=sense, scaled=map_scaled, geometry=geometry)
         return ElasticityMap.build(samples, geometry)
 
     if not splan.both_ways:
-        fwd, rev = f_over(first | (k == 0)), None
+        fwd, rev = f_over(first | (k == 0), sense=1 if ccw_first else -1), None
     else:
         fwd = f_over(first if ccw_first else second)
-        rev = f_over(second if ccw_first else first)
+        rev = f_over(second if ccw_first else first, sense=-1)
     return ShortRingCalibration(
         elasticity_map=fwd,
         hysteresis=roll,
@@ -339,6 +349,7 @@ def fit_short_rings(
         reverse_map=rev,
         section=section,
         prior=prior,
+        map_prior=map_prior,
     )
 
 

@@ -124,9 +124,8 @@ SHORT_RINGS = "short+rings"
 """The 5-point search, coarse roll sweeps and ring stops turned both ways, F over the points
 and the stops (:mod:`icenav.calibration.short`; 111 moves; not in the default set)."""
 SHORT_PRIOR = "short+rings+prior"
-"""``short+rings``' moves fitted with the play prior of the product line (an explicit option:
-play shapes from full calibrations of other catheters of the family, ``eval/data/
-play_prior_<family>.json``, :mod:`icenav.calibration.play_prior`)."""
+"""``short+rings``' moves fitted with the product line's priors of the plays' shapes and the
+mean map (``eval/data/play_prior_<family>.json``; :mod:`icenav.calibration.map_prior`)."""
 ALL_CONDITIONS = (*CONDITIONS, SHORT, SHORT_RINGS, SHORT_PRIOR)
 """Every condition ``--conditions`` accepts."""
 FILE = "file"
@@ -345,7 +344,8 @@ def calibrate(
             rings = fit_short_rings(rplan, rec, five.calibration_set)
         if short_prior:
             prior = family_play_prior(plant)
-            with_prior = fit_short_rings(rplan, rec, five.calibration_set, prior=prior)
+            fp = five.calibration_set
+            with_prior = fit_short_rings(rplan, rec, fp, prior=prior, map_prior=prior.map)
     cat: CatheterCalibration = ours.details
     # the ablation: the knobs' own sweeps (not in our calibration), the roll's plays of ours
     rig.reset()
