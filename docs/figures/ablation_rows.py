@@ -3,6 +3,7 @@ as text."""
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Callable, Sequence
 from typing import Any
@@ -37,3 +38,36 @@ def error_row(e: Sequence[float]) -> str:
         return " / ".join(f"{e[4 * i + k]:.2f}" for i in range(3))
 
     return f"EM {part(0)} mm, {part(1)} deg | true {part(2)} mm, {part(3)} deg"
+
+
+def _ours_commands(ours: Any, q_model: Any) -> Any:
+    """Ours' commands for ``q_model``: a fresh (stateful) map for every spin, as the eval
+    does."""
+    return S.knob_map_commands(ours.knob_map(), S._approach_path(q_model))
+
+
+def variant_rows(
+    rig: Any,
+    tracker: Any,
+    variants: dict[str, Any],
+    ours: Any,
+    short_commands: Callable[[Any, Any], Any] = S.short_ring_commands,
+    label: str = "",
+    width: int = 12,
+) -> dict[str, list[float]]:
+    """Spin every short calibration of ``variants`` (name -> calibration, commanded by
+    ``short_commands(cal, q_model)``) and then ``ours`` (a full calibration, skipped when
+    None; a fresh stateful map for every spin, as the eval does) on ``rig``; prints one
+    :func:`error_row` a variant (prefixed by ``label``) and returns name -> errors."""
+    rows: dict[str, list[float]] = {}
+    names = [*variants, *(["ours"] if ours is not None else [])]
+    for name in names:
+        commands: Callable[[Any], Any]
+        if name == "ours":
+            commands = functools.partial(_ours_commands, ours)
+        else:
+            commands = functools.partial(short_commands, variants[name])
+        errs = spin_errors(rig, tracker, commands)
+        rows[name] = errs
+        print(f"{label}{name:{width}s} " + error_row(errs), flush=True)
+    return rows

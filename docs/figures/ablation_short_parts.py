@@ -29,7 +29,7 @@ from dataclasses import replace
 from typing import Any
 
 import numpy as np
-from ablation_rows import error_row, spin_errors
+from ablation_rows import variant_rows
 
 from icenav.calibration.plans import Recording
 from icenav.calibration.procedure import run_visits
@@ -79,19 +79,7 @@ def short_commands(sr: Any, q_model: Any) -> Any:
     return S.short_ring_commands(sr, q_model)
 
 
-rows: dict[str, list[float]] = {}
-for name in [*variants, "ours"]:
-    if name == "ours":
-        o = ours  # a fresh (stateful) map for every spin, as the eval does
-        errs = spin_errors(
-            rig, tracker, lambda q, o=o: S.knob_map_commands(o.knob_map(), S._approach_path(q))
-        )
-    else:
-        cal = variants[name]
-        errs = spin_errors(rig, tracker, lambda q, cal=cal: short_commands(cal, q))
-    rows[name] = errs
-    e = errs
-    print(f"{name:12s} " + error_row(e), flush=True)
+rows = variant_rows(rig, tracker, variants, ours, short_commands=short_commands)
 if out_path:
     with open(out_path, "w") as fh:
         json.dump({"family": fam, "seed": seed, "rows": rows}, fh, indent=1)

@@ -28,7 +28,7 @@ import math
 import sys
 from typing import Any
 
-from ablation_rows import error_row, spin_errors
+from ablation_rows import variant_rows
 
 from icenav.calibration.procedure import run_visits
 from icenav.calibration.procedures import plan_visits
@@ -66,19 +66,7 @@ for name, kw in SETS[which]:
     variants[name] = fit_short_rings(plan, rec, five)
     variants[name + "+prior"] = fit_short_rings(plan, rec, five, prior=prior)
 
-rows: dict[str, list[float]] = {}
-for name in [*variants, *(["ours"] if ours is not None else [])]:
-    if name == "ours":
-        assert ours is not None
-        o = ours  # a fresh (stateful) map for every spin, as the eval does
-        errs = spin_errors(
-            rig, tracker, lambda q, o=o: S.knob_map_commands(o.knob_map(), S._approach_path(q))
-        )
-    else:
-        cal = variants[name]
-        errs = spin_errors(rig, tracker, lambda q, cal=cal: S.short_ring_commands(cal, q))
-    rows[name] = errs
-    print(f"{fam} {seed} {name:12s} " + error_row(errs), flush=True)
+rows = variant_rows(rig, tracker, variants, ours, label=f"{fam} {seed} ")
 if out_path:
     with open(out_path, "w") as fh:
         json.dump({"family": fam, "seed": seed, "set": which, "rows": rows}, fh, indent=1)
