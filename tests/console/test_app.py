@@ -438,9 +438,10 @@ def test_the_banner_follows_estops_and_resets_coalesced_between_draws(console: C
 
 
 def test_a_draw_that_failed_halfway_is_done_again_without_a_new_state(console: Console) -> None:
-    """The reset's state is taken, its draw fails before the banner (as a viser warning
-    does where warnings are errors) and the controller publishes nothing more: the next
-    refresh still hides the banner (it was once left shown until the next publish)."""
+    """The reset's state is taken, its draw raises before the banner (here the gamepad
+    query, once; the refresh thread shows any such error and goes on) and the controller
+    publishes nothing more: the next refresh still hides the banner (the state taken was
+    once lost with the failed draw, the banner left shown until the next publish)."""
     ctl: RecordingController = console.controller  # type: ignore[assignment]
     ctl.publish(make_state(mode=Mode.ESTOP, message=ESTOP_BY.format("browser-0")))
     console.refresh_once()
