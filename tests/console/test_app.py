@@ -22,7 +22,7 @@ from icenav.control.state import ControllerCommands, ImageFrame, Mode, ViewSumma
 from icenav.errors import ConfigurationError
 from icenav.geometry.kinematics import forward
 from icenav.persistence.dicom import PRIVATE_CREATOR, read_view_clip
-from tests.support.console import FakeClient, RecordingController, make_state
+from tests.support.console import FakeClient, RecordingController, WireClient, make_state
 
 
 def test_recording_controller_satisfies_the_protocol() -> None:
@@ -555,3 +555,56 @@ def test_a_state_published_while_a_refresh_runs_is_shown_by_the_next(
     assert _banner_shown(console) is (then.mode is Mode.ESTOP)
     assert console.refresh_once() is False
     assert _banner_shown(console) is (then.mode is Mode.ESTOP)
+
+
+def test_pages_connecting_before_during_and_after_a_halt_are_sent_the_current_banner(
+    console: Console,
+) -> None:
+    """What the browsers are sent, read off viser's websocket (no browser): a page
+    connected before the E-STOP gets the banner and then its removal; a page connecting
+    while halted gets it in the replay; a page connecting while the refresh drawing the
+    reset is held before the bar (it connects in that moment) ends with it hidden, as
+    does a page connecting after the reset."""
+    import threading
+
+    ctl: RecordingController = console.controller  # type: ignore[assignment]
+    console.refresh_once()
+    pages: list[WireClient] = []
+
+    def page() -> WireClient:
+        w = WireClient(console.port)
+        pages.append(w)
+        w.until(lambda w: w.replayed, "the end of the replay")
+        return w
+
+    def shown(w: WireClient) -> bool | None:
+        assert w.visible(console._banner) == w.visible(console._reset)
+        return w.visible(console._banner)
+
+    try:
+        before = page()
+        assert shown(before) is False
+        ctl.publish(make_state(mode=Mode.ESTOP, message=ESTOP_BY.format("browser-0")))
+        console.refresh_once()
+        before.until(lambda w: shown(w) is True, "the banner")
+        assert shown(page()) is True
+        racing: list[WireClient] = []
+        gamepad = console.gamepad_state
+
+        def connect_then_draw() -> Any:  # the page connects while the refresh is held
+            if not racing:
+                racing.append(page())
+                assert shown(racing[0]) is True
+            return gamepad()
+
+        console.gamepad_state = connect_then_draw  # type: ignore[method-assign]
+        ctl.publish(make_state(mode=Mode.IDLE, message="reset by browser-0; holding position"))
+        refresher = threading.Thread(target=console.refresh_once, name="refresh")
+        refresher.start()
+        refresher.join()
+        for w in (before, racing[0]):
+            w.until(lambda w: shown(w) is False, "the banner hidden")
+        assert shown(page()) is False
+    finally:
+        for w in pages:
+            w.close()
