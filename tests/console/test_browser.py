@@ -273,6 +273,17 @@ def _jog_rate(states: list[ControllerState]) -> tuple[float, float]:
     return math.degrees(dq[dq > 0].sum() / dt[dq > 0].sum()), float(np.mean(dq > 0))
 
 
+PAGE_QUEUE_JS = """() => {
+  const m = window.__viserMutable;  // viser exposes its client's state for E2E tests
+  const canvas = document.querySelector('canvas[data-engine]');
+  const gl = canvas ? canvas.getContext('webgl2') || canvas.getContext('webgl') : null;
+  return {queued: m ? m.messageQueue.length : null, render: m ? m.getRenderRequestState : null,
+          hidden: document.hidden, contextLost: gl ? gl.isContextLost() : null};
+}"""
+"""The page's side of a stuck banner: messages received but not applied (viser drains its
+queue in the 3-D scene's frame loop), a render capture in flight, a lost WebGL context."""
+
+
 def _banner_state(console: Console, waiter: StateWaiter, page: Any) -> str:
     """What the server drew, what the controller is in and what the page shows (for a
     failing banner check: a stuck banner must say which side is stale)."""
@@ -282,6 +293,10 @@ def _banner_state(console: Console, waiter: StateWaiter, page: Any) -> str:
     changes = [m for i, m in enumerate(modes) if i == 0 or m != modes[i - 1]]
     drawn = console._drawn
     banners = page.locator(".icenav-banner")
+    try:
+        client = page.evaluate(PAGE_QUEUE_JS)
+    except Exception as exc:  # a diagnostic never hides the failure it describes
+        client = f"not read: {exc}"
     return (
         f"console: banner handle visible {console._banner.visible}, reset visible "
         f"{console._reset.visible}, last drawn state "
@@ -289,7 +304,8 @@ def _banner_state(console: Console, waiter: StateWaiter, page: Any) -> str:
         f"{console.last_error!r}, {console.stats()}; controller: {s.mode.name} "
         f"({s.message!r}, cycle {s.cycle}), last published "
         f"{None if last is None else last.mode.name} (modes of its last {len(modes)} states: "
-        f"{changes}); page: {banners.count()} banner element(s) {banners.all_inner_texts()}"
+        f"{changes}); page: {banners.count()} banner element(s) {banners.all_inner_texts()}, "
+        f"viser client {client}"
     )
 
 
