@@ -291,7 +291,10 @@ class WireClient:
     """A browser's view of the console without a browser: a websocket client of the viser
     server that decodes what the server sends (zstd-compressed msgpack windows, viser's
     wire format) and keeps the latest properties of each GUI element, as the page applies
-    them. Waits are reads on the socket (with a timeout), never sleeps.
+    them. Waits are reads on the socket (with a timeout), never sleeps. It sends nothing,
+    so it sees what every browser is sent (the safety bar, the image, the scene) but is no
+    browser to the console: viser calls the console's connection handler (a panel, control)
+    only after a client's first camera message.
 
     Parameters
     ----------
