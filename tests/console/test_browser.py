@@ -445,9 +445,9 @@ def test_console_on_the_real_controller(browser: Any) -> None:
                     break
                 page.get_by_role("button", name="Reset fault", exact=True).click()
                 waiter.until(lambda s: s.mode is Mode.IDLE, "reset to idle")
-                # the banner's going shifts the panel up: wait for it before the next hold,
-                # or the mouse, placed on AP knob +, pressed the button below (measured:
-                # 2 of 7 runs drove phi2 to its limit)
+                # the banner's going shifts the panel up: wait for it before the next hold
+                # places the mouse on AP knob + (a suspected cause, not shown, of 2 of 7
+                # runs at e00ffb5 that drove phi2, not phi1, to its limit in this loop)
                 _expect_banner(console, waiter, page, False)
             assert interrupted(states), "the go-to ended before Esc three times"
             stopped = waiter.until(lambda s: s.mode is Mode.ESTOP, "e-stop by the shortcut")
