@@ -22,7 +22,7 @@ from icenav.control.state import ControllerCommands, ImageFrame, Mode, ViewSumma
 from icenav.errors import ConfigurationError
 from icenav.geometry.kinematics import forward
 from icenav.persistence.dicom import PRIVATE_CREATOR, read_view_clip
-from tests.support.console import FakeClient, RecordingController, make_state
+from tests.support.console import FakeClient, RecordingController, WireClient, make_state
 
 
 def test_recording_controller_satisfies_the_protocol() -> None:
@@ -395,3 +395,216 @@ def test_a_console_port_in_use_is_an_error_naming_it() -> None:
         with pytest.raises(ConfigurationError, match=f"console port {port} on 127.0.0.1 is in use"):
             console.start()
         assert console._server is None  # noqa: SLF001 - nothing left serving elsewhere
+
+
+# ---------------------------------------------------------------- the halt banner
+ESTOP_BY = "e-stop by {}: reset to continue"
+
+
+def _banner_shown(c: Console) -> bool:
+    """The banner and its Reset button as the page was sent them (the handles' state);
+    the two never differ."""
+    assert c._banner.visible == c._reset.visible
+    return bool(c._banner.visible)
+
+
+def test_the_banner_follows_estops_and_resets_coalesced_between_draws(console: Console) -> None:
+    """E-STOP, reset, E-STOP, fault landing between two draws: each draw shows the latest
+    state only, with its cause."""
+    ctl: RecordingController = console.controller  # type: ignore[assignment]
+    console.refresh_once()
+    assert not _banner_shown(console)
+    ctl.publish(make_state(mode=Mode.ESTOP, message=ESTOP_BY.format("browser-0")))
+    console.refresh_once()
+    assert _banner_shown(console) and "browser #0" in console._banner.content
+    ctl.publish(make_state(mode=Mode.ESTOP, message=ESTOP_BY.format("browser-1")))
+    ctl.publish(make_state(mode=Mode.IDLE, message="reset by browser-0; holding position"))
+    console.refresh_once()  # the second E-STOP was never drawn: its reset hides the banner
+    assert not _banner_shown(console)
+    ctl.publish(make_state(mode=Mode.ESTOP, message=ESTOP_BY.format("browser-2")))
+    ctl.publish(make_state(mode=Mode.IDLE))
+    ctl.publish(make_state(mode=Mode.FAULT, message="drive 2 following error"))
+    console.refresh_once()
+    assert _banner_shown(console)
+    assert (
+        "FAULT" in console._banner.content and "drive 2 following error" in console._banner.content
+    )
+    ctl.publish(make_state(mode=Mode.ESTOP, message=ESTOP_BY.format("browser-3")))
+    console.refresh_once()  # halted before and after: the cause still follows
+    assert "browser #3" in console._banner.content and "FAULT" not in console._banner.content
+    ctl.publish(make_state(mode=Mode.IDLE))
+    console.refresh_once()
+    assert not _banner_shown(console)
+
+
+def test_a_draw_that_failed_halfway_is_done_again_without_a_new_state(console: Console) -> None:
+    """The reset's state is taken, its draw raises before the banner (here the gamepad
+    query, once; the refresh thread shows any such error and goes on) and the controller
+    publishes nothing more: the next refresh still hides the banner (the state taken was
+    once lost with the failed draw, the banner left shown until the next publish)."""
+    ctl: RecordingController = console.controller  # type: ignore[assignment]
+    ctl.publish(make_state(mode=Mode.ESTOP, message=ESTOP_BY.format("browser-0")))
+    console.refresh_once()
+    assert _banner_shown(console)
+    gamepad = console.gamepad_state
+    failures = iter([UserWarning("Queued a GuiUpdateMessage on a closed connection")])
+
+    def fails_once() -> Any:
+        for exc in failures:
+            raise exc
+        return gamepad()
+
+    console.gamepad_state = fails_once  # type: ignore[method-assign]
+    ctl.publish(make_state(mode=Mode.IDLE, message="reset by browser-0; holding position"))
+    with pytest.raises(UserWarning):
+        console.refresh_once()
+    assert _banner_shown(console)  # the failed draw left the E-STOP's banner
+    assert console.refresh_once() is True  # no new state: the controller's current one
+    assert not _banner_shown(console)
+    assert console.refresh_once() is False  # drawn: not again
+
+
+def test_a_halt_the_controller_told_no_listener_reaches_the_banner() -> None:
+    """A listener before the console's raises, so every publish fails: the controller
+    faults and keeps its FAULT state for readers (``publish_minimal``) without calling the
+    console's listener; the console still shows the banner with the cause."""
+    from icenav.control.controller import Controller, ControllerConfig
+    from icenav.devices.sim_robot import IdealPlant, SimulatedRobot
+
+    ctrl = Controller(SimulatedRobot(IdealPlant()), ControllerConfig())
+
+    def broken(state: Any) -> None:
+        raise RuntimeError("a broken listener")
+
+    ctrl.add_listener(broken)
+    with Console(ctrl, port=0, refresh_hz=0.01) as c:
+        c.refresh_once()
+        assert not _banner_shown(c)
+        offered = c.stats().states_offered
+        state = ctrl.run_cycles(3)
+        assert state.mode is Mode.FAULT and c.stats().states_offered == offered
+        assert c.refresh_once() is True
+        assert _banner_shown(c) and "a broken listener" in c._banner.content
+        assert "FAULT" in c._safety.content
+
+
+HOLD_POINTS = {
+    # name: (what is held, publish after it returned (True) or before it runs, a new state
+    # waiting in the slot)
+    "after an empty take": ("take", True, False),
+    "after the take": ("take", True, True),
+    "after the snapshot": ("snapshot", True, True),
+    "before the bar": ("gamepad_state", False, True),
+    "after the bar": ("draw_scene", False, True),
+}
+"""Where a refresh is held while the control thread publishes (the refresh's order: take
+the newest state from the slot, ask the controller's snapshot, draw the safety bar (it
+asks the gamepad first), the scene, the panels)."""
+
+
+@pytest.mark.parametrize("where", list(HOLD_POINTS))
+@pytest.mark.parametrize("halt_first", [True, False], ids=["reset lands", "e-stop lands"])
+def test_a_state_published_while_a_refresh_runs_is_shown_by_the_next(
+    console: Console, where: str, halt_first: bool
+) -> None:
+    """The control thread publishes (a reset, or an E-STOP) while the refresh thread is
+    held at each point of a refresh: the next refresh leaves the banner showing the
+    controller's state, and a refresh after that draws nothing new."""
+    import dataclasses
+    import threading
+
+    ctl: RecordingController = console.controller  # type: ignore[assignment]
+    estop = make_state(mode=Mode.ESTOP, message=ESTOP_BY.format("browser-0"))
+    idle = make_state(mode=Mode.IDLE, message="reset by browser-0; holding position")
+    first, then = (estop, idle) if halt_first else (idle, estop)
+    ctl.publish(first)
+    console.refresh_once()
+    held_name, after, waiting = HOLD_POINTS[where]
+    if waiting:  # the same mode, one cycle later: a state for the held refresh to draw
+        ctl.publish(dataclasses.replace(first, cycle=1, time=0.01))
+
+    control = threading.Thread(target=ctl.publish, args=(then,), name="control")
+    met = threading.Event()
+
+    def publish_here() -> None:  # the control thread runs now; the refresh thread waits
+        if not met.is_set():
+            met.set()
+            control.start()
+            control.join()
+
+    owner: Any = {"take": console._slot, "snapshot": ctl, "draw_scene": console.scene}.get(
+        held_name, console
+    )
+    attr = "draw_state" if held_name == "draw_scene" else held_name
+    fn = getattr(owner, attr)
+
+    def held(*args: Any) -> Any:
+        if not after:
+            publish_here()
+        out = fn(*args)
+        if after:
+            publish_here()
+        return out
+
+    setattr(owner, attr, held)
+    refresher = threading.Thread(target=console.refresh_once, name="refresh")
+    refresher.start()
+    refresher.join()
+    assert met.is_set()
+    console.refresh_once()
+    assert _banner_shown(console) is (then.mode is Mode.ESTOP)
+    assert console.refresh_once() is False
+    assert _banner_shown(console) is (then.mode is Mode.ESTOP)
+
+
+def test_pages_connecting_before_during_and_after_a_halt_are_sent_the_current_banner(
+    console: Console,
+) -> None:
+    """What the browsers are sent, read off viser's websocket (no browser): a page
+    connected before the E-STOP gets the banner and then its removal; a page connecting
+    while halted gets it in the replay; a page connecting while the refresh drawing the
+    reset is held before the bar (it connects in that moment) ends with it hidden, as
+    does a page connecting after the reset."""
+    import threading
+
+    ctl: RecordingController = console.controller  # type: ignore[assignment]
+    console.refresh_once()
+    pages: list[WireClient] = []
+
+    def page() -> WireClient:
+        w = WireClient(console.port)
+        pages.append(w)
+        w.until(lambda w: w.replayed, "the end of the replay")
+        return w
+
+    def shown(w: WireClient) -> bool | None:
+        assert w.visible(console._banner) == w.visible(console._reset)
+        return w.visible(console._banner)
+
+    try:
+        before = page()
+        assert shown(before) is False
+        ctl.publish(make_state(mode=Mode.ESTOP, message=ESTOP_BY.format("browser-0")))
+        console.refresh_once()
+        before.until(lambda w: shown(w) is True, "the banner")
+        assert shown(page()) is True
+        racing: list[WireClient] = []
+        gamepad = console.gamepad_state
+
+        def connect_then_draw() -> Any:  # the page connects while the refresh is held
+            if not racing:
+                racing.append(page())
+                assert shown(racing[0]) is True
+            return gamepad()
+
+        console.gamepad_state = connect_then_draw  # type: ignore[method-assign]
+        ctl.publish(make_state(mode=Mode.IDLE, message="reset by browser-0; holding position"))
+        refresher = threading.Thread(target=console.refresh_once, name="refresh")
+        refresher.start()
+        refresher.join()
+        for w in (before, racing[0]):
+            w.until(lambda w: shown(w) is False, "the banner hidden")
+        assert shown(page()) is False
+    finally:
+        for w in pages:
+            w.close()

@@ -273,6 +273,58 @@ def _jog_rate(states: list[ControllerState]) -> tuple[float, float]:
     return math.degrees(dq[dq > 0].sum() / dt[dq > 0].sum()), float(np.mean(dq > 0))
 
 
+PAGE_QUEUE_JS = """() => {
+  const m = window.__viserMutable;  // viser exposes its client's state for E2E tests
+  const canvas = document.querySelector('canvas[data-engine]');
+  const gl = canvas ? canvas.getContext('webgl2') || canvas.getContext('webgl') : null;
+  return {queued: m ? m.messageQueue.length : null, render: m ? m.getRenderRequestState : null,
+          hidden: document.hidden, contextLost: gl ? gl.isContextLost() : null};
+}"""
+"""The page's side of a stuck banner: messages received but not applied (viser drains its
+queue in the 3-D scene's frame loop), a render capture in flight, a lost WebGL context."""
+
+
+def _banner_state(console: Console, waiter: StateWaiter, page: Any) -> str:
+    """What the server drew, what the controller is in and what the page shows (for a
+    failing banner check: a stuck banner must say which side is stale)."""
+    s = console.controller.snapshot()
+    last = waiter.latest
+    modes = [h.mode.name for h in waiter.history[-3000:]]
+    changes = [m for i, m in enumerate(modes) if i == 0 or m != modes[i - 1]]
+    drawn = console._drawn
+    banners = page.locator(".icenav-banner")
+    try:
+        client = page.evaluate(PAGE_QUEUE_JS)
+    except Exception as exc:  # a diagnostic never hides the failure it describes
+        client = f"not read: {exc}"
+    return (
+        f"console: banner handle visible {console._banner.visible}, reset visible "
+        f"{console._reset.visible}, last drawn state "
+        f"{None if drawn is None else (drawn.mode.name, drawn.cycle)}, last_error "
+        f"{console.last_error!r}, {console.stats()}; controller: {s.mode.name} "
+        f"({s.message!r}, cycle {s.cycle}), last published "
+        f"{None if last is None else last.mode.name} (modes of its last {len(modes)} states: "
+        f"{changes}); page: {banners.count()} banner element(s) {banners.all_inner_texts()}, "
+        f"viser client {client}"
+    )
+
+
+def _expect_banner(console: Console, waiter: StateWaiter, page: Any, shown: bool) -> None:
+    """The page's halt banner is shown (or hidden) within the test's timeout."""
+    from playwright.sync_api import expect
+
+    banner = page.locator(".icenav-banner")
+    try:
+        if shown:
+            expect(banner).to_be_visible()
+        else:
+            expect(banner).to_be_hidden()
+    except AssertionError as exc:
+        raise AssertionError(
+            f"banner not {'shown' if shown else 'hidden'}: {_banner_state(console, waiter, page)}"
+        ) from exc
+
+
 def test_console_on_the_real_controller(browser: Any) -> None:
     """At 1400 x 900 and 1920 x 1080: the layout; then a view saved with
     its thumbnail, the held jog at its stated speed, Esc stopping a go-to-view, the ESTOP
@@ -393,13 +445,17 @@ def test_console_on_the_real_controller(browser: Any) -> None:
                     break
                 page.get_by_role("button", name="Reset fault", exact=True).click()
                 waiter.until(lambda s: s.mode is Mode.IDLE, "reset to idle")
+                # the banner's going shifts the panel up: wait for it before the next hold
+                # places the mouse on AP knob + (a suspected cause, not shown, of 2 of 7
+                # runs at e00ffb5 that drove phi2, not phi1, to its limit in this loop)
+                _expect_banner(console, waiter, page, False)
             assert interrupted(states), "the go-to ended before Esc three times"
             stopped = waiter.until(lambda s: s.mode is Mode.ESTOP, "e-stop by the shortcut")
             later = waiter.next_states(10)
             assert np.ptp(np.array([s.q_motor for s in later]), axis=0).max() == 0.0
             assert "browser-0" in stopped.message
             banner = page.locator(".icenav-banner")
-            expect(banner).to_be_visible()
+            _expect_banner(console, waiter, page, True)
             expect(banner).to_contain_text("Cause:")
             expect(banner).to_contain_text("browser #0")  # the cause, in words
             controls = panel.all_motion_controls()  # every tab's, and the list's Go to
@@ -409,12 +465,13 @@ def test_console_on_the_real_controller(browser: Any) -> None:
             expect(page.get_by_role("button", name="Reset fault", exact=True)).to_be_enabled()
             page.get_by_role("button", name="Reset fault", exact=True).click()
             waiter.until(lambda s: s.mode is Mode.IDLE, "reset to idle")
-            expect(banner).to_be_hidden()
+            _expect_banner(console, waiter, page, False)
             expect(save).to_be_enabled()
 
             # a second browser is view only; its E-STOP stops the first one's spin
             page2 = _open(browser, console.url, 1400, 900)
             expect(page2.get_by_text("View only: browser #0 has control")).to_be_visible()
+            _expect_banner(console, waiter, page2, False)  # a page opened after the reset
             expect(page2.get_by_role("button", name="Save view", exact=True)).to_be_disabled()
             page.get_by_role("tab", name="Drive").click()
             page.get_by_role("button", name="Spin 360", exact=True).click()
@@ -428,8 +485,11 @@ def test_console_on_the_real_controller(browser: Any) -> None:
             assert np.ptp(np.array([s.q_motor for s in later]), axis=0).max() == 0.0
             assert "browser-1" in stopped.message
             expect(page.locator(".icenav-banner")).to_contain_text("browser #1")
+            _expect_banner(console, waiter, page2, True)
             page.get_by_role("button", name="Reset fault", exact=True).click()
             waiter.until(lambda s: s.mode is Mode.IDLE, "reset to idle")
+            for p in (page, page2):  # every page shows the reset
+                _expect_banner(console, waiter, p, False)
 
             # control passes: the first browser releases it, the second takes it
             page.get_by_role("button", name="Release control", exact=True).click()

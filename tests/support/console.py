@@ -285,3 +285,69 @@ class FakeClient:
     def __init__(self, client_id: int) -> None:
         self.client_id = client_id
         self.gui = FakeGui()
+
+
+class WireClient:
+    """A browser's view of the console without a browser: a websocket client of the viser
+    server that decodes what the server sends (zstd-compressed msgpack windows, viser's
+    wire format) and keeps the latest properties of each GUI element, as the page applies
+    them. Waits are reads on the socket (with a timeout), never sleeps. It sends nothing,
+    so it sees what every browser is sent (the safety bar, the image, the scene) but is no
+    browser to the console: viser calls the console's connection handler (a panel, control)
+    only after a client's first camera message.
+
+    Parameters
+    ----------
+    port : int
+        The console's port (``Console.port``).
+    """
+
+    def __init__(self, port: int) -> None:
+        import viser
+        from websockets.sync.client import connect
+        from websockets.typing import Subprotocol
+
+        self.props: dict[str, dict[str, Any]] = {}
+        """uuid -> the element's properties as received (create, then updates)."""
+        self.replayed = False
+        """True once the server's replay of what was drawn before the connection ended."""
+        self._ws = connect(
+            f"ws://127.0.0.1:{port}", subprotocols=[Subprotocol(f"viser-v{viser.__version__}")]
+        )
+
+    def close(self) -> None:
+        self._ws.close()
+
+    def _read(self, timeout_s: float) -> None:
+        import msgspec
+        import zstandard
+
+        raw = self._ws.recv(timeout=timeout_s)
+        assert isinstance(raw, bytes)
+        size, compressed = (int.from_bytes(raw[i : i + 8], "little") for i in (0, 8))
+        inner = zstandard.ZstdDecompressor().decompress(
+            raw[16 : 16 + compressed], max_output_size=size
+        )
+        for m in msgspec.msgpack.decode(inner)["messages"]:
+            if m["type"] == "ReplayDoneMessage":
+                self.replayed = True
+            elif m["type"] == "GuiUpdateMessage":
+                self.props.setdefault(m["uuid"], {}).update(m["updates"])
+            elif isinstance(m.get("props"), dict) and "uuid" in m:
+                self.props[m["uuid"]] = dict(m["props"])
+
+    def until(self, done: Callable[[WireClient], bool], what: str, timeout_s: float = 10.0) -> None:
+        """Read the server's messages until ``done(self)``."""
+        import time
+
+        deadline = time.monotonic() + timeout_s
+        while not done(self):
+            left = deadline - time.monotonic()
+            assert left > 0, f"the wire client never saw {what}"
+            with contextlib.suppress(TimeoutError):
+                self._read(left)
+
+    def visible(self, handle: Any) -> bool | None:
+        """Whether the page shows ``handle`` (None: the element never arrived)."""
+        p = self.props.get(handle._impl.uuid)
+        return None if p is None else bool(p.get("visible", True))

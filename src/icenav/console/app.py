@@ -17,7 +17,8 @@ Threads
 - The control thread calls the console's listener with each published state; the listener
   only drops the state into a :class:`~icenav.console.panels.LatestSlot` (never blocks).
 - One refresh thread wakes at ``refresh_hz``, takes the newest state (older ones are
-  coalesced away), updates the scene and panels, and sends a new ICE image when there is one.
+  coalesced away; the controller's snapshot when a draw did not finish), draws the safety
+  bar from that state alone, updates the scene and panels, and sends a new ICE image.
 - viser's thread pool runs the GUI callbacks, which only submit commands to the controller
   (:mod:`icenav.console.commands`); what the controller decided is shown in the panel of the
   browser that asked. Export DICOM writes its file on the refresh thread once accepted.
@@ -289,8 +290,8 @@ class Console(ConsoleCommands):
         self._last_image_t: float | None = None
         self._last_frame: ImageFrame | None = None
         self._message = ("", 0.0)
-        self._safety_shown = ""
-        self._halted: bool | None = None
+        self._drawn: ControllerState | None = None
+        """The state the latest draw finished (None until one did)."""
 
     # ------------------------------------------------------------------ lifecycle
     @property
@@ -675,11 +676,21 @@ class Console(ConsoleCommands):
 
     # ------------------------------------------------------------------ refreshing
     def refresh_once(self) -> bool:
-        """Draw the newest state (if a new one came) and the newest image; True if drawn."""
+        """Draw the newest state and image; True if a state was drawn.
+
+        The newest state the listener got, else the controller's ``snapshot()`` when the
+        latest draw did not finish with it: a draw that failed halfway is done again at
+        the next refresh (not left half drawn until the controller publishes again), and
+        a state told to no listener (``publish_minimal`` after a failed publish: the
+        FAULT) still reaches the page."""
         drew = False
         state = self._slot.take()
-        if state is not None:
+        current = self.controller.snapshot()
+        if state is None and current is not self._drawn:
+            state = current
+        if state is not None and state is not self._drawn:
             self._draw_state(state)
+            self._drawn = state
             self._refreshes += 1
             drew = True
         frame = self.controller.latest_image()
@@ -705,18 +716,7 @@ class Console(ConsoleCommands):
     def _draw_state(self, state: ControllerState) -> None:
         with self._lock:
             self._last_state = state
-        safety = safety_markdown(state, self.gamepad_state())
-        if safety != self._safety_shown:
-            self._safety.content = safety
-            self._safety_shown = safety
-        banner = halt_banner(state)
-        halted = banner is not None
-        if banner is not None:
-            self._banner.content = f'<div class="icenav-banner">{banner.html()}</div>'
-        if halted != self._halted:
-            self._banner.visible = halted
-            self._reset.visible = halted
-            self._halted = halted
+        self._draw_safety(state)
         self._summary.content = summary_markdown(state, self._fresh_message(state))
         self._history.append(state.time, state.q_motor)
         # the status table and the plot are costly to re-render in the browser: status_hz
@@ -735,6 +735,20 @@ class Console(ConsoleCommands):
         with self._lock:  # a browser connecting or leaving waits for this
             for p in self._panels.values():
                 self._update_panel(p, state)
+
+    def _draw_safety(self, state: ControllerState) -> None:
+        """The safety bar from ``state`` alone: the status line; in ESTOP or FAULT the
+        banner with its cause and the Reset button, hidden otherwise.
+
+        Every draw assigns all of them (viser sends a property only when it differs from
+        the handle's: an unchanged bar costs nothing), so the handles are the one record
+        of what the page was sent; no flag kept beside them decides what to redraw."""
+        self._safety.content = safety_markdown(state, self.gamepad_state())
+        banner = halt_banner(state)
+        if banner is not None:  # the cause first: never a shown banner with an old cause
+            self._banner.content = f'<div class="icenav-banner">{banner.html()}</div>'
+        self._banner.visible = banner is not None
+        self._reset.visible = banner is not None
 
     def _draw_image(self, frame: ImageFrame, state: ControllerState | None) -> None:
         self._last_frame = frame
