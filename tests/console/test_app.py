@@ -10,18 +10,20 @@ from __future__ import annotations
 
 import urllib.request
 from pathlib import Path
+from types import SimpleNamespace
 from typing import Any
 
 import numpy as np
 import pydicom
 import pytest
 
-from icenav.console import Console
+from icenav.console import Console, ConsoleConfig
 from icenav.control.commands import Source
 from icenav.control.state import ControllerCommands, ImageFrame, Mode, ViewSummary
 from icenav.errors import ConfigurationError
 from icenav.geometry.kinematics import forward
 from icenav.persistence.dicom import PRIVATE_CREATOR, read_view_clip
+from tests.support.clock import Clock
 from tests.support.console import FakeClient, RecordingController, WireClient, make_state
 
 
@@ -608,3 +610,84 @@ def test_pages_connecting_before_during_and_after_a_halt_are_sent_the_current_ba
     finally:
         for w in pages:
             w.close()
+
+
+# ---------------------------------------------------------------- the stale-state banner
+def _stale_shown(c: Console) -> bool:
+    return bool(c._stale.visible)
+
+
+def _press_estop(c: Console, client_id: int) -> None:
+    """The shared E-STOP button pressed by browser ``client_id`` (its callbacks, as viser
+    calls them from its thread pool)."""
+    for cb in c._estop._impl.update_cb:  # noqa: SLF001 - viser's handle keeps them there
+        cb(SimpleNamespace(client_id=client_id, client=None, target=c._estop))
+
+
+def test_the_stale_banner_shows_while_no_state_comes_and_goes_when_states_resume() -> None:
+    """A double that stops publishing, on the console's injected clock: the banner shows
+    once the newest state is older than ``stale_after_s`` with its age, follows the age,
+    and goes at the first new state (from the mailbox, or the controller's snapshot)."""
+    ctl = RecordingController()
+    clock = Clock()
+    with Console(ctl, port=0, refresh_hz=0.01, clock=clock, config=ConsoleConfig(0.5)) as c:
+        c.refresh_once()  # the snapshot offered at start, seen at t = 0
+        assert not _stale_shown(c)
+        clock.t = 0.5
+        c.refresh_once()
+        assert not _stale_shown(c)  # at the threshold: not beyond it
+        clock.t = 0.54
+        assert c.refresh_once() is False and _stale_shown(c)
+        assert "No state from the controller for 0.5 s" in c._stale.content
+        clock.t = 2.0
+        c.refresh_once()
+        assert "for 2.0 s: the robot&#x27;s state is unknown" in c._stale.content
+        assert not _banner_shown(c)  # the last state was IDLE: no halt banner
+        ctl.publish(make_state(cycle=1, time=0.01))  # states resume
+        assert c.refresh_once() is True and not _stale_shown(c)
+        clock.t = 3.0
+        c.refresh_once()
+        assert _stale_shown(c)
+        ctl._state = make_state(cycle=2, time=0.02)  # told to no listener: the snapshot
+        c.refresh_once()
+        assert not _stale_shown(c)
+
+
+def test_a_stalled_real_controller_shows_stale_and_both_banners_keep_the_cause() -> None:
+    """The real controller stepped by hand (its loop "hangs" between steps): an E-STOP
+    pressed on the console meanwhile reaches the controller at once, but no state shows it
+    (console10's finding); the stale banner says the state is unknown until the loop runs
+    again, then the halt banner shows the cause; stalled again, both show, the cause kept."""
+    from icenav.control.controller import Controller, ControllerConfig
+    from icenav.devices.sim_robot import IdealPlant, SimulatedRobot
+
+    ctrl = Controller(SimulatedRobot(IdealPlant()), ControllerConfig())
+    clock = Clock()
+    with Console(ctrl, port=0, refresh_hz=0.01, clock=clock) as c:
+        ctrl.run_cycles(1)
+        c.refresh_once()
+        assert not _stale_shown(c) and not _banner_shown(c)
+        clock.t = 0.8  # the loop stalls: no cycle, no state
+        _press_estop(c, 1)
+        assert ctrl.mode is Mode.ESTOP  # the indicator never stood in the E-STOP's way
+        c.refresh_once()
+        assert _stale_shown(c) and not _banner_shown(c)  # the page cannot know the E-STOP
+        ctrl.run_cycles(1)  # the loop runs again
+        c.refresh_once()
+        assert not _stale_shown(c) and _banner_shown(c) and "browser #1" in c._banner.content
+        clock.t = 2.0  # stalls again: both banners, the halt's cause kept
+        c.refresh_once()
+        assert _stale_shown(c) and _banner_shown(c) and "browser #1" in c._banner.content
+        assert "for 1.2 s" in c._stale.content
+        ctrl.run_cycles(1)
+        c.refresh_once()
+        assert not _stale_shown(c) and _banner_shown(c)
+
+
+def test_a_threshold_below_the_controllers_publish_period_is_refused() -> None:
+    from icenav.control.controller import Controller, ControllerConfig
+    from icenav.devices.sim_robot import IdealPlant, SimulatedRobot
+
+    ctrl = Controller(SimulatedRobot(IdealPlant()), ControllerConfig(publish_every=100))
+    with pytest.raises(ConfigurationError, match="publish period"):
+        Console(ctrl, port=0, config=ConsoleConfig(0.5))

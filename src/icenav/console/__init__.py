@@ -5,6 +5,7 @@
 """
 
 from icenav.console.app import Console, ConsoleStats
+from icenav.console.freshness import ConsoleConfig
 from icenav.console.scene import MM_TO_SCENE, AnatomyMesh
 
-__all__ = ["AnatomyMesh", "Console", "ConsoleStats", "MM_TO_SCENE"]
+__all__ = ["AnatomyMesh", "Console", "ConsoleConfig", "ConsoleStats", "MM_TO_SCENE"]

@@ -53,6 +53,12 @@ from icenav.console.display import (
     imaged_depth_cm,
     render_display,
 )
+from icenav.console.freshness import (
+    ConsoleConfig,
+    StateFreshness,
+    check_publish_period,
+    stale_banner_html,
+)
 from icenav.console.jog import JogRepeater
 from icenav.console.labels import (
     SHORTCUTS,
@@ -62,6 +68,7 @@ from icenav.console.labels import (
     md,
     safety_markdown,
 )
+from icenav.console.layout import CONTROL_PANEL_PX, IMAGE_DISPLAY_PX, IMAGE_PANEL_PX, PAGE_CSS
 from icenav.console.panels import (
     JointHistory,
     LatestSlot,
@@ -101,52 +108,8 @@ from icenav.persistence.dicom import ExportDirectory
 
 __all__ = ["Console", "ConsoleStats"]
 
-IMAGE_PANEL_PX = 880
-"""Width of the ICE image panel (CSS pixels) in a window of at least 1900 pixels (46 % of
-a full-HD one). viser docks panels by pixel width only; in narrower windows ``PAGE_CSS``
-narrows the panel to ``IMAGE_PANEL_VW`` of the window, so the 3-D scene keeps room."""
-IMAGE_PANEL_VW = 46
-"""The image panel's width in windows narrower than 1900 pixels (% of the window)."""
-CONTROL_PANEL_PX = 360
-"""Width of the control panel (CSS pixels)."""
-_DOCK_PX = 4
-"""What viser adds to a docked panel's width (its resize handle; CSS pixels)."""
-IMAGE_DISPLAY_PX = 800
-"""Width of the displayed ICE picture's image part (pixels; the browser scales it down to
-the panel, and to the window's height: ``PAGE_CSS``)."""
 MESSAGE_S = 15.0
 """A controller message (not a fault's cause) is shown this long after it last changed (s)."""
-PAGE_CSS = (
-    """<style>
-/* the safety bar (the block holding .icenav-safety) stays at the top of its panel */
-div:has(> div:nth-child(3)) > div:has(.icenav-safety) {
-  position: sticky; top: 0; z-index: 20; background: var(--mantine-color-body);
-}
-/* ... which needs no box between it and the panel's scroll area to clip by "hidden" */
-[data-scrollarea-viewport] div:has(.icenav-safety):not([data-scrollarea-viewport]) {
-  overflow: clip !important;
-}
-/* the ICE picture fits the window's height (aspect kept) */
-[data-dock-region="left"] img[src^="blob:"] {
-  max-height: calc(100vh - 170px); width: auto; max-width: 100%; margin: 0 auto;
-}
-.icenav-banner { background: #c92a2a; color: white; padding: 0.4em 0.6em; border-radius: 4px; }
-"""
-    # In a window narrower than 1900 px the image panel takes IMAGE_PANEL_VW % of it, and the
-    # 3-D scene's canvas starts where the panel ends. The selectors match only while the
-    # panels have the widths the console gave them: once the operator drags a panel's edge or
-    # minimizes it, viser's own layout applies unchanged.
-    + f"""@media (max-width: 1899px) {{
-  [style*="width: {IMAGE_PANEL_PX + _DOCK_PX}px"] {{ width: {IMAGE_PANEL_VW}vw !important; }}
-  [style*="left: calc(1em + {IMAGE_PANEL_PX + _DOCK_PX}px)"] {{
-    left: calc(1em + {IMAGE_PANEL_VW}vw) !important;
-  }}
-  div[style*="inset: 0px {CONTROL_PANEL_PX + _DOCK_PX}px 0px {IMAGE_PANEL_PX + _DOCK_PX}px"] {{
-    left: {IMAGE_PANEL_VW}vw !important;
-  }}
-}}
-</style><span class="icenav-safety"></span>"""
-)
 
 
 @dataclass(frozen=True)
@@ -202,6 +165,12 @@ class Console(ConsoleCommands):
     export_dir : str, Path or ExportDirectory, optional
         Where the views panel's **Export DICOM** button writes a saved view's image (file
         names made by the program, never by the browser); None: no export button.
+    config : ConsoleConfig, optional
+        The safety bar's settings (``stale_after_s``: when it says the controller's state is
+        unknown; :mod:`icenav.console.freshness`).
+    clock : callable
+        The console's clock (s, monotonic): the age of the shown state, the message's
+        15 s.
     """
 
     def __init__(
@@ -221,6 +190,8 @@ class Console(ConsoleCommands):
         status_hz: float = 10.0,
         control_token: str | None = None,
         export_dir: str | Path | ExportDirectory | None = None,
+        config: ConsoleConfig | None = None,
+        clock: Callable[[], float] = time.monotonic,
     ):
         if not (0 < refresh_hz <= 120):
             raise ConfigurationError(f"refresh_hz must be in (0, 120] Hz, got {refresh_hz}")
@@ -241,6 +212,9 @@ class Console(ConsoleCommands):
                 "control_token must be non-empty, without surrounding spaces (a browser's "
                 f"entry is stripped), got {len(control_token)} characters"
             )
+        self.config = config or ConsoleConfig()
+        check_publish_period(controller, self.config.stale_after_s)
+        self._clock = clock
         self.controller = controller
         self.control_token = control_token
         """When set, a browser controls (moves, saves, ...) only after entering it; viewing,
@@ -292,6 +266,8 @@ class Console(ConsoleCommands):
         self._message = ("", 0.0)
         self._drawn: ControllerState | None = None
         """The state the latest draw finished (None until one did)."""
+        self.freshness = StateFreshness(self.config.stale_after_s, self._clock)
+        """When the refresh last saw a new state (the stale-state banner)."""
 
     # ------------------------------------------------------------------ lifecycle
     @property
@@ -417,6 +393,7 @@ class Console(ConsoleCommands):
                 "Stop", color="orange", hint="End the automatic motion and hold (Space)"
             )
             self._safety = gui.add_markdown("*Waiting for the controller...*")
+            self._stale = gui.add_html("", visible=False)
             self._banner = gui.add_html("", visible=False)
             self._reset = gui.add_button(
                 "Reset fault",
@@ -682,10 +659,14 @@ class Console(ConsoleCommands):
         latest draw did not finish with it: a draw that failed halfway is done again at
         the next refresh (not left half drawn until the controller publishes again), and
         a state told to no listener (``publish_minimal`` after a failed publish: the
-        FAULT) still reaches the page."""
+        FAULT) still reaches the page. The stale-state banner follows the age of the newest
+        state seen (:mod:`icenav.console.freshness`), drawn before the state."""
         drew = False
         state = self._slot.take()
         current = self.controller.snapshot()
+        self.freshness.saw(state)
+        self.freshness.saw(current)
+        self._draw_staleness()
         if state is None and current is not self._drawn:
             state = current
         if state is not None and state is not self._drawn:
@@ -708,7 +689,7 @@ class Console(ConsoleCommands):
 
     def _fresh_message(self, state: ControllerState) -> str:
         """The controller's message, dropped :data:`MESSAGE_S` after it last changed."""
-        now = time.monotonic()
+        now = self._clock()
         if state.message != self._message[0]:
             self._message = (state.message, now)
         return state.message if now - self._message[1] <= MESSAGE_S else ""
@@ -749,6 +730,14 @@ class Console(ConsoleCommands):
             self._banner.content = f'<div class="icenav-banner">{banner.html()}</div>'
         self._banner.visible = banner is not None
         self._reset.visible = banner is not None
+
+    def _draw_staleness(self) -> None:
+        """The stale-state banner, above the halt banner (which keeps the cause of the last
+        state drawn): shown while the newest state is older than ``stale_after_s``."""
+        age = self.freshness.stale_age_s()
+        if age is not None:
+            self._stale.content = stale_banner_html(age)
+        self._stale.visible = age is not None
 
     def _draw_image(self, frame: ImageFrame, state: ControllerState | None) -> None:
         self._last_frame = frame
