@@ -23,7 +23,7 @@ from pathlib import Path
 import numpy as np
 
 from icenav.apps.wiring import anatomy_labels, anatomy_meshes, make_sim_controller
-from icenav.console import Console
+from icenav.console import Console, ConsoleConfig
 from icenav.control.controller import ControllerConfig
 from icenav.control.state import Mode
 
@@ -90,6 +90,8 @@ def main() -> int:
                 anatomy_labels=anatomy_labels(),
                 cardiac_phase=phase,
                 refresh_hz=10.0,
+                # a loaded machine stalls the loop past 0.5 s: no stale banner in the pictures
+                config=ConsoleConfig(stale_after_s=5.0),
             ) as console,
             sync_playwright() as p,
         ):

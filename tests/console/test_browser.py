@@ -31,7 +31,7 @@ import numpy as np
 import pytest
 
 from icenav.apps.wiring import anatomy_meshes
-from icenav.console import Console
+from icenav.console import Console, ConsoleConfig
 from icenav.control.state import ControllerState, Mode
 
 pytestmark = pytest.mark.browser
@@ -47,6 +47,10 @@ CHROMIUM_ARGS = [
     "--no-first-run",
 ]
 TIMEOUT_MS = 30_000
+LOADED_CI = ConsoleConfig(stale_after_s=5.0)
+"""As the controllers' ``stall_estop_s=5`` below: a loaded CI machine holds the control loop
+up past the default 0.5 s, and the stale-state banner appearing then would move the panel
+under a mouse a test has placed; the banner has its own tests (tests/console/test_app.py)."""
 IMAGE_RENDERED_JS = (
     "() => [...document.images].some(i => i.src.startsWith('blob:') && i.naturalWidth > 0)"
 )
@@ -351,6 +355,7 @@ def test_console_on_the_real_controller(browser: Any) -> None:
             anatomy_labels=anatomy_labels(),
             cardiac_phase=phase,
             refresh_hz=10.0,
+            config=LOADED_CI,
         ) as console:
             page = _open(browser, console.url, 1400, 900)
             expect(page.get_by_text("You have control")).to_be_visible()
@@ -550,7 +555,13 @@ def test_control_token_in_the_browser(browser: Any, tmp_path: Path) -> None:
         waiter.until(lambda s: s.control_owner is None, "control free")
         # 5 Hz refresh: less for software WebGL to draw (the other test covers 25 Hz)
         with Console(
-            ctl, port=0, control_token=token, export_dir=exports, refresh_hz=5.0, status_hz=5.0
+            ctl,
+            port=0,
+            control_token=token,
+            export_dir=exports,
+            refresh_hz=5.0,
+            status_hz=5.0,
+            config=LOADED_CI,
         ) as console:
             # 1400 x 900: the image and control panels leave a narrow 3-D canvas (cheap)
             page = _open(browser, console.url, 1400, 900)
@@ -690,7 +701,7 @@ def test_a_return_that_cannot_be_checked_asks_in_the_browser_and_runs_at_the_sec
         left = waiter.until(lambda s: "cannot tell here" in s.force_check, "the rest read")
         ctl.release_control("script")
         waiter.until(lambda s: s.control_owner is None, "control free")
-        with Console(ctl, port=0, refresh_hz=5.0, status_hz=5.0) as console:
+        with Console(ctl, port=0, refresh_hz=5.0, status_hz=5.0, config=LOADED_CI) as console:
             page = _open(browser, console.url, 1400, 900)
             expect(page.get_by_text("You have control")).to_be_visible()
             page.get_by_text("Status", exact=True).click()  # told before any press

@@ -109,11 +109,7 @@ class StateFreshness:
 def stale_banner_html(age_s: float) -> str:
     """The stale-state banner (HTML, red like the halt banner)."""
     title = f"No state from the controller for {age_s:.1f} s: the robot's state is unknown"
-    body = (
-        "The page shows the last state it had (the control loop may be stalled; its supervisor "
-        "e-stops the robot when no cycle finishes in time). Stop, E-STOP and every other "
-        "command still go to the controller."
-    )
+    body = "The page shows the last state it had. E-STOP and Stop still go to the controller."
     return (
         f"<div class=\"icenav-banner\"><div style='font-size:1.15em;font-weight:700'>"
         f"{html.escape(title)}</div><div>{html.escape(body)}</div></div>"
