@@ -8,6 +8,7 @@ control; the browser test drives the real ``icenav.control.controller.Controller
 
 from __future__ import annotations
 
+import threading
 import urllib.request
 from pathlib import Path
 from types import SimpleNamespace
@@ -691,3 +692,59 @@ def test_a_threshold_below_the_controllers_publish_period_is_refused() -> None:
     ctrl = Controller(SimulatedRobot(IdealPlant()), ControllerConfig(publish_every=100))
     with pytest.raises(ConfigurationError, match="publish period"):
         Console(ctrl, port=0, config=ConsoleConfig(0.5))
+
+
+class _HangingRobot:
+    """A simulated robot whose ``read_state`` blocks once told to (a driver call that does
+    not return: the control loop hangs inside a cycle, before it publishes)."""
+
+    def __init__(self, inner: Any) -> None:
+        self._inner = inner
+        self.hang = threading.Event()
+        self.hung = threading.Event()
+        self.go_on = threading.Event()
+
+    def read_state(self) -> Any:
+        if self.hang.is_set():
+            self.hung.set()
+            self.go_on.wait(timeout=30.0)
+        return self._inner.read_state()
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self._inner, name)
+
+
+def test_a_hung_real_time_loop_shows_stale_and_the_estop_then_reaches_the_banner() -> None:
+    """The real controller's real-time loop held inside a cycle by a robot call (events,
+    no sleeps; the supervisor set far away so the E-STOP is the console's): the console's
+    E-STOP reaches the controller at once, the page says the state is unknown (the E-STOP
+    is in no state yet), and once the call returns the halt banner shows the cause."""
+    from icenav.control.controller import Controller, ControllerConfig
+    from icenav.devices.sim_robot import IdealPlant, SimulatedRobot
+
+    robot = _HangingRobot(SimulatedRobot(IdealPlant()))
+    config = ControllerConfig(stall_estop_s=60.0, plan_in_process=False)
+    ctrl = Controller(robot, config)  # type: ignore[arg-type]
+    estopped = threading.Event()
+    ctrl.add_listener(lambda s: estopped.set() if s.mode is Mode.ESTOP else None)
+    clock = Clock()
+    with Console(ctrl, port=0, refresh_hz=0.01, clock=clock) as c:
+        ctrl.start()
+        try:
+            robot.hang.set()
+            assert robot.hung.wait(timeout=30.0)  # the loop is stuck: no state from now on
+            c.refresh_once()  # (states published before it got stuck)
+            clock.t += 0.6
+            _press_estop(c, 2)
+            assert ctrl.mode is Mode.ESTOP
+            c.refresh_once()
+            assert _stale_shown(c) and not _banner_shown(c)
+            assert "for 0.6 s" in c._stale.content
+            robot.hang.clear()
+            robot.go_on.set()  # the call returns: the loop publishes the E-STOP
+            assert estopped.wait(timeout=30.0)
+            c.refresh_once()
+            assert not _stale_shown(c) and _banner_shown(c) and "browser #2" in c._banner.content
+        finally:
+            robot.go_on.set()
+            ctrl.shutdown()
