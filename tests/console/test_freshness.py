@@ -21,7 +21,7 @@ def test_the_default_threshold_is_half_a_second() -> None:
     assert ConsoleConfig(0.1).stale_after_s == 0.1 and ConsoleConfig(10).stale_after_s == 10
 
 
-@pytest.mark.parametrize("value", [0.0, 0.09, -1.0, 10.5, math.nan, math.inf, "0.5", None])
+@pytest.mark.parametrize("value", [0.0, 0.09, -1.0, 10.5, math.nan, math.inf, "0.5", None, True])
 def test_a_threshold_outside_its_range_is_refused_naming_value_unit_and_range(
     value: object,
 ) -> None:

@@ -50,7 +50,8 @@ class ConsoleConfig:
     def __post_init__(self) -> None:
         lo, hi = STALE_AFTER_RANGE_S
         value = self.stale_after_s
-        if not (isinstance(value, int | float) and math.isfinite(value) and lo <= value <= hi):
+        number = isinstance(value, int | float) and not isinstance(value, bool)
+        if not (number and math.isfinite(value) and lo <= value <= hi):
             raise ConfigurationError(
                 f"ConsoleConfig.stale_after_s must be in [{lo}, {hi}] s, got {value!r} s"
             )
