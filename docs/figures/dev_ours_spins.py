@@ -176,12 +176,14 @@ def main() -> None:
     ap.add_argument("--wrap-profile", help="comma-separated wraps: profile the fit, no spins")
     ap.add_argument("--wraps", help="comma-separated wraps the form's choice tries (default none)")
     ap.add_argument(
-        "--no-residual", action="store_true", help="do not try the circle residual (before)"
+        "--no-residual", action="store_true", help="do not try the circle residual (the default)"
+    )
+    ap.add_argument(
+        "--residual", action="store_true", help="try the circle residual (plants10's records)"
     )
     ap.add_argument("--max-gain", type=float, help="the bound of kappa and gamma (default 1)")
     args = ap.parse_args()
-    if args.no_residual:
-        tr.TRIED_RESIDUAL = False
+    tr.TRIED_RESIDUAL = bool(args.residual) and not args.no_residual
     if args.max_gain is not None:
         plain_identify, gain = tr.identify_transmission, args.max_gain
 

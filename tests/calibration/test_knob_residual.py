@@ -67,6 +67,7 @@ def test_the_circle_residual_is_kept_only_where_it_predicts_the_held_out_circle_
     middle = circle_blocks(circles) == 2
     band = TendonTransmission(ap=TRUTH.ap, rl=TRUTH.rl, wrap=TRUTH.wrap, friction=TRUTH.friction)
     kw = {"forms": ("added",), "extensions": (), "degree": 3, "train_nfev": 2, "refit_nfev": 1}
+    kw["residual"] = True  # off by default (TRIED_RESIDUAL): the choice itself is tested here
     for truth, kept in ((replace(band, residual=wave_residual()), True), (band, False)):
         motion = synthetic_catheter(truth, np.random.default_rng(14), circles, 0.05 * DEG)
         fit = identify_transmission_form([motion], [middle], initial=band, **kw)

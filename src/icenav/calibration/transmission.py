@@ -443,9 +443,11 @@ TRIED_EXTENSIONS = ("bend-tension", "two-play")
 keeps (:data:`~icenav.compensation.transmission.EXTENSIONS`)."""
 
 
-TRIED_RESIDUAL = True
+TRIED_RESIDUAL = False
 """Whether :func:`identify_transmission_form` tries the circle residual (KR1-KR3 of
-:mod:`icenav.compensation.knob_residual`) on the form it keeps."""
+:mod:`icenav.compensation.knob_residual`) on the form it keeps. Off by default: with it the
+controller's own spin on development catheter 105 doubled its error (docs/calibration.md 4c,
+"the circle residual, switched off"); ``residual=True`` tries it."""
 
 
 def identify_transmission_form(
