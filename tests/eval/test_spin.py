@@ -258,8 +258,13 @@ def test_a_version_3_calibration_file_reproduces_our_condition(
         # another one; measured on catheter 52: 2 of the 73 samples, at the spin's start,
         # by at most 0.03 rad, none at 60 deg; since session 10's tension form and F
         # smoothing (the model and F round-trip exactly, F within 1e-15): 5 samples at the
-        # start, the first by 0.056 rad, the rest decaying below 2e-5)
-        assert int(np.sum(diff > 1e-9)) <= 5 and float(diff.max()) < 0.1
+        # start, the first by 0.056 rad, the rest decaying below 2e-5; session 12's plan:
+        # 3 at the start, the first by 0.038 rad, then 3 of the 73 by at most 2.4e-8 rad,
+        # the inverse's solver tolerance): a few samples at the start, then the same commands
+        # within 1e-6 rad (6e-5 deg, below any drive's encoder count)
+        late = np.flatnonzero(diff > 1e-6)
+        assert late.size <= 5 and int(late.max(initial=0)) < 10, (bend, late, diff[late])
+        assert float(diff.max()) < 0.1, diff
         # hence the same spin of the twin's true tip: 4e-4 mm and 7e-4 deg measured
         assert file.true_position_rmse_mm == pytest.approx(ours.true_position_rmse_mm, abs=5e-3)
         assert file.true_rotation_rmse_deg == pytest.approx(ours.true_rotation_rmse_deg, abs=1e-2)
