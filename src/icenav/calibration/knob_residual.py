@@ -25,7 +25,7 @@ from numpy.typing import ArrayLike
 from icenav._typing import Array
 from icenav._validation import check_finite
 from icenav.compensation.knob_residual import KnobResidual, update_sense
-from icenav.compensation.transmission import TransmissionFit
+from icenav.compensation.transmission import TransmissionFit, static_terms
 from icenav.errors import ConfigurationError, ShapeError
 
 __all__ = ["HARMONICS", "SETTLE", "circle_residual", "effective_miss"]
@@ -38,11 +38,6 @@ SETTLE = math.radians(30.0)
 """Azimuth (rad) after a change of the sense of turning left out of the table's fit."""
 
 
-def _poly_terms(degree: int) -> list[tuple[int, int]]:
-    """(a, b) exponents of z1^a z2^b in the order of the fit's static map G."""
-    return [(a, n - a) for n in range(degree + 1) for a in range(n + 1)]
-
-
 def effective_miss(fit: TransmissionFit, z: ArrayLike, y: ArrayLike, iterations: int = 4) -> Array:
     """delta (n, 2) (rad): the effective knobs u with G(u) = y (the fit's static map, by
     Gauss-Newton from the model's ``z`` (n, 2)) minus ``z``; NaN where ``y`` (n, 2) is NaN."""
@@ -51,7 +46,7 @@ def effective_miss(fit: TransmissionFit, z: ArrayLike, y: ArrayLike, iterations:
     if zz.ndim != 2 or zz.shape[1] != 2 or yy.shape != zz.shape:
         raise ShapeError(f"z and y must have the same shape (n, 2), got {zz.shape}, {yy.shape}")
     coef = np.asarray(fit.static_coefficients, dtype=np.float64)
-    terms = _poly_terms(fit.degree)
+    terms = static_terms(fit.degree)
     u = zz.copy()
     for _ in range(int(iterations)):
         val = np.zeros_like(u)

@@ -44,6 +44,7 @@ from icenav.compensation.transmission import (
     TransmissionCalibration,
     TransmissionFit,
     g_plus,
+    static_terms,
 )
 from icenav.errors import ConfigurationError, ShapeError
 from icenav.geometry.kinematics import DEFAULT_GEOMETRY, CatheterGeometry
@@ -222,7 +223,7 @@ def _least_squares_fit(a: Array, y: Array) -> Array:
 
 def _poly_basis(z: Array, degree: int) -> Array:
     """Bivariate monomials z1^a z2^b, a + b <= degree: (n, m)."""
-    cols = [z[:, 0] ** a * z[:, 1] ** (n - a) for n in range(degree + 1) for a in range(n + 1)]
+    cols = [z[:, 0] ** a * z[:, 1] ** b for a, b in static_terms(degree)]
     return np.stack(cols, axis=-1)
 
 

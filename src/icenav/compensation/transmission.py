@@ -94,6 +94,7 @@ __all__ = [
     "TransmissionFit",
     "g_minus",
     "g_plus",
+    "static_terms",
 ]
 
 _MAX_PLAY = math.radians(20.0)
@@ -467,7 +468,8 @@ class TendonTransmission:
         x = x[:, :2]
         start = x[0] if x_start is None else check_finite(x_start, "x_start", "rad").ravel()[:2]
         band = replace(self, residual=None)
-        d = band.relaxed_state(start).tolist()
+        d0 = band.relaxed_state(start).tolist()
+        d = d0
         prev = [float(start[0]), float(start[1])]
         if band.state_size == 4:
             out = np.array(band._run_one(x.tolist(), d, prev)[0])
@@ -479,8 +481,7 @@ class TendonTransmission:
                 out[k] = band.effective(d)
         if self.residual is None:
             return out
-        z0 = band.effective(band.relaxed_state(start).tolist())
-        return out + self.residual.along(out, 0.0, z0)  # (KR3)
+        return out + self.residual.along(out, 0.0, band.effective(d0))  # (KR3)
 
     def _run_one(
         self, rows: list[list[float]], d: Sequence[float], prev: list[float]
@@ -546,6 +547,12 @@ class TendonTransmission:
 
 
 # --- identification --------------------------------------------------------------------------
+
+
+def static_terms(degree: int) -> list[tuple[int, int]]:
+    """(a, b) exponents of the monomials z1^a z2^b, a + b <= ``degree``, in the order of
+    :attr:`TransmissionFit.static_coefficients`' rows (the static map G)."""
+    return [(a, n - a) for n in range(degree + 1) for a in range(n + 1)]
 
 
 @dataclass(frozen=True)
