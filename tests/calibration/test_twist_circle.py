@@ -18,8 +18,8 @@ from icenav.calibration.twist_circle import (
     CIRCLE_LEAD,
     CIRCLE_STEP,
     SPIN_CIRCLE,
+    _periodic_interp,
     circle_twist_readings,
-    periodic_interp,
     spin_circle_path,
 )
 from icenav.compensation.bend_play import KnobPlanePlay
@@ -78,8 +78,8 @@ def test_the_image_frame_s_play_over_the_knob_plane_is_read_on_plants_of_other_f
     n = path.shape[0] // 2
     k = round(CIRCLE_LEAD / CIRCLE_STEP)
     truth = 0.5 * (
-        periodic_interp(dirs, psi[n + k :], lag[n + k :])
-        - periodic_interp(dirs, psi[k:n], lag[k:n])
+        _periodic_interp(dirs, psi[n + k :], lag[n + k :])
+        - _periodic_interp(dirs, psi[k:n], lag[k:n])
     )
     assert np.all(np.isfinite(total)) and np.all(bends > 45 * DEG)
     assert np.sqrt(np.mean((total - truth) ** 2)) < 1.1 * DEG

@@ -32,7 +32,6 @@ from icenav.calibration.hysteresis import (
     fit_hysteresis,
     hysteresis_plan,
 )
-from icenav.calibration.plane_lag import apply_plane_lag, circle_plane_lag, predicted_circle
 from icenav.calibration.plans import MotionPlan, Recording, calibration_set_from, raster_grid
 from icenav.calibration.tracker_bias import fit_tracker_bias_from, roll_circle_plan
 from icenav.calibration.transmission import (
@@ -41,7 +40,6 @@ from icenav.calibration.transmission import (
     circle_plan,
     motion_from,
 )
-from icenav.calibration.twist_circle import SPIN_CIRCLE
 from icenav.compensation.elasticity import CalibrationSet, ElasticityMap
 from icenav.compensation.section_length import fit_section_length
 from icenav.compensation.tendon_map import TendonKnobMap
@@ -165,12 +163,6 @@ def fit_catheter(
         hyst.compensator,
         section=section,
     )
-    if cplan.hysteresis.spin_circle:
-        # the bending plane's lag read while turning: the roll's play against the twist's
-        q, tracked = recording.part(SPIN_CIRCLE)
-        predicted = predicted_circle(transmission, q, geometry)
-        lag = circle_plane_lag(q, bias.correct_poses(tracked), predicted)
-        transmission, hyst = apply_plane_lag(transmission, hyst, lag)
     return CatheterCalibration(
         dense=dense,
         elasticity_map=ElasticityMap.build(dense, geometry),

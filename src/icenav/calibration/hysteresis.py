@@ -44,7 +44,6 @@ __all__ = [
     "DIRECTION_AMPLITUDE",
     "DIRECTION_STEP",
     "PLAY_DIRECTIONS",
-    "direction_law",
     "fit_hysteresis",
     "hysteresis_plan",
     "identify",
@@ -524,10 +523,10 @@ def _bend_law(points: Sequence[tuple[float, float, float]], k: int) -> BendPlay 
 
 
 SCALE_RANGE = (0.0, 4.0)
-"""Bounds of a direction's scale of the AP knob's law (:func:`direction_law`)."""
+"""Bounds of a direction's scale of the AP knob's law (:func:`_direction_law`)."""
 
 
-def direction_law(ap: BendPlay | None, point: tuple[float, float, float], k: int) -> BendPlay:
+def _direction_law(ap: BendPlay | None, point: tuple[float, float, float], k: int) -> BendPlay:
     """The law of reading ``k`` (1: roll, 2: twist) in a direction swept at one bend: the
     AP knob's law ``ap`` scaled to pass through that sweep's reading ``e`` at its bend
     ``b``, ``e_psi(b') = e_AP(b') * e / e_AP(b)`` (B6; scale clipped to
@@ -547,12 +546,12 @@ def direction_law(ap: BendPlay | None, point: tuple[float, float, float], k: int
 def _knob_plane_law(
     ap: BendPlay | None, points: Sequence[tuple[float, float, float]], dirs: Sequence[float], k: int
 ) -> PlayLaw | None:
-    """The AP knob's law and one law per further direction (:func:`direction_law`) as a
+    """The AP knob's law and one law per further direction (:func:`_direction_law`) as a
     :class:`KnobPlanePlay`; the AP law alone without further directions."""
     if not dirs:
         return ap
     laws = [ap if ap is not None else BendPlay.linear(0.0)]
-    laws += [direction_law(ap, p, k) for p in points]
+    laws += [_direction_law(ap, p, k) for p in points]
     return KnobPlanePlay((0.0, *dirs), tuple(laws))
 
 
@@ -576,7 +575,7 @@ def _circle_law(
             return twist
     ap = twist.laws[0] if isinstance(twist, KnobPlanePlay) else twist
     laws = [
-        direction_law(ap, (float(b), math.nan, float(e)), 2)
+        _direction_law(ap, (float(b), math.nan, float(e)), 2)
         for b, e in zip(bends, extra, strict=True)
     ]
     return KnobPlanePlay(tuple(float(d) for d in dirs), tuple(laws), period=2.0 * math.pi)

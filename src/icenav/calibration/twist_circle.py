@@ -53,9 +53,7 @@ __all__ = [
     "CIRCLE_STEP",
     "SPIN_CIRCLE",
     "circle_twist_readings",
-    "periodic_interp",
     "spin_circle_path",
-    "turning_runs",
 ]
 
 SPIN_CIRCLE = "spin circle"
@@ -103,25 +101,11 @@ def spin_circle_path(
     return np.column_stack([knob * np.cos(t), knob * np.sin(t), -t, np.zeros_like(t)])
 
 
-def periodic_interp(at: Array, x: Array, y: Array) -> Array:
+def _periodic_interp(at: Array, x: Array, y: Array) -> Array:
     """``y(x)`` interpolated linearly and periodically (2 pi) at ``at`` (rad)."""
     order = np.argsort(np.mod(x, 2.0 * math.pi))
     xs = np.mod(x, 2.0 * math.pi)[order]
     return np.interp(np.mod(at, 2.0 * math.pi), xs, y[order], period=2.0 * math.pi)
-
-
-def turning_runs(x3: Array) -> tuple[Array, Array]:
-    """For motor rolls ``x3`` (m,) (rad) in the order driven (the stop before the first at
-    0): the sense each stop was reached in (+1, -1, 0) and how far the roll has turned in that
-    sense up to it (rad)."""
-    x = np.asarray(x3, dtype=np.float64)
-    dx = np.diff(np.concatenate([[0.0], x]))
-    sense = np.sign(dx)
-    run = np.zeros(x.size)
-    for k in range(x.size):
-        same = k > 0 and sense[k] == sense[k - 1]
-        run[k] = (run[k - 1] if same else 0.0) + abs(dx[k])
-    return sense, run
 
 
 def circle_twist_readings(
@@ -155,7 +139,12 @@ def circle_twist_readings(
     dirs = 2.0 * math.pi * np.arange(n_directions) / n_directions
     nan = np.full(n_directions, np.nan)
     x3 = q[:, 2]
-    sense, run = turning_runs(x3)
+    dx = np.diff(np.concatenate([[0.0], x3]))
+    sense = np.sign(dx)
+    run = np.zeros(x3.size)  # turning in the present sense up to each stop (rad)
+    for k in range(x3.size):
+        same = k > 0 and sense[k] == sense[k - 1]
+        run[k] = (run[k - 1] if same else 0.0) + abs(dx[k])
     ok = np.all(np.isfinite(t.reshape(len(t), -1)), axis=1) & (run >= lead - 1e-9) & (sense != 0)
     if not np.any(ok):
         return dirs, nan, nan.copy()
@@ -180,8 +169,8 @@ def circle_twist_readings(
             CIRCLE_STEP + math.radians(10.0)
         ):
             return dirs, nan, nan.copy()
-        half.append(periodic_interp(dirs, psi[m], y[m]))
-        bends.append(periodic_interp(dirs, psi[m], bend[m]))
+        half.append(_periodic_interp(dirs, psi[m], y[m]))
+        bends.append(_periodic_interp(dirs, psi[m], bend[m]))
     total = 0.5 * (half[0] - half[1])  # (TC1)
     b = 0.5 * (bends[0] + bends[1])
     wd = roll_base + (0.0 if roll_width is None else np.asarray(roll_width(b, dirs)))
