@@ -13,8 +13,10 @@ intended) into the **roll's** part (the plant's section roll against the map's m
 creep (R6 of docs/digital-twin.md) against its steady value ``c_c T`` in the spin and, with
 ``--calibration-state``, at every reading of the calibration replayed on a fresh plant (by
 phase). ``--samples N`` spins in N samples instead of 360 (the pace test: the same turn in
-steps N/360 times as large). The quarter means of the tangential error show whether it grows
-with the time since the spin began (a lag that builds up) or is a level.
+steps 360/N times as large); ``--circle-step DEG`` fits ours on a recording whose knob
+circles go in DEG steps (the transmission's data at another pace). The quarter means of the
+tangential error show whether it grows with the time since the spin began (a lag that builds
+up) or is a level.
 
     python docs/figures/diagnose_rate_spins.py --cache /tmp/rec --seeds 213,214,218 \
         --both-ways --calibration-state --json docs/figures/families_dev213-218_s13_rate.json
@@ -27,6 +29,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import pickle
 import sys
 from pathlib import Path
 from typing import Any
@@ -36,9 +39,9 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).parent))
 from dev_ours_spins import recording  # noqa: E402
 
-from icenav.calibration.catheter import fit_catheter  # noqa: E402
-from icenav.calibration.procedure import run_procedure  # noqa: E402
-from icenav.calibration.procedures import make_procedure  # noqa: E402
+from icenav.calibration.catheter import catheter_plan, fit_catheter  # noqa: E402
+from icenav.calibration.procedure import run_procedure, run_visits  # noqa: E402
+from icenav.calibration.procedures import make_procedure, plan_visits  # noqa: E402
 from icenav.eval.spin import (  # noqa: E402
     APPROACH_STEPS,
     _approach_path,
@@ -163,6 +166,28 @@ def calibration_state(family: str, seed: int) -> dict[str, Any]:
     }
 
 
+def fitted(family: str, seed: int, cache: str | None, circle_step: float | None) -> Any:
+    """Ours' calibration of the catheter; with ``circle_step`` (deg) the plan's knob circles
+    in that step instead (the pace test of the transmission's data: not a plan of the
+    product, its robot time is over the budget), recorded and cached under its own name."""
+    proc = make_procedure("dense+hysteresis")
+    if circle_step is None:
+        return fit_catheter(proc.catheter_plan, recording(family, seed, cache), geometry=G)
+    cplan = catheter_plan(circle_step=math.radians(circle_step))
+    path = None if cache is None else Path(cache) / f"{family}_{seed}_circles{circle_step:g}.pkl"
+    if path is not None and path.exists():
+        with open(path, "rb") as f:
+            rec = pickle.load(f)  # noqa: S301 (our own cache of a deterministic recording)
+    else:
+        rig, tracker = make_rig(seed, "straight", family)
+        rig.reset()
+        rec = run_visits(plan_visits(cplan.plan), rig.move, tracker)
+        if path is not None:
+            with open(path, "wb") as f:
+                pickle.dump(rec, f)
+    return fit_catheter(cplan, rec, geometry=G)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--family", default="rate-dependent")
@@ -171,15 +196,16 @@ def main() -> None:
     ap.add_argument("--samples", type=int, default=360)
     ap.add_argument("--both-ways", action="store_true")
     ap.add_argument("--calibration-state", action="store_true")
+    ap.add_argument("--circle-step", type=float, help="knob circles' step (deg; see fitted)")
     ap.add_argument("--cache", help="recording cache of dev_ours_spins.py")
     ap.add_argument("--json", required=True)
     a = ap.parse_args()
     out = []
     for seed in (int(s) for s in a.seeds.split(",")):
-        rec = recording(a.family, seed, a.cache)
-        cat = fit_catheter(make_procedure("dense+hysteresis").catheter_plan, rec, geometry=G)
+        cat = fitted(a.family, seed, a.cache, a.circle_step)
         for direction in (-1, 1) if a.both_ways else (-1,):
             r = spin(cat, a.family, seed, a.bend, a.samples, direction)
+            r["circle_step_deg"] = a.circle_step
             out.append(r)
             print(json.dumps({k: round(v, 3) if isinstance(v, float) else v for k, v in r.items()}))
             sys.stdout.flush()
