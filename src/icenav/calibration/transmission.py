@@ -443,8 +443,8 @@ keeps (:data:`~icenav.compensation.transmission.EXTENSIONS`)."""
 TRIED_RESIDUAL = False
 """Whether :func:`identify_transmission_form` tries the circle residual (KR1-KR3 of
 :mod:`icenav.compensation.knob_residual`) on the form it keeps. Off by default: with it the
-controller's own spin on development catheter 105 doubled its error (docs/calibration.md 4c,
-"the circle residual, switched off"); ``residual=True`` tries it."""
+controller's own spin on development catheter 105 doubled its error, with one held-out path
+or two (docs/calibration.md 4c, "the circle residual, switched off"); ``residual=True``."""
 
 
 def identify_transmission_form(
