@@ -9,7 +9,13 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from icenav.calibration.spin_path import MIN_SETTLED, SPIN_LEAD, settled_mask, spin_path_rms
+from icenav.calibration.spin_path import (
+    MIN_SETTLED,
+    SPIN_LEAD,
+    scorable,
+    settled_mask,
+    spin_path_rms,
+)
 from icenav.calibration.twist_circle import spin_circle_path
 from icenav.compensation.transmission import TransmissionFit, static_terms
 from icenav.errors import ConfigurationError, ShapeError
@@ -72,6 +78,11 @@ def test_a_path_that_turns_the_roll_one_way_only_is_refused() -> None:
     path = spin_circle_path(step=10 * DEG)
     one_way = path[: int(np.argmax(np.diff(path[:, 2]) > 0)) + 1]
     obs = static_map(one_way[:, :2])
+    assert not scorable(one_way, obs, np.zeros(4))
+    assert scorable(path, static_map(path[:, :2]), np.zeros(4))
+    lost = static_map(path[:, :2])
+    lost[np.diff(np.concatenate([[0.0], path[:, 2]])) > 0] = np.nan  # the way back untracked
+    assert not scorable(path, lost, np.zeros(4))
     with pytest.raises(ConfigurationError, match=f">= {MIN_SETTLED}"):
         spin_path_rms(_fit(TRUTH, _coefficients()), one_way, obs, np.zeros(4))
     with pytest.raises(ShapeError, match="observed"):

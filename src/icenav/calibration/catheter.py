@@ -33,6 +33,7 @@ from icenav.calibration.hysteresis import (
     hysteresis_plan,
 )
 from icenav.calibration.plans import MotionPlan, Recording, calibration_set_from, raster_grid
+from icenav.calibration.spin_path import scorable
 from icenav.calibration.tracker_bias import fit_tracker_bias_from, roll_circle_plan
 from icenav.calibration.transmission import (
     KNOB_CIRCLES,
@@ -166,6 +167,8 @@ def fit_catheter(
         )
         before = cplan.plan.q_motor[max(cplan.plan.segment(SPIN_CIRCLE).start - 1, 0)]
         spin = replace(spin, q_start=before)
+        if not scorable(spin.q_motor, spin.observed, spin.q_start):
+            spin = None  # too short or too little tracked: the knob circle alone chooses
     transmission = build_transmission(
         unbiased,
         cplan.raster,

@@ -43,7 +43,7 @@ from icenav._validation import check_finite
 from icenav.compensation.transmission import TransmissionFit, static_terms
 from icenav.errors import ConfigurationError, ShapeError
 
-__all__ = ["MIN_SETTLED", "SPIN_LEAD", "SPIN_SCORE", "settled_mask", "spin_path_rms"]
+__all__ = ["MIN_SETTLED", "SPIN_LEAD", "SPIN_SCORE", "scorable", "settled_mask", "spin_path_rms"]
 
 SPIN_LEAD = math.radians(60.0)
 """Roll turned in the present sense before a spin-circle sample counts (rad): the roll's and
@@ -70,6 +70,19 @@ def settled_mask(q_motor: Array, q_start: Array, lead: float = SPIN_LEAD) -> tup
         same = k > 0 and sense[k] == sense[k - 1]
         run[k] = (run[k - 1] if same else 0.0) + abs(dx[k])
     return sense, (run >= lead - 1e-9) & (sense != 0)
+
+
+def scorable(q_motor: Array, observed: Array, q_start: Array, lead: float = SPIN_LEAD) -> bool:
+    """Whether a path (n, 4) with tracked knobs (n, 2) (NaN: missing) from ``q_start`` (4,)
+    has at least :data:`MIN_SETTLED` settled, tracked samples in each sense of the roll's
+    turning (:func:`spin_path_rms` scores it), e.g. not where a plan shortened the circle."""
+    q = np.asarray(q_motor, dtype=np.float64)
+    y = np.asarray(observed, dtype=np.float64)
+    if q.ndim != 2 or q.shape[1] != 4 or y.shape != (q.shape[0], 2):
+        return False
+    sense, settled = settled_mask(q, np.asarray(q_start, dtype=np.float64).ravel(), lead)
+    ok = settled & np.all(np.isfinite(y), axis=1)
+    return all(int(np.sum(ok & (sense == s))) >= MIN_SETTLED for s in (1.0, -1.0))
 
 
 def spin_path_rms(
