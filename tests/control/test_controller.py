@@ -8,6 +8,7 @@ from collections.abc import Callable
 import numpy as np
 import pytest
 
+from icenav.apps.wiring import SimSession, make_sim_controller
 from icenav.control.controller import Controller, ControllerConfig, PathTask
 from icenav.control.state import ControllerState, Mode
 from icenav.control.teleop import JoystickMapping
@@ -307,26 +308,26 @@ def test_duplicate_view_names_and_unknown_views_are_reported() -> None:
 # --- on the digital twin: calibration, compensation, spin ---------------------------------
 
 
-def twin_controller() -> tuple[Controller, object]:
-    from icenav.apps.wiring import make_sim_controller
-
-    session = make_sim_controller(seed=103, imaging=False)
-    return session.controller, session
-
-
-def test_five_point_calibration_installs_a_compensation_that_helps() -> None:
-    """On simulated time (the wall clock let a loaded machine change the robot's moves
-    between cycles and with them the tracked points: the test failed once in a fresh clone)."""
-    from icenav.apps.wiring import make_sim_controller
-
+def twin_on_simulated_time(
+    seed: int = 103,
+) -> tuple[Controller, SimSession, Callable[[], ControllerState]]:
+    """The simulated product (``make_sim_controller``) on a clock advanced by the test: one
+    ``step()`` is one cycle of ``dt`` seconds, whatever the machine's load (the wall clock let a
+    loaded machine change the robot's moves between cycles)."""
     t = [0.0]
-    session = make_sim_controller(seed=103, imaging=False, clock=lambda: t[0])
+    session = make_sim_controller(seed=seed, imaging=False, clock=lambda: t[0])
     ctrl = session.controller
 
     def step() -> ControllerState:
         t[0] += ctrl.config.dt
         return ctrl.step()
 
+    return ctrl, session, step
+
+
+def test_five_point_calibration_installs_a_compensation_that_helps() -> None:
+    """On simulated time (on the wall clock the test failed once in a fresh clone)."""
+    ctrl, session, step = twin_on_simulated_time()
     try:
         ctrl.start_calibration("five_point")
         for _ in range(20000):
@@ -354,19 +355,21 @@ def test_five_point_calibration_installs_a_compensation_that_helps() -> None:
 
 
 def test_calibration_progress_is_reported_and_stop_aborts_it() -> None:
-    ctrl, session = twin_controller()
+    ctrl, session, step = twin_on_simulated_time()
     try:
         ctrl.start_calibration("dense")
-        ctrl.run_cycles(900)
+        for _ in range(900):
+            step()
         state = ctrl.snapshot()
         assert state.mode is Mode.CALIBRATING
         assert state.progress is not None and 0.0 < state.progress < 0.2
         assert "361 points" in state.progress_label
         ctrl.stop()
-        ctrl.run_cycles(2)
+        step()
+        step()
         assert ctrl.mode is Mode.IDLE and ctrl.compensation is None
     finally:
-        session.close()  # type: ignore[attr-defined]
+        session.close()
 
 
 def test_pathtask_accelerations_are_bounded() -> None:
