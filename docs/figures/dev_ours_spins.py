@@ -33,6 +33,15 @@ anew (its own cache); the before is session 11's frozen records (the methods ide
     python docs/figures/dev_ours_spins.py --cache /tmp/rec12 \
         --json docs/figures/families_dev213-218_s12_circle.json default:213 ...
 
+Session 13 (choice12): the form is chosen on the knob circle *and* the spin circle (the
+product's ``fit_catheter``); ``--knob-circle-only`` reproduces the rule before (main 5d33249),
+so both are measured on the same recordings:
+
+    python docs/figures/dev_ours_spins.py --cache /tmp/rec13 --knob-circle-only \
+        --json before.json default:213 ...
+    python docs/figures/dev_ours_spins.py --cache /tmp/rec13 --before before.json \
+        --json after.json default:213 ...
+
 Each record: the transmission fit's residual (deg), its form and held-out scores, the fit's
 wall time and per bend (EM mm, EM deg, true mm, true deg). Development seeds only. (The
 session-10 records were written by this loop before it kept the held-out scores.)
@@ -182,7 +191,20 @@ def main() -> None:
         "--residual", action="store_true", help="try the circle residual (plants10's records)"
     )
     ap.add_argument("--max-gain", type=float, help="the bound of kappa and gamma (default 1)")
+    ap.add_argument(
+        "--knob-circle-only",
+        action="store_true",
+        help="choose the form on the held-out knob circle alone (the rule before session 13)",
+    )
     args = ap.parse_args()
+    if args.knob_circle_only:
+        plain_form = tr.identify_transmission_form
+
+        def knob_circle_only(*a: Any, **k: Any) -> Any:
+            k.pop("spin", None)
+            return plain_form(*a, **k)
+
+        tr.identify_transmission_form = knob_circle_only
     tr.TRIED_RESIDUAL = bool(args.residual) and not args.no_residual
     if args.max_gain is not None:
         plain_identify, gain = tr.identify_transmission, args.max_gain

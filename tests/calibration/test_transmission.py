@@ -6,6 +6,7 @@ compensation through the controller's knob map."""
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -34,6 +35,7 @@ from tests.support.transmission import (
     TRUTH,
     SyntheticCatheter,
     spin_like,
+    spin_path_motion,
     synthetic_catheter,
 )
 
@@ -202,6 +204,31 @@ def test_the_tension_form_is_chosen_by_held_out_residual() -> None:
     assert scores["stretch"] < 0.5 * scores["added"]
     with pytest.raises(ConfigurationError, match="held_out"):
         identify_transmission_form([motion], [np.zeros(circles.shape[0], dtype=bool)])
+
+
+def test_with_the_spin_circle_a_form_must_win_on_both_held_out_paths() -> None:
+    """The stretch form's data on the knob circles (it wins the middle circle, as above) but
+    a spin circle of the added form's catheter: scored on both held-out paths, the stretch
+    form does not win on the spin and the simpler added form is kept; the spin's scores are
+    listed (``"spin circle: " + form``). Spin data of the stretch catheter itself keep it."""
+    rng = np.random.default_rng(11)
+    circles = circle_path((25 * DEG, 45 * DEG, 65 * DEG), step=10 * DEG)
+    pair = PairTransmission(slack=1.0 * DEG, seal_play=0.5 * DEG, tension_play=0.5, coupling=0.8)
+    truth = TendonTransmission(ap=pair, rl=pair, wrap=0.5, friction=0.3, coupling_form="stretch")
+    motion = synthetic_catheter(truth, rng, circles, 0.05 * DEG)
+    middle = circle_blocks(circles) == 2
+    kw = {"degree": 3, "train_nfev": 12, "refit_nfev": 2, "extensions": ()}
+    lag = (4 * DEG, -6 * DEG)
+    other = spin_path_motion(replace(truth, coupling_form="added"), rng, lag, 0.05 * DEG)
+    fit = identify_transmission_form([motion], [middle], spin=other, **kw)
+    scores = dict(fit.held_out_rms)
+    assert scores["stretch"] < 0.5 * scores["added"]  # the knob circle alone would keep it
+    assert scores["spin circle: stretch"] > scores["spin circle: added"] * (1 - FORM_MARGIN)
+    assert fit.model.coupling_form == "added"
+    own = spin_path_motion(truth, rng, lag, 0.05 * DEG)
+    assert identify_transmission_form([motion], [middle], spin=own, **kw).model.coupling_form == (
+        "stretch"
+    )
 
 
 def test_an_extension_is_kept_where_it_predicts_held_out_data_better() -> None:

@@ -25,19 +25,25 @@ def spin_like(a: float, n: int = 200) -> np.ndarray:
     return path
 
 
-def synthetic_catheter(
-    model: TendonTransmission, rng: np.random.Generator, path: np.ndarray, noise: float
-) -> CalibrationMotion:
-    """Tracked model knobs of a synthetic catheter: a known static map of the effective
-    knobs (gain, cross-coupling, a cubic), plus tracker noise."""
-    z = model.simulate(path, x_start=[0.0, 0.0])
-    y = np.stack(
+def static_map(z: np.ndarray) -> np.ndarray:
+    """The synthetic catheters' static map (n, 2) -> (n, 2) of the effective knobs (rad):
+    gain, cross-coupling, a cubic and a product term."""
+    return np.stack(
         [
             0.9 * z[:, 0] + 0.08 * z[:, 1] - 0.1 * z[:, 0] ** 3,
             -0.05 * z[:, 0] + 1.1 * z[:, 1] + 0.06 * z[:, 0] * z[:, 1],
         ],
         axis=-1,
     )
+
+
+def synthetic_catheter(
+    model: TendonTransmission, rng: np.random.Generator, path: np.ndarray, noise: float
+) -> CalibrationMotion:
+    """Tracked model knobs of a synthetic catheter: a known static map of the effective
+    knobs (gain, cross-coupling, a cubic), plus tracker noise."""
+    z = model.simulate(path, x_start=[0.0, 0.0])
+    y = static_map(z)
     y += rng.normal(0.0, noise, y.shape)
     y[rng.uniform(size=y.shape[0]) < 0.03] = np.nan  # MISSING samples
     return CalibrationMotion(q_motor=path, observed=y)
@@ -92,3 +98,27 @@ def wave_residual(
             table[c, s, 3, 0] = 0.5 * amplitude * g  # AP: cos 2 psi, static
             table[c, s, 0, 1] = 0.3 * amplitude * g  # RL: offset
     return KnobResidual(radii=radii, harmonics=2, coefficients=tuple(table.ravel()))
+
+
+def spin_path_motion(
+    model: TendonTransmission,
+    rng: np.random.Generator,
+    lag: tuple[float, float],
+    noise: float,
+    wobble: float = 0.0,
+) -> CalibrationMotion:
+    """The calibration's spin circle (10-deg steps) from (50 deg, 0) on a synthetic catheter
+    of ``model`` and :func:`static_map`, tracked in the base frame: the model knobs turned by
+    the motor roll plus a lag (rad) of ``lag[0]`` while the roll turns up and ``lag[1]``
+    while it turns down, plus ``wobble * sin(knob direction)``, plus tracker noise (rad)."""
+    from icenav.calibration.twist_circle import spin_circle_path
+
+    path = spin_circle_path(step=10 * DEG)
+    start = np.array([50 * DEG, 0.0, 0.0, 0.0])
+    g = static_map(model.simulate(path, x_start=start[:2]))
+    up = np.diff(np.concatenate([[0.0], path[:, 2]])) > 0
+    turn = path[:, 2] + np.where(up, lag[0], lag[1])
+    turn += wobble * np.sin(np.arctan2(path[:, 1], path[:, 0]))
+    o = (g[:, 0] + 1j * g[:, 1]) * np.exp(1j * turn)
+    y = np.stack([o.real, o.imag], axis=-1) + rng.normal(0.0, noise, g.shape)
+    return CalibrationMotion(q_motor=path, observed=y, q_start=start)

@@ -20,7 +20,7 @@ the console's calibration runner, ``icenav eval spin`` and a bench script all dr
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 from numpy.typing import ArrayLike
 
@@ -33,6 +33,7 @@ from icenav.calibration.hysteresis import (
     hysteresis_plan,
 )
 from icenav.calibration.plans import MotionPlan, Recording, calibration_set_from, raster_grid
+from icenav.calibration.spin_path import scorable
 from icenav.calibration.tracker_bias import fit_tracker_bias_from, roll_circle_plan
 from icenav.calibration.transmission import (
     KNOB_CIRCLES,
@@ -40,6 +41,7 @@ from icenav.calibration.transmission import (
     circle_plan,
     motion_from,
 )
+from icenav.calibration.twist_circle import SPIN_CIRCLE
 from icenav.compensation.elasticity import CalibrationSet, ElasticityMap
 from icenav.compensation.section_length import fit_section_length
 from icenav.compensation.tendon_map import TendonKnobMap
@@ -156,12 +158,24 @@ def fit_catheter(
     bias = fit_tracker_bias_from(recording)
     unbiased = bias.correct_calibration(dense)
     section = fit_section_length(unbiased, geometry)
+    spin = None
+    if SPIN_CIRCLE in {name for _, _, name in cplan.plan.segments}:
+        # the spin circle: a second held-out path of the transmission's form (relaxed at the
+        # state before it)
+        spin = motion_from(
+            recording, SPIN_CIRCLE, tracker_bias=bias, geometry=geometry, section=section
+        )
+        before = cplan.plan.q_motor[max(cplan.plan.segment(SPIN_CIRCLE).start - 1, 0)]
+        spin = replace(spin, q_start=before)
+        if not scorable(spin.q_motor, spin.observed, spin.q_start):
+            spin = None  # too short or too little tracked: the knob circle alone chooses
     transmission = build_transmission(
         unbiased,
         cplan.raster,
         motion_from(recording, KNOB_CIRCLES, tracker_bias=bias, geometry=geometry, section=section),
         hyst.compensator,
         section=section,
+        spin=spin,
     )
     return CatheterCalibration(
         dense=dense,

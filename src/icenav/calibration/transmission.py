@@ -8,11 +8,10 @@ knob angles (:func:`observed_knobs`, position only), and a static map ``G`` (a b
 polynomial, fitted by linear least squares for each parameter vector: variable projection)
 from ``z`` to them closes the residual that :func:`scipy.optimize.least_squares` minimises.
 
-Calibration: knob circles at 25 / 50 / 75 deg, both ways (:func:`circle_plan`, ~740 moves),
-with the dense raster; F_eff is a smoothed thin-plate RBF over the raster and circle samples
-relabelled with the identified model's effective knobs (:func:`build_transmission`). Before a
-procedure in a curved vessel, :func:`reidentify_in_situ` refits the plays from circles
-recorded there alone (F and G kept).
+Calibration: knob circles at 25 / 50 / 75 deg, both ways (:func:`circle_plan`), with the
+raster; the form is chosen on held-out paths (:func:`identify_transmission_form`), F_eff is a
+smoothed thin-plate RBF over the samples relabelled with the model's effective knobs
+(:func:`build_transmission`). :func:`reidentify_in_situ` refits the plays in a curved vessel.
 """
 
 from __future__ import annotations
@@ -30,6 +29,7 @@ from icenav._typing import Array
 from icenav._validation import check_finite
 from icenav.calibration.knob_residual import circle_residual
 from icenav.calibration.plans import MotionPlan, Recording
+from icenav.calibration.spin_path import SPIN_SCORE, spin_path_rms
 from icenav.compensation.elasticity import CalibrationSet, ElasticityMap
 from icenav.compensation.hysteresis import HysteresisCompensator
 from icenav.compensation.section_length import SectionLength
@@ -211,8 +211,7 @@ def motion_from(
 
 def _least_squares_fit(a: Array, y: Array) -> Array:
     """argmin_c |a c - y| for a small tall system (n, m), by the normal equations with the
-    columns scaled to unit norm (a hot loop: LAPACK's lstsq costs ~20 ms per call with two
-    BLAS threads on two cores, this ~0.2 ms)."""
+    columns scaled to unit norm (a hot loop: ~0.2 ms against lstsq's ~20 ms on two cores)."""
     scale = np.sqrt(np.einsum("ij,ij->j", a, a))
     scale[scale == 0.0] = 1.0
     an = a / scale
@@ -434,21 +433,18 @@ stretch form, TR3s, then each extension of the tension form kept) only where its
 residual is this fraction below the best so far: a tie keeps the simpler form."""
 
 TRIED_WRAPS: tuple[float, ...] = ()
-"""The capstan exponents ``wrap`` (mu times the straight shaft's total wrap angle) at which
-:func:`identify_transmission_form` holds the kept tension form by default: none (holding it
-at 0.3 / 0.6, a friction coefficient of about 0.1 over 3-6 rad of the shaft's path, was tried
-and not adopted: docs/calibration.md section 4c)."""
+"""The capstan exponents ``wrap`` at which :func:`identify_transmission_form` holds the kept
+tension form by default: none (0.3 / 0.6 tried, not adopted: docs/calibration.md 4c)."""
 
 TRIED_EXTENSIONS = ("bend-tension", "two-play")
 """The extensions :func:`identify_transmission_form` tries by default on the tension form it
 keeps (:data:`~icenav.compensation.transmission.EXTENSIONS`)."""
 
-
 TRIED_RESIDUAL = False
 """Whether :func:`identify_transmission_form` tries the circle residual (KR1-KR3 of
 :mod:`icenav.compensation.knob_residual`) on the form it keeps. Off by default: with it the
-controller's own spin on development catheter 105 doubled its error (docs/calibration.md 4c,
-"the circle residual, switched off"); ``residual=True`` tries it."""
+controller's own spin on development catheter 105 doubled its error, with one held-out path
+or two (docs/calibration.md 4c, "the circle residual, switched off"); ``residual=True``."""
 
 
 def identify_transmission_form(
@@ -462,6 +458,7 @@ def identify_transmission_form(
     extension_nfev: int = 12,
     refit_nfev: int = 20,
     wraps: Sequence[float] | None = None,
+    spin: CalibrationMotion | None = None,
     **identify_kwargs: Any,
 ) -> TransmissionFit:
     """Choose the transmission's form by held-out residual, then fit it on all the data.
@@ -475,18 +472,14 @@ def identify_transmission_form(
     extension replaces the best so far only if its residual is :data:`FORM_MARGIN` lower.
     The winner is refitted on every sample from its training solution. ``train_nfev`` and
     ``refit_nfev`` bound the optimiser's evaluations of each tension form's training fit and
-    of the refit (``max_nfev`` of :func:`identify_transmission`; on development catheter 214
-    of `default` the added form's residual is 3.05 / 3.01 deg after 15 / 30 evaluations and
-    does not fall further). The returned fit's ``held_out_rms`` lists each form's held-out
-    residual (rad), named as :attr:`TendonTransmission.form`.
+    of the refit (``max_nfev`` of :func:`identify_transmission`). The returned fit's
+    ``held_out_rms`` lists each form's held-out residual (rad), named as
+    :attr:`TendonTransmission.form`.
 
     Between the tension form and its extensions, the straight catheter's capstan exponent
-    ``wrap`` may be held at each of ``wraps`` (default :data:`TRIED_WRAPS`, none) in turn: the
-    kept form refitted without the held-out samples from its training solution with the band's
-    width kept at a 45-deg bend (the wrap, the band's growth with bend and with tension
-    multiply in TR4), and scored the same way; a held wrap is kept only if
-    :data:`FORM_MARGIN` lower, and then stays held through the extensions and the refit
-    (named ``form@wrap``, e.g. ``"stretch@0.6"``).
+    ``wrap`` may be held at each of ``wraps`` (default :data:`TRIED_WRAPS`, none): the kept
+    form refitted without the held-out samples, the band's width kept at a 45-deg bend, and
+    scored the same way; a held wrap that wins stays held (named ``form@wrap``).
 
     Last, with ``residual`` (default :data:`TRIED_RESIDUAL`) and the held-out samples in one
     motion of knob circles (:func:`circle_blocks`): the table of the kept form's miss on the
@@ -495,6 +488,12 @@ def identify_transmission_form(
     the kept form has the ``"two-play"`` extension: docs/calibration.md, 4c); kept only
     if :data:`FORM_MARGIN` lower, and then refitted on every circle with the final model
     (named ``form+residual``).
+
+    With ``spin`` (the spin circle recorded, :func:`motion_from` of its phase with its
+    ``q_start``), every candidate is also scored on it (:func:`~icenav.calibration.spin_path.
+    spin_path_rms`, named ``"spin circle: " + form``), and "lower" above means lower by
+    :data:`FORM_MARGIN` on *both* held-out paths: a form or an extension or the table is
+    kept only where it predicts the held-out knob circle and the spin better.
     """
     if len(held_out) != len(motions):
         raise ShapeError(f"held_out must have one array per motion ({len(motions)})")
@@ -504,16 +503,25 @@ def identify_transmission_form(
     bad = [e for e in extensions if e not in EXTENSIONS or e == "none"]
     if bad:
         raise ConfigurationError(f"extensions must be among {EXTENSIONS[1:]}, got {bad!r}")
-    kwargs = {
-        k: v
-        for k, v in identify_kwargs.items()
-        if k not in ("coupling_form", "extension", "max_nfev")
-    }
+    drop = ("coupling_form", "extension", "max_nfev")
+    kwargs = {k: v for k, v in identify_kwargs.items() if k not in drop}
     limit = float(kwargs.get("fit_limit", FIT_LIMIT))
     train = [~t for t in test]
     fits: dict[str, TransmissionFit] = {}
     scores: list[tuple[str, float]] = []
-    best_form, best = "", math.inf
+
+    def score(fit: TransmissionFit, name: str) -> tuple[float, ...]:
+        v = [_held_out_rms(fit, motions, test, limit)]
+        scores.append((name, v[0]))
+        if spin is not None:
+            v.append(spin_path_rms(fit, spin.q_motor, spin.observed, spin.q_start, fit_limit=limit))
+            scores.append((SPIN_SCORE + name, v[1]))
+        return tuple(v)
+
+    def wins(v: tuple[float, ...], than: tuple[float, ...]) -> bool:
+        return all(a < b * (1.0 - FORM_MARGIN) for a, b in zip(v, than, strict=True))
+
+    best_form, best = "", (math.inf,) * (1 if spin is None else 2)
     for form in forms:
         fit = identify_transmission(
             motions,
@@ -524,9 +532,8 @@ def identify_transmission_form(
             **kwargs,
         )
         fits[form] = fit
-        v = _held_out_rms(fit, motions, test, limit)
-        scores.append((form, v))
-        if not scores[:-1] or v < best * (1.0 - FORM_MARGIN):
+        v = score(fit, form)
+        if not best_form or wins(v, best):
             best_form, best = form, v
     base = fits[best_form].model
     ext_kwargs = {k: v for k, v in kwargs.items() if k not in ("initial", "wrap_range")}
@@ -543,9 +550,8 @@ def identify_transmission_form(
         )
         name = f"{base.form}@{float(w):g}"
         fits[name] = fit
-        v = _held_out_rms(fit, motions, test, limit)
-        scores.append((name, v))
-        if v < best * (1.0 - FORM_MARGIN):
+        v = score(fit, name)
+        if wins(v, best):
             best_form, best, held = name, v, (float(w), float(w))
     base = fits[best_form].model
     suffix = "" if held is None else f"@{held[0]:g}"
@@ -561,9 +567,8 @@ def identify_transmission_form(
         )
         name = fit.model.form + suffix
         fits[name] = fit
-        v = _held_out_rms(fit, motions, test, limit)
-        scores.append((name, v))
-        if v < best * (1.0 - FORM_MARGIN):
+        v = score(fit, name)
+        if wins(v, best):
             best_form, best = name, v
     table_from = None  # (motion index, circle labels) of the circle residual, if kept
     circ = [i for i, t in enumerate(test) if np.any(t)]
@@ -583,9 +588,7 @@ def identify_transmission_form(
         if table is not None:
             fit = fits[best_form]
             fit = replace(fit, model=replace(fit.model, residual=table))
-            v = _held_out_rms(fit, motions, test, limit)
-            scores.append((fit.model.form + suffix, v))
-            if v < best * (1.0 - FORM_MARGIN):
+            if wins(score(fit, fit.model.form + suffix), best):
                 table_from = (circ[0], list(range(1, int(blocks.max()) + 1)), inside, blocks)
     kwargs.pop("initial", None)
     kwargs["max_nfev"] = int(refit_nfev)
@@ -641,12 +644,9 @@ def _held_out_rms(
 
 
 F_SMOOTHING = 0.1
-"""Smoothing of the thin-plate RBF of F on effective knobs (RBFInterpolator's ``smoothing``).
-The relabelled samples are no longer a grid and include exact duplicates (saturated corners);
-an exact interpolant (0) oscillates between them. 0.3 was chosen on development catheters
-50-52 of the default twin; 0.1 since session 10 (docs/calibration.md, section 4c: 0.05 /
-0.3 / 1.0 / 3.0 measured on three development catheters of the families, the error falling
-monotonically with less smoothing down to 0.05; 0.1 keeps a margin from the exact fit)."""
+"""Smoothing of the thin-plate RBF of F on effective knobs (RBFInterpolator's ``smoothing``):
+the relabelled samples include exact duplicates (saturated corners), between which an exact
+interpolant (0) oscillates; chosen on development catheters (docs/calibration.md, 4c)."""
 
 
 def build_transmission(
@@ -660,6 +660,7 @@ def build_transmission(
     geometry: CatheterGeometry = DEFAULT_GEOMETRY,
     section: SectionLength | None = None,
     choose_form: bool = True,
+    spin: CalibrationMotion | None = None,
     **identify_kwargs: Any,
 ) -> TransmissionCalibration:
     """Identify the tendon transmission and build F on its effective knobs.
@@ -690,6 +691,10 @@ def build_transmission(
         (:func:`identify_transmission_form`, whose own evaluation bounds then replace
         ``max_nfev``); otherwise, or if False, the form of ``identify_kwargs``' ``initial`` /
         ``coupling_form`` (default TR3).
+    spin : CalibrationMotion, optional
+        The spin circle as recorded (:func:`motion_from` of its phase, ``q_start`` the state
+        before it): a second held-out path of the form's choice (``spin`` of
+        :func:`identify_transmission_form`).
     identify_kwargs
         Passed to :func:`identify_transmission` (degree, fit_limit, max_gain, max_nfev).
     """
@@ -714,7 +719,7 @@ def build_transmission(
         # the tension's form chosen by the middle circle's residual, predicted from the rest
         middle = blocks == (int(blocks.max()) + 1) // 2
         fit = identify_transmission_form(
-            motions, [np.zeros(path.shape[0], dtype=bool), middle], **identify_kwargs
+            motions, [np.zeros(path.shape[0], dtype=bool), middle], spin=spin, **identify_kwargs
         )
     else:
         fit = identify_transmission(motions, **identify_kwargs)
