@@ -15,6 +15,11 @@ approached the same way, so it is absorbed in ``P_k``), and an affine field
 estimate of ``P_k`` (two passes). Components that turn with the roll (``b0_z``, the parts of
 ``B`` that commute with ``R_z``) cannot be separated from ``P_k``, nor need they be: F absorbs
 them correctly. A small ridge keeps them at their minimum norm.
+
+A field that assumes less: ``quadratic=True`` adds the term ``Q u(x - c)`` of Eq. (TB2)
+(:class:`~icenav.compensation.tracker_bias.TrackerBias`). :func:`choose_tracker_bias` (what
+:func:`fit_tracker_bias_from` does by default) keeps it per catheter only where the inner
+circles, each held out in turn, are predicted better (:func:`held_out_rms`).
 """
 
 from __future__ import annotations
