@@ -428,3 +428,23 @@ def test_a_models_circle_residual_comes_back_and_old_files_have_none(
     doc["transmission"]["fit"]["model"]["residual"] = {"radii": [0.5], "harmonics": 0}
     with pytest.raises(FileFormatError, match="coefficients"):
         decode_model("dense+hysteresis", doc, "x.json")
+
+
+def test_the_tracker_bias_quadratic_term_comes_back_and_older_files_load_affine(
+    document: dict[str, Any], tmp_path: Path
+) -> None:
+    doc = copy.deepcopy(document)
+    quad = np.arange(18.0).reshape(3, 6) * 1e-5
+    doc["model"]["tracker_bias"].update(quadratic=quad.tolist(), centre_mm=[1.0, -2.0, 60.0])
+    path = tmp_path / "q.json"
+    path.write_text(json.dumps(doc), encoding="utf-8")
+    back = CalibrationFile.load(path).model.tracker_bias
+    np.testing.assert_array_equal(back.quadratic, quad)
+    np.testing.assert_array_equal(back.centre_mm, [1.0, -2.0, 60.0])
+    # written before the quadratic field: neither key, the affine field
+    for key in ("quadratic", "centre_mm"):
+        doc["model"]["tracker_bias"].pop(key)
+    path.write_text(json.dumps(doc), encoding="utf-8")
+    old = CalibrationFile.load(path).model.tracker_bias
+    assert old.quadratic is None and old.centre_mm is None
+    np.testing.assert_array_equal(old.gradient, back.gradient)

@@ -12,8 +12,10 @@ import pytest
 from icenav.calibration.procedure import run_visits
 from icenav.calibration.procedures import plan_visits
 from icenav.calibration.tracker_bias import (
+    choose_tracker_bias,
     fit_tracker_bias,
     fit_tracker_bias_from,
+    held_out_rms,
     roll_circle_path,
     roll_circle_plan,
 )
@@ -30,10 +32,15 @@ def _rz(r: float) -> np.ndarray:
 
 
 def _synthetic_stops(
-    rng: np.random.Generator, b0: np.ndarray, grad: np.ndarray, noise: float
+    rng: np.random.Generator,
+    b0: np.ndarray,
+    grad: np.ndarray,
+    noise: float,
+    field: object = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, list[np.ndarray]]:
     """Roll-circle stops of a catheter whose knob-frame tips P_k are the model's plus a
-    random elastic deviation, measured through the affine field b0 + grad x."""
+    random elastic deviation, measured through the affine field b0 + grad x (plus
+    ``field(x)`` if given)."""
     path, mask = roll_circle_path()
     pose = np.cumsum(~mask) - 1
     lag = rng.uniform(-2.0, 2.0, size=pose.max() + 1) * DEG  # the roll play, per circle
@@ -47,7 +54,8 @@ def _synthetic_stops(
             continue
         x = _rz(row[2] + lag[kk]) @ tips[kk]
         pose_ = np.eye(4)
-        pose_[:3, 3] = x + b0 + grad @ x + rng.normal(0.0, noise, 3)
+        extra = np.zeros(3) if field is None else field(x)  # type: ignore[operator]
+        pose_[:3, 3] = x + b0 + grad @ x + extra + rng.normal(0.0, noise, 3)
         q.append(row)
         t.append(pose_)
         k.append(kk)
@@ -147,3 +155,61 @@ def test_bad_input_is_refused() -> None:
         fit_tracker_bias(q, t, np.array([0, 0, 1, 1]))
     with pytest.raises(ShapeError):
         fit_tracker_bias(q, t[:3], np.array([0, 0, 0, 0]))
+
+
+def _wave(rng: np.random.Generator, wavelength: float) -> object:
+    """A smooth non-affine field: three plane waves of ``wavelength`` (mm), 1 mm each."""
+    w = rng.normal(size=(3, 3))
+    w *= 2 * math.pi / wavelength / np.linalg.norm(w, axis=1, keepdims=True)
+    ph = rng.uniform(0, 2 * math.pi, 3)
+    amp = rng.normal(0.0, 1.0, (3, 3))
+    return lambda x: np.sin(w @ x + ph) @ amp
+
+
+def _spread(est: object, measured: object, tips: list[np.ndarray]) -> float:
+    """RMS spread (mm) of the corrected tips of roll circles through ``tips``, turned back
+    to roll 0 (0: the correction leaves only what turns with the roll)."""
+    out = []
+    for p in tips:
+        back = [
+            _rz(r).T @ est.correct_positions(measured(_rz(r) @ p))  # type: ignore[attr-defined, operator]
+            for r in np.arange(0, 360, 45) * DEG
+        ]
+        arr = np.array(back)
+        out.append(np.sum((arr - arr.mean(axis=0)) ** 2, axis=1))
+    return float(np.sqrt(np.mean(out)))
+
+
+def test_the_held_out_circles_choose_the_quadratic_field_only_where_it_predicts_better() -> None:
+    rng = np.random.default_rng(7)
+    for _ in range(4):
+        b0, grad = rng.normal(0.0, 1.5, 3), rng.normal(0.0, 0.02, (3, 3))
+        # an affine field: the quadratic form does not predict the inner circles better
+        q, t, k, _ = _synthetic_stops(rng, b0, grad, noise=0.05)
+        assert held_out_rms(q, t, k, quadratic=True) > 0.9 * held_out_rms(q, t, k, quadratic=False)
+        assert choose_tracker_bias(q, t, k).quadratic is None
+        # a curved field (a 150 mm wave): it does, and the chosen field leaves the tips of
+        # each circle turning more rigidly with the roll than the affine one
+        field = _wave(rng, 150.0)
+        q, t, k, tips = _synthetic_stops(rng, b0, grad, noise=0.05, field=field)
+        chosen = choose_tracker_bias(q, t, k)
+        assert chosen.quadratic is not None and chosen.centre_mm is not None
+        affine = fit_tracker_bias(q, t, k)
+
+        mid = [forward(np.array([a * DEG, 0.0, 0.0, 0.0]))[:3, 3] for a in (35.0, 60.0)]
+
+        def measured(
+            x: np.ndarray, f: object = field, b: np.ndarray = b0, g: np.ndarray = grad
+        ) -> np.ndarray:
+            return np.asarray(x + b + g @ x + f(x))  # type: ignore[operator]
+
+        assert _spread(chosen, measured, mid) < 0.8 * _spread(affine, measured, mid)
+
+
+def test_a_held_out_check_needs_three_circles() -> None:
+    rng = np.random.default_rng(8)
+    q, t, k, _ = _synthetic_stops(rng, np.zeros(3), np.zeros((3, 3)), noise=0.05)
+    two = k <= 1
+    with pytest.raises(ConfigurationError, match=">= 3 roll circles"):
+        held_out_rms(q[two], t[two], k[two], quadratic=True)
+    assert choose_tracker_bias(q[two], t[two], k[two]).quadratic is None

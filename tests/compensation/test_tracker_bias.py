@@ -62,3 +62,29 @@ def test_bad_input_is_refused() -> None:
         TrackerBias(np.zeros(3), np.eye(3))
     with pytest.raises(ShapeError):
         TrackerBias.none().shift_model_path(np.zeros((3, 3)))
+
+
+def test_the_quadratic_term_adds_its_monomials_about_the_centre() -> None:
+    quad = np.zeros((3, 6))
+    quad[0, 0] = 1e-3  # x^2
+    quad[1, 4] = -2e-3  # y z
+    centre = np.array([5.0, -3.0, 60.0])
+    bias = TrackerBias(
+        np.array([0.5, 0.0, 0.0]), np.zeros((3, 3)), quadratic=quad, centre_mm=centre
+    )
+    x = np.array([[25.0, 7.0, 80.0], [5.0, -3.0, 60.0]])
+    u = x - centre
+    want = np.stack([0.5 + 1e-3 * u[:, 0] ** 2, -2e-3 * u[:, 1] * u[:, 2], 0 * u[:, 0]], axis=1)
+    np.testing.assert_allclose(bias.at(x), want, atol=1e-12)
+    # the correction still inverts x + b(x) = m
+    m = x + bias.at(x)
+    np.testing.assert_allclose(bias.correct_positions(m), x, atol=1e-6)
+
+
+def test_a_bad_quadratic_term_is_refused() -> None:
+    with pytest.raises(ShapeError, match="quadratic"):
+        TrackerBias(np.zeros(3), np.zeros((3, 3)), quadratic=np.zeros((3, 3)))
+    with pytest.raises(ConfigurationError, match="mm/mm\\^2"):
+        TrackerBias(np.zeros(3), np.zeros((3, 3)), quadratic=np.full((3, 6), 0.1))
+    with pytest.raises(ShapeError, match="centre_mm"):
+        TrackerBias(np.zeros(3), np.zeros((3, 3)), centre_mm=np.zeros(2))

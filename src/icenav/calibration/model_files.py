@@ -447,16 +447,27 @@ def _decode_identification(r: _Field) -> HysteresisIdentification:
 
 
 def _encode_bias(b: TrackerBias) -> dict[str, Any]:
-    return _data(b, offset_mm=b.offset_mm.tolist(), gradient=b.gradient.tolist())
+    return _data(
+        b,
+        offset_mm=b.offset_mm.tolist(),
+        gradient=b.gradient.tolist(),
+        quadratic=None if b.quadratic is None else b.quadratic.tolist(),
+        centre_mm=None if b.centre_mm is None else b.centre_mm.tolist(),
+    )
 
 
 def _decode_bias(r: _Field) -> TrackerBias:
+    # files written before the quadratic field (TB2) have neither key: the affine field
+    quad = r.array("quadratic", (3, 6)) if r.doc.get("quadratic") is not None else None
+    centre = r.array("centre_mm", (3,)) if r.doc.get("centre_mm") is not None else None
     return r.build(
         lambda: TrackerBias(
             offset_mm=r.array("offset_mm", (3,)),
             gradient=r.array("gradient", (3, 3)),
             rms_residual_mm=r.number("rms_residual_mm"),
             n_samples=r.integer("n_samples"),
+            quadratic=quad,
+            centre_mm=centre,
         )
     )
 

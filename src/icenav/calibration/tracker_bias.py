@@ -15,6 +15,11 @@ approached the same way, so it is absorbed in ``P_k``), and an affine field
 estimate of ``P_k`` (two passes). Components that turn with the roll (``b0_z``, the parts of
 ``B`` that commute with ``R_z``) cannot be separated from ``P_k``, nor need they be: F absorbs
 them correctly. A small ridge keeps them at their minimum norm.
+
+A field that assumes less: ``quadratic=True`` adds the term ``Q u(x - c)`` of Eq. (TB2)
+(:class:`~icenav.compensation.tracker_bias.TrackerBias`). :func:`choose_tracker_bias` (what
+:func:`fit_tracker_bias_from` does by default) keeps it per catheter only where the inner
+circles, each held out in turn, are predicted better (:func:`held_out_rms`).
 """
 
 from __future__ import annotations
@@ -28,15 +33,18 @@ from numpy.typing import ArrayLike, NDArray
 from icenav._typing import Array
 from icenav._validation import check_finite
 from icenav.calibration.plans import MotionPlan, Recording
-from icenav.compensation.tracker_bias import TrackerBias
+from icenav.compensation.tracker_bias import TrackerBias, quadratic_terms
 from icenav.errors import ConfigurationError, ShapeError, TrackerError
 
 __all__ = [
     "DEFAULT_ROLLS",
     "DEFAULT_ROLL_BENDS",
+    "QUADRATIC_MARGIN",
     "ROLL_CIRCLES",
+    "choose_tracker_bias",
     "fit_tracker_bias",
     "fit_tracker_bias_from",
+    "held_out_rms",
     "roll_circle_path",
     "roll_circle_plan",
 ]
@@ -106,6 +114,9 @@ def fit_tracker_bias(
     tip2base: ArrayLike,
     pose_index: ArrayLike,
     ridge: float = _RIDGE,
+    *,
+    quadratic: bool = False,
+    fit_mask: ArrayLike | None = None,
 ) -> TrackerBias:
     """Fit Eq. (TB1) to tracked stops of roll circles.
 
@@ -118,7 +129,14 @@ def fit_tracker_bias(
     pose_index : array-like of int, shape (n,)
         Which circle (knob pose) each stop belongs to; each needs >= 3 stops.
     ridge : float
-        Weight of the minimum-norm regularisation of ``b0`` (mm) and ``B`` (per 100 mm).
+        Weight of the minimum-norm regularisation of ``b0`` (mm), ``B`` (per 100 mm) and
+        ``Q`` (per (100 mm)^2).
+    quadratic : bool
+        Also fit the quadratic term of Eq. (TB2) about the stops' mean position.
+    fit_mask : array-like of bool, shape (n,), optional
+        Stops the field is fitted on (default all); every circle keeps its ``P_k`` fitted on
+        all its stops, so a circle left out of the mask is predicted by the others' field
+        (:func:`held_out_rms`).
     """
     q = check_finite(q_motor, "q_motor")
     t = check_finite(tip2base, "tip2base", "mm")
@@ -135,6 +153,9 @@ def fit_tracker_bias(
             f"each roll circle needs >= 3 tracked stops, got {counts.min()} for pose "
             f"{poses[int(np.argmin(counts))]}"
         )
+    mask = np.ones(q.shape[0], dtype=bool) if fit_mask is None else np.asarray(fit_mask, bool)
+    if mask.shape != (q.shape[0],):
+        raise ShapeError(f"fit_mask must have shape ({q.shape[0]},), got {mask.shape}")
     n, npose = q.shape[0], poses.size
     m = t[:, :3, 3]
     rot = _rz(q[:, 2])
@@ -143,35 +164,113 @@ def fit_tracker_bias(
     pk = np.zeros((npose, 3))
     np.add.at(pk, kk, back)
     pk /= counts[:, None]
-    scale = 100.0  # B in the design per 100 mm, so the ridge treats b0 and B alike
-    for _ in range(2):
+    scale = 100.0  # B per 100 mm, Q per (100 mm)^2, so the ridge treats b0, B, Q alike
+    centre = m[mask].mean(axis=0)
+    nq = 6 if quadratic else 0
+    nf = 12 + 3 * nq
+    # the field's columns are zero on the stops outside the mask: those stops fit P_k only
+    on = mask.astype(np.float64)
+    for _ in range(3 if quadratic else 2):
         x = np.einsum("nij,nj->ni", rot, pk[kk])  # R_i P_k, base frame
-        # unknowns: P (3 npose), b0 (3), B (9, scaled); rows: 3 per stop
-        a = np.zeros((3 * n, 3 * npose + 12))
+        u = quadratic_terms((x - centre) / scale)
+        # unknowns: P (3 npose), b0 (3), B (9, scaled), Q (3 x 6, scaled); rows: 3 per stop
+        a = np.zeros((3 * n, 3 * npose + nf))
         for c in range(3):
             rows = 3 * np.arange(n) + c
             for j in range(3):
-                # (R_i P_k)_c = sum_j R_i[c, j] P_k[j] (B's action linearised at the estimate)
+                # (R_i P_k)_c = sum_j R_i[c, j] P_k[j] (the field's action linearised)
                 a[rows, 3 * kk + j] = rot[:, c, j]
-            a[rows, 3 * npose + c] = 1.0
+            a[rows, 3 * npose + c] = on
             for j in range(3):
-                a[rows, 3 * npose + 3 + 3 * c + j] = x[:, j] / scale
+                a[rows, 3 * npose + 3 + 3 * c + j] = on * x[:, j] / scale
+            for j in range(nq):  # (TB2)
+                a[rows, 3 * npose + 12 + nq * c + j] = on * u[:, j]
         y = m.reshape(-1)
-        reg = np.zeros((12, a.shape[1]))
-        reg[:, 3 * npose :] = math.sqrt(float(ridge)) * np.eye(12)
+        reg = np.zeros((nf, a.shape[1]))
+        reg[:, 3 * npose :] = math.sqrt(float(ridge)) * np.eye(nf)
         sol, *_ = np.linalg.lstsq(
-            np.vstack([a, reg]), np.concatenate([y, np.zeros(12)]), rcond=None
+            np.vstack([a, reg]), np.concatenate([y, np.zeros(nf)]), rcond=None
         )
         pk = sol[: 3 * npose].reshape(npose, 3)
-        b0 = sol[3 * npose : 3 * npose + 3]
-        grad = sol[3 * npose + 3 :].reshape(3, 3) / scale
-    resid = a @ sol - y
+    b0 = sol[3 * npose : 3 * npose + 3]
+    grad = sol[3 * npose + 3 : 3 * npose + 12].reshape(3, 3) / scale
+    quad = sol[3 * npose + 12 :].reshape(3, nq) / scale**2 if quadratic else None
+    # B and Q act on x, not on x - c: b0 + B x + Q u(x - c) with the fitted b0 (TB2)
+    resid = (a @ sol - y).reshape(n, 3)[mask]
     return TrackerBias(
         offset_mm=b0,
         gradient=grad,
-        rms_residual_mm=float(np.sqrt(np.mean(resid**2) * 3.0)),
-        n_samples=n,
+        rms_residual_mm=float(np.sqrt(np.mean(np.sum(resid**2, axis=1)))),
+        n_samples=int(mask.sum()),
+        quadratic=quad,
+        centre_mm=centre if quadratic else None,
     )
+
+
+def held_out_rms(
+    q_motor: ArrayLike,
+    tip2base: ArrayLike,
+    pose_index: ArrayLike,
+    *,
+    quadratic: bool,
+    ridge: float = _RIDGE,
+) -> float:
+    """RMS (mm) of the roll-circle stops of each inner circle predicted by the field fitted
+    on the other circles (that circle's ``P_k`` fitted on its own stops): how well the
+    field's form interpolates between circles, which is what the raster between them
+    needs. The inner circles are all but the first and last (in ``pose_index`` order)."""
+    q = np.asarray(q_motor, dtype=np.float64)
+    t = np.asarray(tip2base, dtype=np.float64)
+    k = np.asarray(pose_index)
+    circles = np.unique(k)
+    if circles.size < 3:
+        raise ConfigurationError(f"a held-out check needs >= 3 roll circles, got {circles.size}")
+    err: list[Array] = []
+    for c in circles[1:-1]:
+        out = k == c
+        fit = fit_tracker_bias(q, t, k, ridge, quadratic=quadratic, fit_mask=~out)
+        pred = _predict(fit, q[out], t[out])
+        err.append(np.sum((pred - t[out, :3, 3]) ** 2, axis=1))
+    return float(np.sqrt(np.mean(np.concatenate(err))))
+
+
+def _predict(bias: TrackerBias, q: Array, t: Array) -> Array:
+    """Tracked tips (n, 3) of one circle's stops predicted by a field: ``R_i P + b(R_i P)``
+    with ``P`` the best knob-frame tip for that field (Gauss-Newton, 3 unknowns)."""
+    rot = _rz(q[:, 2])
+    m = t[:, :3, 3]
+    p = np.mean(np.einsum("nji,nj->ni", rot, bias.correct_positions(m)), axis=0)
+    for _ in range(3):
+        x = np.einsum("nij,j->ni", rot, p)
+        r = (m - x - bias.at(x)).reshape(-1)
+        jac = rot.reshape(-1, 3)  # the field's slope (<< 1) left out of the Jacobian
+        p = p + np.linalg.lstsq(jac, r, rcond=None)[0]
+    x = np.einsum("nij,j->ni", rot, p)
+    return np.asarray(x + bias.at(x), dtype=np.float64)
+
+
+QUADRATIC_MARGIN = 0.9
+"""The quadratic field (TB2) is kept only where its held-out RMS is below this fraction of
+the affine field's."""
+
+
+def choose_tracker_bias(
+    q_motor: ArrayLike,
+    tip2base: ArrayLike,
+    pose_index: ArrayLike,
+    ridge: float = _RIDGE,
+) -> TrackerBias:
+    """The affine field (TB1), or the quadratic one (TB2) where the inner roll circles held
+    out (:func:`held_out_rms`) say it predicts better by the margin
+    :data:`QUADRATIC_MARGIN`."""
+    affine = fit_tracker_bias(q_motor, tip2base, pose_index, ridge)
+    if np.unique(np.asarray(pose_index)).size < 3:
+        return affine
+    h1 = held_out_rms(q_motor, tip2base, pose_index, quadratic=False, ridge=ridge)
+    h2 = held_out_rms(q_motor, tip2base, pose_index, quadratic=True, ridge=ridge)
+    if h2 < QUADRATIC_MARGIN * h1:
+        return fit_tracker_bias(q_motor, tip2base, pose_index, ridge, quadratic=True)
+    return affine
 
 
 ROLL_CIRCLES = "roll circles"
@@ -200,9 +299,12 @@ def fit_tracker_bias_from(
     recording: Recording,
     bends: Sequence[float] = DEFAULT_ROLL_BENDS,
     rolls: Sequence[float] = DEFAULT_ROLLS,
+    quadratic: bool | None = None,
 ) -> TrackerBias:
-    """:func:`fit_tracker_bias` on the recorded roll circles of :func:`roll_circle_plan`
-    (the same ``bends`` and ``rolls``)."""
+    """The field fitted to the recorded roll circles of :func:`roll_circle_plan` (the same
+    ``bends`` and ``rolls``): chosen by held-out circles (:func:`choose_tracker_bias`) when
+    ``quadratic`` is None, else the affine (False) or quadratic (True) field
+    (:func:`fit_tracker_bias`)."""
     path, stops = roll_circle_path(bends, rolls)
     q, poses = recording.part(ROLL_CIRCLES)
     if q.shape != path.shape or not np.array_equal(q, path):
@@ -213,4 +315,7 @@ def fit_tracker_bias_from(
     if keep.size < 6:
         raise TrackerError(f"only {keep.size} roll-circle stops were tracked; need >= 6")
     pose_of = np.cumsum(~stops) - 1  # which bend (circle) each state belongs to
-    return fit_tracker_bias(q[keep], np.array(poses[keep]), pose_of[keep])
+    args = (q[keep], np.array(poses[keep]), pose_of[keep])
+    if quadratic is None:
+        return choose_tracker_bias(*args)
+    return fit_tracker_bias(*args, quadratic=quadratic)

@@ -9,8 +9,10 @@ learns ``b`` as if it were part of the bend, and when the spin turns the roll by
 correction turns with it: the true tip orbits the model tip on a circle of radius ``|b_xy|``
 and the tracker sees up to twice that (docs/calibration.md, section 4d).
 
-What: an affine estimate ``b(x) = b0 + B x`` (base frame, mm), fitted from roll circles by
-:mod:`icenav.calibration.tracker_bias` (Eq. TB1 there).
+What: an affine estimate ``b(x) = b0 + B x`` (base frame, mm), with an optional quadratic
+term ``Q u(x - c)`` (Eq. TB2: the six monomials of the offset from a centre ``c``), fitted from
+roll circles by :mod:`icenav.calibration.tracker_bias` (Eq. TB1 there; the quadratic term is
+kept per catheter only where held-out roll circles say it predicts better).
 
 Use (:class:`TrackerBias`):
 
@@ -38,14 +40,27 @@ from icenav.geometry.kinematics import DEFAULT_GEOMETRY, CatheterGeometry, forwa
 
 __all__ = [
     "TrackerBias",
+    "quadratic_terms",
 ]
+
+
+def quadratic_terms(u: ArrayLike) -> Array:
+    """The six quadratic monomials (..., 6) of offsets u (..., 3) (mm):
+    ``(ux^2, ux uy, ux uz, uy^2, uy uz, uz^2)`` (mm^2)."""
+    v = np.asarray(u, dtype=np.float64)
+    i, j = np.triu_indices(3)
+    return np.asarray(v[..., i] * v[..., j], dtype=np.float64)
 
 
 @dataclass(frozen=True)
 class TrackerBias:
-    """An affine estimate of the tracker's field bias in the base frame: ``b(x) = b0 + B x``.
+    """An estimate of the tracker's field bias in the base frame (Eq. TB2)::
 
-    ``x`` and ``b`` in mm, base frame. The zero bias (:meth:`none`) leaves everything as is.
+        b(x) = b0 + B x + Q u(x - c)                                        # (TB2)
+
+    with ``u`` the six quadratic monomials (:func:`quadratic_terms`). ``x`` and ``b`` in mm,
+    base frame; ``Q`` None is the affine field. The zero bias (:meth:`none`) leaves
+    everything as is.
     """
 
     offset_mm: Array
@@ -57,6 +72,10 @@ class TrackerBias:
     field does not describe."""
     n_samples: int = 0
     """Tracked stops used."""
+    quadratic: Array | None = None
+    """(3, 6) ``Q`` (mm/mm^2), or None: the affine field."""
+    centre_mm: Array | None = None
+    """(3,) ``c`` (mm, base frame) of the quadratic term (None: the origin)."""
 
     def __post_init__(self) -> None:
         b0 = check_finite(self.offset_mm, "offset_mm", "mm")
@@ -72,6 +91,21 @@ class TrackerBias:
             )
         object.__setattr__(self, "offset_mm", b0)
         object.__setattr__(self, "gradient", g)
+        if self.quadratic is not None:
+            q = check_finite(self.quadratic, "quadratic", "mm/mm^2")
+            if q.shape != (3, 6):
+                raise ShapeError(f"quadratic must have shape (3, 6), got {q.shape}")
+            if np.max(np.abs(q)) > 0.01:
+                raise ConfigurationError(
+                    f"quadratic entries must be within +-0.01 mm/mm^2 (a field bias varies "
+                    f"slowly), got {np.max(np.abs(q)):.3g}"
+                )
+            object.__setattr__(self, "quadratic", q)
+        if self.centre_mm is not None:
+            c = check_finite(self.centre_mm, "centre_mm", "mm")
+            if c.shape != (3,):
+                raise ShapeError(f"centre_mm must have shape (3,), got {c.shape}")
+            object.__setattr__(self, "centre_mm", c)
 
     @classmethod
     def none(cls) -> TrackerBias:
@@ -81,7 +115,11 @@ class TrackerBias:
     def at(self, x: ArrayLike) -> Array:
         """Bias (..., 3) (mm) at base-frame points x (..., 3) (mm)."""
         p = np.asarray(x, dtype=np.float64)
-        return np.asarray(self.offset_mm + p @ self.gradient.T, dtype=np.float64)
+        b = self.offset_mm + p @ self.gradient.T
+        if self.quadratic is not None:  # (TB2)
+            c = np.zeros(3) if self.centre_mm is None else self.centre_mm
+            b = b + quadratic_terms(p - c) @ self.quadratic.T
+        return np.asarray(b, dtype=np.float64)
 
     def correct_positions(self, measured: ArrayLike) -> Array:
         """True positions x (..., 3) for tracked ones m: the solution of ``x + b(x) = m``
