@@ -16,7 +16,8 @@ Variants (truth is read for the diagnosis only, never by a method):
 - ``+bias``: ours' tracker bias removed from the short recording and the five points first;
 - on a second recording, of the plan with the short roll circle (``short_ring_plan(
   bias_circle=True)``): ``circle0`` fitted without its bias (the bent sweep's coarser step
-  alone), ``circle`` with it (B1), ``circle+twist`` with it and ours' twist law;
+  alone), ``circle`` with it (B1), ``circle+T`` with it and the circle's twist prior (T1:
+  ``short+rings+prior`` since session 13), ``circle+twist`` with it and ours' twist law;
 - ``ours``: ``dense+hysteresis``.
 
 Prints, per variant, EM / true RMS position and rotation at 20 / 40 / 60 deg and the true
@@ -26,7 +27,8 @@ pose's axial / tilt RMS; writes ``{"family", "seed", "set": "rotation", "rows", 
 
     python docs/figures/ablation_short_rotation.py default 210 [OUT.json [lean]]
 
-``lean``: only ``prior``, ``circle`` and ``ours`` (the before / after of session 13).
+``lean``: only ``prior``, ``circle``, ``circle+T`` and ``ours`` (session 13's before /
+after). ``prior`` is session 12's ``short+rings+prior`` (the priors without T0).
 """
 
 from __future__ import annotations
@@ -83,7 +85,8 @@ def main() -> None:
     rig, tracker = S.make_rig(seed, "straight", fam)
     five = S.run_calibration("five_point", rig, tracker).calibration_set
     ours = S.run_calibration("dense+hysteresis", rig, tracker).details
-    prior = S.family_play_prior(fam)
+    twist_prior = S.family_play_prior(fam)  # with the circle's twist (T0), session 13
+    prior = dataclasses.replace(twist_prior, twist_circle=None)  # session 12's priors
     rig.reset()
     plan = short_ring_plan()
     rec = run_visits(plan_visits(plan.plan), rig.move, tracker)
@@ -110,6 +113,9 @@ def main() -> None:
         dataclasses.replace(cplan, bias_circle=False), crec, five, prior=prior, map_prior=prior.map
     )
     variants["circle"] = circle
+    variants["circle+T"] = fit_short_rings(
+        cplan, crec, five, prior=twist_prior, map_prior=twist_prior.map
+    )
     variants["circle+twist"] = dataclasses.replace(
         circle, hysteresis=ch.with_plays(ch.roll_play, oh.twist_play)
     )
@@ -122,7 +128,7 @@ def main() -> None:
         flush=True,
     )
     if lean:
-        variants = {k: variants[k] for k in ("prior", "circle")}
+        variants = {k: variants[k] for k in ("prior", "circle", "circle+T")}
     rows: dict[str, list[float]] = {}
     splits: dict[str, list[float]] = {}
     for name in [*variants, "ours"]:

@@ -87,6 +87,7 @@ __all__ = [
     "fit_short_rings",
     "ring_path",
     "short_ring_plan",
+    "short_twist_reading",
     "turn_sense",
 ]
 
@@ -455,7 +456,8 @@ def fit_short_plays(
     ``splan.sweeps.plan.n`` visits of ``recording``; the rings may follow or not): lines
     through the bent sweep's reading (:func:`~icenav.calibration.hysteresis.fit_hysteresis`;
     laws over the knob plane when the plan sweeps further directions), or with ``prior``
-    the prior's shapes scaled to that reading (P1)."""
+    the prior's shapes scaled to that reading (P1; the twist by T1 where the prior stores
+    the circle's twist, :mod:`icenav.calibration.play_prior`)."""
     n = splan.sweeps.plan.n
     if recording.plan.n < n or recording.plan.segments[: len(splan.sweeps.plan.segments)] != (
         splan.sweeps.plan.segments
@@ -468,6 +470,17 @@ def fit_short_plays(
     if prior is not None:
         roll = _with_prior(roll, prior, _bent_check(sweeps, splan.sweeps.bend))
     return roll
+
+
+def short_twist_reading(splan: ShortRingPlan, recording: Recording) -> float:
+    """The twist's play (rad) the short calibration's bent sweep reads at its tracked bend,
+    the field bias of its roll circle removed first (as :func:`fit_short_rings` does): the
+    ``s`` of (T0) and (T1) of :mod:`icenav.calibration.play_prior`."""
+    recording = _unbiased(recording, fit_short_bias(splan, recording))
+    comp = fit_short_plays(splan, recording)
+    n = splan.sweeps.plan.n
+    sweeps = Recording(splan.sweeps.plan, recording.tip2base[:n], recording.attempts[:n])
+    return comp.twist_play_per_bend * _bent_check(sweeps, splan.sweeps.bend)
 
 
 def _bent_check(recording: Recording, knob: float) -> float:
@@ -487,7 +500,9 @@ def _with_prior(
     at the bent sweep (``*_per_bend`` x the tracked ``bend``) set the prior's levels; a play
     the prior cannot scale keeps its line."""
     roll = prior.law("roll", bend, comp.roll_play_per_bend * bend)
-    twist = prior.law("twist", bend, comp.twist_play_per_bend * bend)
+    reading = comp.twist_play_per_bend * bend
+    circle = prior.circle_twist(reading)  # (T1) where the prior stores the circle's twist
+    twist = circle if circle is not None else prior.law("twist", bend, reading)
     return comp.with_plays(roll, twist)
 
 
