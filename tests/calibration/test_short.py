@@ -305,8 +305,9 @@ def test_the_short_roll_circle_keeps_the_plan_within_100_moves() -> None:
 def test_the_short_roll_circle_reads_the_field_bias_and_f_aims_the_true_tip() -> None:
     """F built on samples read through a field bias learns it at each ring stop as if it
     turned with the knobs: a spin makes the true tip orbit the intended one. The short roll
-    circle (six stops at one bend) reads the field's bias where it varies around the rings
-    (B1), and F built on the samples without it keeps the true tip of the spin close."""
+    circle (five stops at one bend) reads the field's bias where it varies around the rings
+    (B1), and F built on the samples without it keeps the true tip of the spin close: 0.6
+    against 3.4 mm RMS (two rings of 8 stops turned one way)."""
     cath = SyntheticCatheter(r=(1 * DEG, 1 * DEG, 0.0))
     model = spin_trajectory([40 * DEG, 0.0, 0.0, 0.0], 37, include_end=True).q_model
     want = forward(model[0], check=False)[:3, 3]
@@ -318,7 +319,7 @@ def test_the_short_roll_circle_reads_the_field_bias_and_f_aims_the_true_tip() ->
         q5[1:, :2] = 85 * DEG * np.array([[1, 0], [0, 1], [-1, 0], [0, -1]])
         five = run_visits(plan_visits(MotionPlan.make(q5, "five", 1)), cath.move, tracker)
         five_set = CalibrationSet(q_motor=q5, tip2base=five.tip2base, method="five")
-        sp = short_ring_plan(bias_circle=circle)
+        sp = short_ring_plan((30 * DEG, 50 * DEG), 8, both_ways=False, bias_circle=circle)
         rec = run_visits(plan_visits(sp.plan), cath.move, tracker)
         cal = fit_short_rings(sp, rec, five_set, fit_length=False)
         assert (cal.tracker_bias.n_samples > 0) == circle
