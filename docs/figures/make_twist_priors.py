@@ -5,8 +5,11 @@ calibration's plan (``catheter_plan().hysteresis``: the roll swept straight, at 
 and in three further directions, then the spin circle) fitted as the full calibration fits
 it, and the short calibration's own plan with its roll circle (``short_ring_plan(
 bias_circle=True)``) read as the short calibration reads its twist
-(:func:`icenav.calibration.short.short_twist_reading`); (T0) over the three. The rest of
-each file (the plays' shapes, the map prior) is kept as it is::
+(:func:`icenav.calibration.short.short_twist_reading`); (T0) over the three, stored only
+when most of the line's full calibrations took the circle's twist (their sweeps' law missed
+the circle's readings, TC3 of :mod:`icenav.calibration.twist_circle`; where the sweeps' law
+held, (P1)'s twist stays: the table would only change its level by the short reading's
+own bias). The rest of each file (the plays' shapes, the map prior) is kept as it is::
 
     python docs/figures/make_twist_priors.py [SEEDS [FAMILIES]]    # default 215-217, all
 
@@ -26,6 +29,7 @@ from icenav.calibration.play_prior import load_play_prior, make_twist_circle, sa
 from icenav.calibration.procedure import run_visits
 from icenav.calibration.procedures import plan_visits
 from icenav.calibration.short import short_ring_plan, short_twist_reading
+from icenav.compensation.bend_play import KnobPlanePlay
 from icenav.eval import spin as S
 from icenav.sim.families import FAMILIES
 
@@ -51,6 +55,13 @@ for family in families:
         )
     path = out_dir / f"play_prior_{family}.json"
     prior = load_play_prior(path)
+    circled = sum(
+        isinstance(c.twist_play, KnobPlanePlay) and c.twist_play.period > math.pi for c in comps
+    )
+    if 2 * circled <= len(comps):
+        save_play_prior(dataclasses.replace(prior, twist_circle=None), path)
+        print(f"{family}: {circled} of {len(comps)} took the circle's twist: no table", flush=True)
+        continue
     try:
         table = make_twist_circle(comps, readings, prior.bends)
     except Exception as exc:  # no reading large enough: the file keeps (P1)'s twist
@@ -60,7 +71,7 @@ for family in families:
     ref = int(round(math.degrees(prior.bends[0]) / 5.0))
     col = 15 - ref  # 75 deg of bend
     print(
-        f"{family}: short readings "
+        f"{family}: {circled} of {len(comps)} took the circle's twist; short readings "
         + " / ".join(f"{math.degrees(r):.2f}" for r in readings)
         + " deg; T at 75 deg over 0 / 90 / 180 / 270 deg "
         + " / ".join(f"{table[k][col]:.2f}" for k in (0, 3, 6, 9))
