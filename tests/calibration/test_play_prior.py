@@ -12,11 +12,13 @@ import numpy as np
 import pytest
 
 from icenav.calibration.play_prior import (
+    CIRCLE_TWIST_DIRECTIONS,
     PRIOR_BENDS,
     PRIOR_DIRECTIONS,
     PlayPrior,
     load_play_prior,
     make_play_prior,
+    make_twist_circle,
     save_play_prior,
 )
 from icenav.compensation.bend_play import BendPlay, KnobPlanePlay
@@ -112,3 +114,58 @@ def test_a_prior_needs_a_play_to_normalise_and_valid_tables() -> None:
         PlayPrior("x", (), (0.0,), (1.0, 2.0), ((1.0, 0.5),), ((0.0, 0.0),))
     with pytest.raises(ConfigurationError, match="which"):
         make_play_prior([full_calibration(0.08)], "x", ["x"]).law("knob", 1.0, 1.0)
+
+
+def circle_calibration(level: float) -> HysteresisCompensator:
+    """A full calibration whose twist, read on the spin circle, depends on the bending
+    plane's direction over the whole plane (period 360 deg: 1.5x wider towards 90 deg than
+    towards 270 deg) and grows as a power of the bend."""
+    grid = np.linspace(1 * DEG, 130 * DEG, 130)
+    dirs = tuple(np.arange(12) * math.pi / 6)
+    laws = tuple(
+        BendPlay("table", (), tuple(grid), tuple(level * grid**1.7 * (1.0 + 0.2 * math.sin(d))))
+        for d in dirs
+    )
+    return HysteresisCompensator(
+        [None, None, None, None], twist_play=KnobPlanePlay(dirs, laws, period=2.0 * math.pi)
+    )
+
+
+def test_the_circles_twist_is_scaled_to_the_short_reading_over_the_whole_plane(
+    tmp_path: Path,
+) -> None:
+    """(T0) over three catheters whose circle twist differs in level only, each divided by
+    the short sweep's reading on it (here biased low: 0.7 of the circle's at 75 deg along
+    the AP knob, as a reading held in one direction can be); (T1) for a fourth catheter's
+    reading gives its circle twist in every direction, where the period-180 deg shape
+    cannot tell 90 from 270 deg. The table survives the file; a prior without it gives
+    None (the caller keeps P1)."""
+    ref = 75 * DEG
+
+    def reading(level: float) -> float:
+        return 0.7 * level * ref**1.7
+
+    comps = [circle_calibration(a) for a in (0.05, 0.07, 0.09)]
+    table = make_twist_circle(comps, [reading(a) for a in (0.05, 0.07, 0.09)])
+    prior = make_play_prior([full_calibration(a) for a in (0.03, 0.04, 0.05)], "line", "abc")
+    assert prior.circle_twist(reading(0.06)) is None
+    prior = PlayPrior(**{**prior.__dict__, "twist_circle": table})
+    path = tmp_path / "prior.json"
+    save_play_prior(prior, path)
+    again = load_play_prior(path)
+    assert again.twist_circle is not None
+    np.testing.assert_allclose(again.twist_circle, table)
+    law = again.circle_twist(reading(0.06))
+    assert law is not None and law.period == 2.0 * math.pi
+    want = circle_calibration(0.06)
+    for bend in (30 * DEG, 60 * DEG, 90 * DEG):
+        for psi in CIRCLE_TWIST_DIRECTIONS:
+            assert law.at(bend, psi) == pytest.approx(want.twist_extra(bend, psi), rel=0.02)
+    assert law.at(ref, 90 * DEG) > 1.4 * law.at(ref, 270 * DEG)
+    assert again.circle_twist(math.nan) is None
+    with pytest.raises(ConfigurationError, match="no short twist reading"):
+        make_twist_circle(comps, [0.0, 0.0, 0.0])
+    with pytest.raises(ConfigurationError, match="one reading each"):
+        make_twist_circle(comps, [0.1])
+    with pytest.raises(ConfigurationError, match="twist_circle table"):
+        PlayPrior(**{**prior.__dict__, "twist_circle": ((1.0,),)})

@@ -40,6 +40,10 @@ def test_the_short_calibration_is_the_5_points_and_at_most_100_moves() -> None:
     assert five.robot_s < short.robot_s < 0.2 * calibration_costs(("dense+hysteresis",))[0].robot_s
     rings = short_calibration_cost(rings=True)
     assert rings.kind == "short+rings" and 0 < rings.n_moves - five.n_moves <= 100
+    # with the short roll circle: the same moves, its one long roll turn back costs seconds
+    circle = short_calibration_cost(rings=True, bias_circle=True)
+    assert circle.kind == "short+rings+prior" and circle.n_moves == rings.n_moves
+    assert rings.robot_s < circle.robot_s < rings.robot_s + 30.0
 
 
 def test_ours_is_under_10_minutes_of_robot_time() -> None:

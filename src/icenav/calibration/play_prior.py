@@ -26,6 +26,21 @@ by held-out residual, are tabulated). A catheter of another line, or one whose p
 differs, is mis-compensated where the shapes differ; without a prior the short calibration
 keeps its lines. The file is made by :func:`make_play_prior` from the full calibrations'
 compensators and stored by :func:`save_play_prior` (JSON, :data:`PRIOR_VERSION`).
+
+*The twist as a spin meets it* (version 3, optional): the full calibration reads the twist on
+its spin circle over the whole knob plane (period 360 deg,
+:mod:`icenav.calibration.twist_circle`), which the short calibration's bent sweep, held in one
+direction, does not see; the twist it reads there differs from the circle's by more than a
+level. So the prior may also store, for each catheter ``j``, the full calibration's twist law
+``h_j(b, psi)`` divided by what the short calibration's own bent sweep read on the same
+catheter, ``s_j`` (the short plan's pace and step, :func:`~icenav.calibration.short.
+short_twist_reading`), averaged::
+
+    T(b, psi) = mean_j  h_j(b, psi) / s_j,        h(b, psi) = s * T(b, psi)           (T0, T1)
+
+on :data:`CIRCLE_TWIST_DIRECTIONS`; a short calibration reading ``s`` gets (T1) instead of
+(P1)'s twist. It assumes the same as (P1): one proportion between the short reading and the
+circle's law for every catheter of the line.
 """
 
 from __future__ import annotations
@@ -46,6 +61,7 @@ from icenav.compensation.hysteresis import HysteresisCompensator
 from icenav.errors import ConfigurationError, FileFormatError, UnsupportedVersionError
 
 __all__ = [
+    "CIRCLE_TWIST_DIRECTIONS",
     "MIN_REFERENCE_PLAY",
     "MIN_SHAPE",
     "PRIOR_BENDS",
@@ -55,11 +71,15 @@ __all__ = [
     "PlayPrior",
     "load_play_prior",
     "make_play_prior",
+    "make_twist_circle",
     "save_play_prior",
 ]
 
-PRIOR_VERSION = 2
-"""Version of the prior's JSON file (2: with the map prior, ``map``; 1, without, is read)."""
+PRIOR_VERSION = 3
+"""Version of the prior's JSON file (3: with the circle's twist, ``twist_circle``; 2: with
+the map prior, ``map``; 1, without either; all are read)."""
+CIRCLE_TWIST_DIRECTIONS = tuple(2.0 * math.pi * k / 12 for k in range(12))
+"""Directions (rad over the whole knob plane) of the circle's twist table (T0)."""
 REFERENCE_BEND = math.radians(75.0)
 """Bend (rad) at which each catheter's AP law is normalised to 1 in (P0): about the tracked
 bend of the short calibration's bent sweep (50 deg of knob)."""
@@ -111,6 +131,10 @@ class PlayPrior:
     the grid): how far one catheter's shape is from the line's."""
     map: MapPrior | None = None
     """The line's mean elasticity map (:mod:`icenav.calibration.map_prior`), if stored."""
+    twist_circle: tuple[tuple[float, ...], ...] | None = None
+    """(T0): (12, n_bends) the full calibrations' twist over :data:`CIRCLE_TWIST_DIRECTIONS`
+    divided by the short calibration's twist reading on the same catheter (None: not
+    stored)."""
 
     def __post_init__(self) -> None:
         d = np.asarray(self.directions, dtype=np.float64)
@@ -123,6 +147,23 @@ class PlayPrior:
             raise ConfigurationError(f"prior directions must be ascending, got {d!r}")
         object.__setattr__(self, "roll", _table(self.roll, "roll", (d.size, b.size)))
         object.__setattr__(self, "twist", _table(self.twist, "twist", (d.size, b.size)))
+        if self.twist_circle is not None:
+            shape = (len(CIRCLE_TWIST_DIRECTIONS), b.size)
+            object.__setattr__(
+                self, "twist_circle", _table(self.twist_circle, "twist_circle", shape)
+            )
+
+    def circle_twist(self, reading: float) -> KnobPlanePlay | None:
+        """(T1): the twist over the whole knob plane (period 360 deg) for the short
+        calibration's twist reading ``reading`` (rad, clipped at 0); None without the table
+        or for a reading that is not finite."""
+        if self.twist_circle is None or not math.isfinite(reading):
+            return None
+        scale = max(float(reading), 0.0)
+        laws = tuple(
+            BendPlay("table", (), self.bends, row).scaled(scale) for row in self.twist_circle
+        )
+        return KnobPlanePlay(CIRCLE_TWIST_DIRECTIONS, laws, period=2.0 * math.pi)  # (T1)
 
     def law(self, which: str, bend: float, extra: float) -> KnobPlanePlay | None:
         """(P1): the play ``which`` (``"roll"`` or ``"twist"``) over the knob plane, scaled
@@ -156,6 +197,11 @@ class PlayPrior:
             "twist": [list(r) for r in self.twist],
             "spread": list(self.spread),
             **({"map": self.map.to_dict()} if self.map is not None else {}),
+            **(
+                {"twist_circle": [list(r) for r in self.twist_circle]}
+                if self.twist_circle is not None
+                else {}
+            ),
         }
 
 
@@ -210,6 +256,34 @@ def make_play_prior(
     )
 
 
+def make_twist_circle(
+    compensators: Sequence[HysteresisCompensator],
+    readings: Sequence[float],
+    bends: Sequence[float] = PRIOR_BENDS,
+) -> tuple[tuple[float, ...], ...]:
+    """(T0) over the full calibrations' twist laws (``compensators``) and the short
+    calibration's twist readings on the same catheters (``readings``, rad); a catheter whose
+    reading is below :data:`MIN_REFERENCE_PLAY` is left out."""
+    if len(compensators) == 0 or len(compensators) != len(readings):
+        raise ConfigurationError(
+            f"need one or more compensators and one reading each, got {len(compensators)} "
+            f"and {len(readings)}"
+        )
+    b = np.asarray(bends, dtype=np.float64)
+    rows = [
+        np.array([np.asarray(c.twist_extra(b, psi)) for psi in CIRCLE_TWIST_DIRECTIONS]) / s
+        for c, s in zip(compensators, readings, strict=True)
+        if math.isfinite(s) and s >= MIN_REFERENCE_PLAY
+    ]  # (T0)
+    if not rows:
+        raise ConfigurationError(
+            f"no short twist reading of at least {math.degrees(MIN_REFERENCE_PLAY):.1f} deg: "
+            "no circle twist to store"
+        )
+    mean = np.maximum.accumulate(np.mean(np.stack(rows), axis=0), axis=1)
+    return tuple(tuple(float(v) for v in row) for row in mean)
+
+
 def save_play_prior(prior: PlayPrior, path: str | Path) -> None:
     """Write ``prior`` as JSON to ``path`` (compact: one line)."""
     Path(path).write_text(json.dumps(prior.to_dict()) + "\n", encoding="utf-8")
@@ -225,7 +299,7 @@ def load_play_prior(path: str | Path) -> PlayPrior:
         raise FileFormatError(f"{p}: not a readable play prior ({exc})") from exc
     if not isinstance(doc, dict) or doc.get("format") != "icenav play prior":
         raise FileFormatError(f"{p}: not an icenav play prior")
-    if doc.get("version") not in (1, PRIOR_VERSION):
+    if doc.get("version") not in (1, 2, PRIOR_VERSION):
         raise UnsupportedVersionError(
             f"{p}: play prior version {doc.get('version')!r}, this icenav reads {PRIOR_VERSION}"
         )
@@ -245,6 +319,7 @@ def load_play_prior(path: str | Path) -> PlayPrior:
             twist=doc["twist"],
             spread=(float(doc["spread"][0]), float(doc["spread"][1])),
             map=map_prior_from_dict(doc["map"], str(p)) if "map" in doc else None,
+            twist_circle=doc.get("twist_circle"),
         )
     except (KeyError, TypeError, ValueError, IndexError) as exc:
         raise FileFormatError(f"{p}: malformed play prior ({exc})") from exc

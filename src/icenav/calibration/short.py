@@ -61,23 +61,33 @@ from icenav.calibration.hysteresis import HysteresisPlan, fit_hysteresis, hyster
 from icenav.calibration.map_prior import MapPrior
 from icenav.calibration.plans import MotionPlan, Recording
 from icenav.calibration.play_prior import PlayPrior
+from icenav.calibration.tracker_bias import fit_tracker_bias
 from icenav.compensation.elasticity import CalibrationSet, ElasticityMap
 from icenav.compensation.hysteresis import HysteresisCompensator
 from icenav.compensation.section_length import SectionLength, fit_section_length
+from icenav.compensation.tracker_bias import TrackerBias
 from icenav.errors import ConfigurationError
 from icenav.geometry.kinematics import DEFAULT_GEOMETRY, CatheterGeometry
 
 __all__ = [
+    "BIAS_BENT_STEP",
+    "BIAS_CIRCLE_SAMPLES",
+    "BIAS_CIRCLE_STOPS",
     "BOTH_WAYS_STOPS",
     "KNOB_RINGS",
+    "MIN_BIAS_STOPS",
     "RING_RADII",
+    "ROLL_CIRCLE",
     "SWEEP_STEP",
     "ShortRingCalibration",
     "ShortRingPlan",
+    "bias_circle_path",
+    "fit_short_bias",
     "fit_short_plays",
     "fit_short_rings",
     "ring_path",
     "short_ring_plan",
+    "short_twist_reading",
     "turn_sense",
 ]
 
@@ -109,6 +119,19 @@ against the knobs, ``spin=True``) are a measured option, not adopted: docs/calib
 section 7, session 10."""
 RING_SAMPLES = 1
 """Tracker samples averaged at each ring stop by default (10 ms each, no move)."""
+
+ROLL_CIRCLE = "short roll circle"
+"""Segment name of the short roll circle's stops (:func:`bias_circle_path`)."""
+BIAS_CIRCLE_STOPS = 5
+"""Stops of the short roll circle (72 deg apart): its 5 moves and the roll's turn back are
+paid by the bent sweep's coarser step (:data:`BIAS_BENT_STEP`: 13 moves instead of 19), the
+rings kept as the map prior stores them (100 moves in all)."""
+BIAS_BENT_STEP = math.radians(25.0)
+"""Roll step (rad) of the bent sweep (+-50 deg) when the short roll circle is in the plan."""
+BIAS_CIRCLE_SAMPLES = 4
+"""Tracker samples averaged at each stop of the short roll circle (10 ms each, no move)."""
+MIN_BIAS_STOPS = 4
+"""Tracked stops of the short roll circle below which no bias is fitted."""
 
 
 def ring_path(
@@ -167,6 +190,8 @@ class ShortRingPlan:
     """The rings turn the roll against the knobs (:func:`ring_path`'s ``spin``)."""
     n_average: int = 1
     """Tracker samples averaged at each ring stop."""
+    bias_circle: bool = False
+    """The roll circle of :func:`bias_circle_path` follows the sweeps (the field bias, B1)."""
 
 
 def short_ring_plan(
@@ -174,12 +199,13 @@ def short_ring_plan(
     n_stops: int | None = None,
     direction: int = 1,
     both_ways: bool = True,
-    roll_step: float = SWEEP_STEP,
+    roll_step: float | None = None,
     play_directions: Sequence[float] = (),
     direction_step: float | None = None,
     spin: bool = SPIN_RINGS,
     n_average: int = RING_SAMPLES,
     straight: tuple[float, float] = STRAIGHT_SWEEP,
+    bias_circle: bool = False,
 ) -> ShortRingPlan:
     """Roll sweeps straight (+-30 deg) and with the AP knob at 50 deg (+-50 deg) in
     ``roll_step``, then :func:`ring_path`: 100 moves with the defaults (both ways,
@@ -187,8 +213,13 @@ def short_ring_plan(
     before them. ``play_directions`` (rad in (0, pi), ascending) add one bent roll sweep
     each, the knobs at 50 deg along that direction, in ``direction_step`` (default
     ``roll_step``): the plays over the knob plane
-    (:func:`~icenav.calibration.hysteresis.hysteresis_plan`); fewer stops keep the budget."""
+    (:func:`~icenav.calibration.hysteresis.hysteresis_plan`); fewer stops keep the budget.
+    ``roll_step`` defaults to :data:`SWEEP_STEP`. With ``bias_circle`` the short roll circle
+    (:func:`bias_circle_path` and the roll's turn back, 6 moves) follows the sweeps and the
+    bent sweep goes in :data:`BIAS_BENT_STEP` (100 moves with the defaults)."""
     stops = (BOTH_WAYS_STOPS if both_ways else 12) if n_stops is None else int(n_stops)
+    if roll_step is None:
+        roll_step = BIAS_BENT_STEP if bias_circle else SWEEP_STEP
     amplitude, step = (float(x) for x in straight)
     sweeps = hysteresis_plan(
         joints=(2,),
@@ -203,15 +234,45 @@ def short_ring_plan(
     path = ring_path(radii, stops, direction, both_ways, spin=spin)
     rings = MotionPlan.make(path, KNOB_RINGS, int(n_average), retries=0)
     rest = MotionPlan.make(np.zeros((1, 4)), "to zero", n_average=0, retries=0)
+    parts = [sweeps.plan]
+    if bias_circle:
+        circle = bias_circle_path()
+        back = np.zeros((1, 4))  # the roll turned back down as the knobs straighten
+        parts += [
+            MotionPlan.make(circle, ROLL_CIRCLE, BIAS_CIRCLE_SAMPLES, retries=0),
+            MotionPlan.make(back, "roll back", n_average=0, retries=0),
+        ]
     return ShortRingPlan(
-        plan=MotionPlan.concat([sweeps.plan, rings, rest]),
+        plan=MotionPlan.concat([*parts, rings, rest]),
         sweeps=sweeps,
         rings=path,
         n_stops=stops,
         both_ways=bool(both_ways),
         spin=bool(spin),
         n_average=int(n_average),
+        bias_circle=bool(bias_circle),
     )
+
+
+def bias_circle_path(knob: float = BENT_KNOB, n_stops: int = BIAS_CIRCLE_STOPS) -> Array:
+    """(n_stops, 4) motor states of the short roll circle's stops (B1): the AP knob at
+    ``knob`` (rad), the roll at ``n_stops`` equal steps from one step up to a full turn, each
+    stop approached increasing. Driven from rest at roll 0 after the bent sweep's last
+    (falling) move, the first stop is one step (72 deg with the default) of rising roll away,
+    more than the roll's whole play (twice its half-width, up to about 20 deg at 50 deg of
+    knob on the development catheters): the play's lag is then the same knob-frame offset at
+    every stop, absorbed in TB1's ``P``. The plan then turns the roll back down to 0 as the
+    knobs straighten, so the rings start from the roll's state after the sweeps (lagging
+    the straight play behind a falling roll), as without the circle."""
+    if not (0.0 < knob <= DEFAULT_GEOMETRY.knob_limit) or not (3 <= int(n_stops) <= 36):
+        raise ConfigurationError(
+            f"need 0 < knob <= {DEFAULT_GEOMETRY.knob_limit:.4f} rad and 3 <= n_stops <= 36, "
+            f"got {knob!r}, {n_stops!r}"
+        )
+    out = np.zeros((int(n_stops), 4))
+    out[:, 0] = knob
+    out[:, 2] = 2.0 * math.pi * np.arange(1, int(n_stops) + 1) / int(n_stops)
+    return out
 
 
 def turn_sense(knobs: ArrayLike) -> Array:
@@ -254,6 +315,9 @@ class ShortRingCalibration:
     """The play prior the roll's and the twist's plays were scaled from (None: lines)."""
     map_prior: MapPrior | None = None
     """The map prior F's interpolant was built around (None: the samples alone)."""
+    tracker_bias: TrackerBias = field(default_factory=TrackerBias.none)
+    """The tracker's field bias read on the short roll circle and removed from every tracked
+    pose before the fit (the zero bias without the circle): F then aims the true tip."""
 
     def model_to_motor_path(self, q_model: ArrayLike) -> Array:
         """Motor joint states (n, 4) of a path of model joint states (n, 4) in the order
@@ -298,6 +362,12 @@ def fit_short_rings(
     ``map_scaled``: the line's deviation from the model scaled to the samples first, M2)."""
     if recording.plan is not splan.plan and recording.plan.segments != splan.plan.segments:
         raise ConfigurationError("the recording is not of this short calibration's plan")
+    bias = TrackerBias.none()
+    if splan.bias_circle:
+        # the field bias from the short roll circle (TB1), removed from every tracked pose
+        bias = fit_short_bias(splan, recording)
+        recording = _unbiased(recording, bias)
+        five_point = bias.correct_calibration(five_point)
     roll = fit_short_plays(splan, recording, prior, geometry)
     section = _fit_section(recording, five_point, geometry) if fit_length else SectionLength()
     q, poses = recording.part(KNOB_RINGS)
@@ -350,7 +420,30 @@ def fit_short_rings(
         section=section,
         prior=prior,
         map_prior=map_prior,
+        tracker_bias=bias,
     )
+
+
+def fit_short_bias(splan: ShortRingPlan, recording: Recording) -> TrackerBias:
+    """The tracker's field bias (TB1 of :mod:`icenav.calibration.tracker_bias`, one knob
+    pose) from the short roll circle's tracked stops (:data:`ROLL_CIRCLE`) of a recording
+    of ``splan``; the zero bias when ``splan`` has no circle, or fewer than
+    :data:`MIN_BIAS_STOPS` of its stops were tracked (F then learns the bias as before)."""
+    if not splan.bias_circle:
+        return TrackerBias.none()
+    q, poses = recording.part(ROLL_CIRCLE)
+    ok = np.all(np.isfinite(poses.reshape(len(q), -1)), axis=1)
+    if int(np.sum(ok)) < MIN_BIAS_STOPS:
+        return TrackerBias.none()
+    return fit_tracker_bias(q[ok], poses[ok], np.zeros(int(np.sum(ok)), dtype=np.int64))
+
+
+def _unbiased(recording: Recording, bias: TrackerBias) -> Recording:
+    """``recording`` with ``bias`` removed from its tracked poses."""
+    t = np.array(recording.tip2base)
+    ok = recording.measured
+    t[ok] = bias.correct_poses(t[ok])
+    return Recording(plan=recording.plan, tip2base=t, attempts=recording.attempts)
 
 
 def fit_short_plays(
@@ -363,7 +456,8 @@ def fit_short_plays(
     ``splan.sweeps.plan.n`` visits of ``recording``; the rings may follow or not): lines
     through the bent sweep's reading (:func:`~icenav.calibration.hysteresis.fit_hysteresis`;
     laws over the knob plane when the plan sweeps further directions), or with ``prior``
-    the prior's shapes scaled to that reading (P1)."""
+    the prior's shapes scaled to that reading (P1; the twist by T1 where the prior stores
+    the circle's twist, :mod:`icenav.calibration.play_prior`)."""
     n = splan.sweeps.plan.n
     if recording.plan.n < n or recording.plan.segments[: len(splan.sweeps.plan.segments)] != (
         splan.sweeps.plan.segments
@@ -376,6 +470,17 @@ def fit_short_plays(
     if prior is not None:
         roll = _with_prior(roll, prior, _bent_check(sweeps, splan.sweeps.bend))
     return roll
+
+
+def short_twist_reading(splan: ShortRingPlan, recording: Recording) -> float:
+    """The twist's play (rad) the short calibration's bent sweep reads at its tracked bend,
+    the field bias of its roll circle removed first (as :func:`fit_short_rings` does): the
+    ``s`` of (T0) and (T1) of :mod:`icenav.calibration.play_prior`."""
+    recording = _unbiased(recording, fit_short_bias(splan, recording))
+    comp = fit_short_plays(splan, recording)
+    n = splan.sweeps.plan.n
+    sweeps = Recording(splan.sweeps.plan, recording.tip2base[:n], recording.attempts[:n])
+    return comp.twist_play_per_bend * _bent_check(sweeps, splan.sweeps.bend)
 
 
 def _bent_check(recording: Recording, knob: float) -> float:
@@ -395,7 +500,9 @@ def _with_prior(
     at the bent sweep (``*_per_bend`` x the tracked ``bend``) set the prior's levels; a play
     the prior cannot scale keeps its line."""
     roll = prior.law("roll", bend, comp.roll_play_per_bend * bend)
-    twist = prior.law("twist", bend, comp.twist_play_per_bend * bend)
+    reading = comp.twist_play_per_bend * bend
+    circle = prior.circle_twist(reading)  # (T1) where the prior stores the circle's twist
+    twist = circle if circle is not None else prior.law("twist", bend, reading)
     return comp.with_plays(roll, twist)
 
 

@@ -124,8 +124,8 @@ SHORT_RINGS = "short+rings"
 """The 5-point search, coarse roll sweeps and ring stops turned both ways, F over the points
 and the stops (:mod:`icenav.calibration.short`; 111 moves; not in the default set)."""
 SHORT_PRIOR = "short+rings+prior"
-"""``short+rings``' moves fitted with the product line's priors of the plays' shapes and the
-mean map (``eval/data/play_prior_<family>.json``; :mod:`icenav.calibration.map_prior`)."""
+"""The short calibration with the product line's priors of the plays and the map (``eval/data/
+play_prior_<family>.json``) on its plan with the short roll circle (``bias_circle``; 111 moves)."""
 ALL_CONDITIONS = (*CONDITIONS, SHORT, SHORT_RINGS, SHORT_PRIOR)
 """Every condition ``--conditions`` accepts."""
 FILE = "file"
@@ -323,7 +323,7 @@ def calibrate(
     robot and tracker (each from rest); with ``short`` also the short calibration's roll
     sweeps (:func:`short_hysteresis_plan`), with ``short_rings`` the ``short+rings`` one
     (:func:`icenav.calibration.short.short_ring_plan` after the 5-point search's), with
-    ``short_prior`` the same recording fitted with the family's play prior."""
+    ``short_prior`` the family's priors on its own plan (with the short roll circle)."""
     t0 = time.perf_counter()
     rig, tracker = make_rig(seed, "straight", plant)
     dense = run_calibration("dense", rig, tracker)
@@ -336,15 +336,16 @@ def calibrate(
         rec = run_visits(plan_visits(splan.plan), rig.move, tracker)
         short_comp = fit_hysteresis(splan, rec).compensator
     rings = with_prior = None
-    if short_rings or short_prior:
-        rig.reset()
-        rplan = short_ring_plan()
-        rec = run_visits(plan_visits(rplan.plan), rig.move, tracker)
-        if short_rings:
-            rings = fit_short_rings(rplan, rec, five.calibration_set)
-        if short_prior:
+    fp = five.calibration_set
+    for wanted, circle in ((short_rings, False), (short_prior, True)):
+        if wanted:  # each its own recording: short+rings+prior's plan has the roll circle
+            rig.reset()
+            rplan = short_ring_plan(bias_circle=circle)
+            rec = run_visits(plan_visits(rplan.plan), rig.move, tracker)
+            if not circle:
+                rings = fit_short_rings(rplan, rec, fp)
+                continue
             prior = family_play_prior(plant)
-            fp = five.calibration_set
             with_prior = fit_short_rings(rplan, rec, fp, prior=prior, map_prior=prior.map)
     cat: CatheterCalibration = ours.details
     # the ablation: the knobs' own sweeps (not in our calibration), the roll's plays of ours

@@ -285,6 +285,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                     *calibration_costs(),
                     short_calibration_cost(),
                     short_calibration_cost(rings=True),
+                    short_calibration_cost(rings=True, bias_circle=True),
                 ]
             )
         )

@@ -85,11 +85,15 @@ class _ShortMoves:
     runner's preview."""
 
     rings: bool = False
+    bias_circle: bool = False
     kind: str = "short moves"
     label: str = "short calibration: the moves after the 5-point search"
 
     def visits(self) -> VisitGenerator:
-        plan = short_ring_plan().plan if self.rings else short_hysteresis_plan().plan
+        if self.rings:
+            plan = short_ring_plan(bias_circle=self.bias_circle).plan
+        else:
+            plan = short_hysteresis_plan().plan
         return plan_visits(plan)
 
     def fit(self, recording: object) -> CalibrationOutcome:
@@ -99,16 +103,17 @@ class _ShortMoves:
 
 
 def short_calibration_cost(
-    config: ControllerConfig | None = None, *, rings: bool = False
+    config: ControllerConfig | None = None, *, rings: bool = False, bias_circle: bool = False
 ) -> CalibrationCost:
     """The short calibration (``eval spin`` condition ``short``): the 5-point search and the
     short roll sweeps (:func:`icenav.calibration.hysteresis.short_hysteresis_plan`), each
     from rest, added up; with ``rings`` the ``short+rings`` one
-    (:func:`icenav.calibration.short.short_ring_plan` after the 5-point search)."""
+    (:func:`icenav.calibration.short.short_ring_plan` after the 5-point search), with
+    ``bias_circle`` too the ``short+rings+prior`` one (the plan with the short roll circle)."""
     cfg = ControllerConfig() if config is None else config
     (five,) = calibration_costs(("five_point",), cfg)
     p = preview(
-        _ShortMoves(rings),
+        _ShortMoves(rings, bias_circle and rings),
         np.zeros(4),
         np.asarray(cfg.max_velocity),
         settle_s=cfg.plan_settle_s,
@@ -117,7 +122,7 @@ def short_calibration_cost(
         geometry=cfg.geometry,
     )
     return CalibrationCost(
-        "short+rings" if rings else "short",
+        ("short+rings+prior" if bias_circle else "short+rings") if rings else "short",
         five.n_moves + p.n_visits,
         five.n_readings + p.n_readings,
         five.robot_s + p.duration_s,
