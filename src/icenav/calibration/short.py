@@ -44,6 +44,19 @@ tip orbit the intended one). F's samples are taken into the knob frame of the ro
 roll 0, are left out beyond the smallest ring::
 
     p_i = R_z(-phi3_eff,i) (tip_i - d4 e_z),   phi3_eff = play model (phi3 commanded)  (S3)
+
+*The short roll circle* (``bias_circle=True``; ``eval spin``'s ``short+rings+prior``): F built
+on samples read at roll 0 learns the tracker's field bias at each stop as if it turned with
+the knobs, and a spin turns it (the tip orbits, its axis tilts). After the sweeps the roll is
+stopped at a few angles with the AP knob bent (:func:`bias_circle_path`), each approached
+rising, and the field's affine bias ``b(x) = b0 + B x`` is fitted by TB1 of
+:mod:`icenav.calibration.tracker_bias` (one knob pose) and removed from every tracked pose
+before F and the plays are fitted::
+
+    m_i = R_z(r_i) P + b0 + B R_z(r_i) P   (circle stops),   tip <- tip - b(tip)       (B1)
+
+F then aims the true tip, as the full calibration does. The bent sweep goes in coarser steps
+to pay for it (100 moves still).
 """
 
 from __future__ import annotations
