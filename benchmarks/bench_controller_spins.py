@@ -12,8 +12,9 @@ test asks on 105; a choice of the transmission's form that hurts the spin shows 
 held-out round (docs/calibration.md 4c).
 
 Development catheters only (``ICENAV_BENCH_SPIN_CATHETERS``, e.g. ``"default:100,default:105"``;
-default: 100-109 of the default twin). About a minute of fitting and 20,000 controller cycles
-per catheter.
+default: 100-109 of the default twin). Per catheter: the calibration's 12 simulated minutes at
+25 Hz, its fit and two spins (8-11 minutes of wall time each on a machine loaded 10x over its
+two cores, session 13; run it alone).
 """
 
 from __future__ import annotations
