@@ -347,6 +347,10 @@ class WireClient:
             with contextlib.suppress(TimeoutError):
                 self._read(left)
 
+    def prop(self, handle: Any, name: str) -> Any:
+        """The property ``name`` of ``handle`` as the page was sent it (None: not yet)."""
+        return self.props.get(handle._impl.uuid, {}).get(name)
+
     def visible(self, handle: Any) -> bool | None:
         """Whether the page shows ``handle`` (None: the element never arrived)."""
         p = self.props.get(handle._impl.uuid)
