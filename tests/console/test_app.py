@@ -122,6 +122,84 @@ def test_jog_button_sends_the_mode_s_jog_only_with_control(console: Console) -> 
         asyncio.run(release(None))
 
 
+def _jogs(ctl: RecordingController) -> list[str]:
+    """The jog commands the double got, in order: "move" or "zero"."""
+    with ctl.call_event:
+        return ["zero" if not np.any(c[1][0]) else "move" for c in ctl.calls if c[0] == "jog"]
+
+
+def _wait_jogs(ctl: RecordingController, done: Any, what: str) -> list[str]:
+    with ctl.call_event:
+        ok = ctl.call_event.wait_for(lambda: done(_jogs(ctl)), timeout=10.0)
+    assert ok, f"{what}: the jogs were {_jogs(ctl)}"
+    return _jogs(ctl)
+
+
+def test_a_page_s_holds_release_and_lost_release_over_viser_s_websocket() -> None:
+    """A page's hold and click messages through the real viser server (no browser): holds
+    sent back to back with the click end in the zero jog, never a jog after it (the
+    callbacks run in the order the page sent them); holds that stop (a lost release) trip
+    the dead-man, which sends the zero jog and ignores the holds that follow until the
+    next click; then a press jogs again. A later message's callback (Release control)
+    marks that every earlier message was handled."""
+    ctl = RecordingController()
+    c = Console(ctl, port=0, refresh_hz=0.01, config=ConsoleConfig(jog_deadman_s=0.15))
+    c.start()
+    w = WireClient(c.port)
+    try:
+        w.become_browser()
+        w.until(
+            lambda w: any(p.get("label") == "AP knob (phi1) +" for p in w.props.values()), "jog"
+        )
+        ctl.wait_for_call("acquire_control")
+        ctl.publish(make_state())
+        c.refresh_once()
+        (panel,) = c._panels.values()
+        assert panel.can_control
+        button = panel.jog_buttons[1][0]
+        for _ in range(5):
+            w.hold(button, c.jog_hz)
+        w.click(button)
+        w.click(panel.release)  # the marker: handled after everything above
+        ctl.wait_for_call("release_control")
+        jogs = _wait_jogs(ctl, lambda j: j and j[-1] == "zero", "the release")
+        assert jogs[0] == "move" and jogs.count("zero") == 1
+        assert c.jog.held() == set()
+        # a lost release: the holds stop, the dead-man trips and sends the zero jog
+        ctl.calls.clear()
+        c.jog.events.clear()
+        w.hold(button, c.jog_hz)
+        _wait_jogs(ctl, lambda j: "zero" in j, "the dead-man's stop")
+        assert [e.what for e in c.jog.events][:2] == ["press", "trip"]
+        for _ in range(3):  # the page holds on: ignored
+            w.hold(button, c.jog_hz)
+        ctl.calls.clear()
+        w.click(panel.take)  # the marker
+        ctl.wait_for_call("acquire_control")
+        assert _jogs(ctl) == [] and c.jog.tripped() == {panel.name}
+        assert "Jog stopped" in panel.feedback_text
+        w.click(button)  # the pointer-up: re-armed; the next press jogs
+        w.hold(button, c.jog_hz)
+        assert _wait_jogs(ctl, bool, "the next press")[0] == "move"
+        w.click(button)
+        _wait_jogs(ctl, lambda j: j[-1] == "zero", "its release")
+    finally:
+        w.close()
+        c.stop()
+
+
+def test_the_jog_callbacks_run_on_viser_s_event_loop_in_message_order(console: Console) -> None:
+    """viser runs ``async`` callbacks on its event loop in message order and plain ones in
+    a thread pool in no set order: the jog's hold and release must be ``async``."""
+    import inspect
+
+    client = FakeClient(0)
+    console._on_connect(client)
+    panel = console._panels[0]
+    for b, _, _ in panel.jog_buttons:
+        assert b.callbacks and all(inspect.iscoroutinefunction(cb) for cb in b.callbacks)
+
+
 def test_progress_bar_follows_state_progress(console: Console) -> None:
     ctl: RecordingController = console.controller  # type: ignore[assignment]
     ctl.publish(make_state(mode=Mode.CALIBRATING, progress=0.4, progress_label="dense"))

@@ -19,6 +19,7 @@ where they fail: scripts/install-browser.sh installs both.
 from __future__ import annotations
 
 import contextlib
+import inspect
 import math
 import os
 import threading
@@ -33,6 +34,7 @@ import pytest
 from icenav.apps.wiring import anatomy_meshes
 from icenav.console import Console, ConsoleConfig
 from icenav.control.state import ControllerState, Mode
+from tests.support.console import BUTTON_TOPS_JS, POINTER_LOG_JS, jog_report
 
 pytestmark = pytest.mark.browser
 
@@ -86,6 +88,7 @@ def browser() -> Iterator[Any]:
 def _open(browser: Any, url: str, width: int = 1280, height: int = 800) -> Any:
     # software WebGL renders every animation frame on the CPU: keep the viewport modest
     page = browser.new_page(viewport={"width": width, "height": height})
+    page.add_init_script(POINTER_LOG_JS)  # the page's side of a failing jog check
     page.set_default_timeout(TIMEOUT_MS)
     page.goto(url)
     return page
@@ -129,14 +132,27 @@ class CallbacksDone:
             for cbs in lists:
                 cbs[:] = [self._wrap(cb) for cb in cbs]
 
-    def _wrap(self, cb: Callable[[Any], None]) -> Callable[[Any], None]:
+    def _wrap(self, cb: Callable[[Any], Any]) -> Callable[[Any], Any]:
+        def done() -> None:
+            with self._cond:
+                self.count += 1
+                self._cond.notify_all()
+
+        if inspect.iscoroutinefunction(cb):  # the jog's: run on viser's event loop, in order
+
+            async def run_async(ev: Any) -> None:
+                try:
+                    await cb(ev)
+                finally:
+                    done()
+
+            return run_async
+
         def run(ev: Any) -> None:
             try:
                 cb(ev)
             finally:
-                with self._cond:
-                    self.count += 1
-                    self._cond.notify_all()
+                done()
 
         return run
 
@@ -296,14 +312,14 @@ def _banner_state(console: Console, waiter: StateWaiter, page: Any) -> str:
     modes = [h.mode.name for h in waiter.history[-3000:]]
     changes = [m for i, m in enumerate(modes) if i == 0 or m != modes[i - 1]]
     drawn = console._drawn
-    banners = page.locator(".icenav-banner")
+    banners = page.locator(".icenav-halt")
     try:
         client = page.evaluate(PAGE_QUEUE_JS)
     except Exception as exc:  # a diagnostic never hides the failure it describes
         client = f"not read: {exc}"
     return (
-        f"console: banner handle visible {console._banner.visible}, reset visible "
-        f"{console._reset.visible}, last drawn state "
+        f"console: alarm area {console._alarm.content!r}, reset enabled "
+        f"{not console._reset.disabled}, last drawn state "
         f"{None if drawn is None else (drawn.mode.name, drawn.cycle)}, last_error "
         f"{console.last_error!r}, {console.stats()}; controller: {s.mode.name} "
         f"({s.message!r}, cycle {s.cycle}), last published "
@@ -317,7 +333,7 @@ def _expect_banner(console: Console, waiter: StateWaiter, page: Any, shown: bool
     """The page's halt banner is shown (or hidden) within the test's timeout."""
     from playwright.sync_api import expect
 
-    banner = page.locator(".icenav-banner")
+    banner = page.locator(".icenav-halt")
     try:
         if shown:
             expect(banner).to_be_visible()
@@ -385,20 +401,44 @@ def test_console_on_the_real_controller(browser: Any) -> None:
             jog_button = page.get_by_role("button", name="AP knob (phi1) +", exact=True)
 
             def jog_away() -> list[ControllerState]:
-                """Hold AP knob + until 30 deg past home; the states meanwhile."""
+                """Hold AP knob + until 30 deg past home; the states meanwhile. A press is
+                checked on the server at once: a press that reached another button (as a
+                panel moving under the pointer once made it, docs/console.md) is released
+                at once and fails with what the server and the page saw, never held for
+                seconds; a press the page lost is pressed again, as is a jog the dead-man
+                or the page's guard ended before 30 deg (a starved page)."""
                 page.get_by_role("tab", name="Jog").click()
                 expect(jog_button).to_be_enabled()
-                q0 = waiter.latest.q_motor[0]  # type: ignore[union-attr]
+                target = home.q_motor[0] + math.radians(30)
                 n0 = waiter.count
-                for _ in range(3):  # a press lost by a starved page is pressed again
+                for _ in range(6):
                     jog_button.hover()
+                    box = jog_button.bounding_box()
+                    xy = (box["x"] + box["width"] / 2, box["y"] + box["height"] / 2)
+                    e0 = len(console.jog.events)
                     page.mouse.down()
+
+                    def pressed(e0: int = e0) -> list[Any]:
+                        return [e for e in list(console.jog.events)[e0:] if e.what == "press"]
+
+                    def ended(e0: int = e0) -> bool:
+                        return any(e.what != "press" for e in list(console.jog.events)[e0:])
+
                     with contextlib.suppress(AssertionError):
-                        waiter.until(lambda s: s.q_motor[0] > q0, "moving", timeout_s=10.0)
-                        break
+                        waiter.until(lambda s: bool(pressed()), "the press", timeout_s=10.0)
+                    if pressed() and pressed()[0].button != (0, 1):
+                        page.mouse.up()
+                        raise AssertionError(
+                            f"the press reached {pressed()[0].button}, not AP knob + (0, 1): "
+                            f"{jog_report(console, page, xy, e0)}"
+                        )
+                    state = None
+                    if pressed():
+                        state = waiter.until(lambda s: s.q_motor[0] > target or ended(), "away")
                     page.mouse.up()
-                waiter.until(lambda s: s.q_motor[0] > home.q_motor[0] + math.radians(30), "away")
-                page.mouse.up()
+                    if state is not None and state.q_motor[0] > target:
+                        break
+                assert waiter.latest.q_motor[0] > target, jog_report(console, page, xy, e0)  # type: ignore[union-attr]
                 waiter.until(lambda s: s.mode is Mode.KNOB, "knob mode")
                 page.get_by_role("tab", name="Views").click()
                 return waiter.history[n0:]
@@ -411,11 +451,15 @@ def test_console_on_the_real_controller(browser: Any) -> None:
             moved_mm = float(np.linalg.norm(away.tip2base_true[:3, 3] - home_tip))  # type: ignore[index]
             assert moved_mm > 5.0
 
+            tops: list[int | None] = []
+
             def during_goto(button: str, key: str) -> list[ControllerState]:
                 """Click ``button`` (a go to home), press ``key`` once the go-to runs; the
                 states from the click until the motion ended."""
                 n0 = waiter.count
                 page.get_by_role("button", name=button, exact=True).click()  # keeps the focus
+                # where the controls are once the click scrolled its button into view
+                tops[:] = page.evaluate(BUTTON_TOPS_JS, list(MOTION_BUTTONS))
                 waiter.until(lambda s: s.mode is Mode.GOTO_VIEW, "go to view started")
                 page.keyboard.press(key)
                 waiter.until(lambda s: s.mode in (Mode.IDLE, Mode.ESTOP), "go to view ended")
@@ -467,11 +511,38 @@ def test_console_on_the_real_controller(browser: Any) -> None:
             assert len(controls) >= 17 and all(h.disabled for h in controls)
             for name in MOTION_BUTTONS:  # and the page shows them so (the open tab's)
                 expect(page.get_by_role("button", name=name, exact=True)).to_be_disabled()
+            # the banner came (and a go-to's failure was told) in reserved space: no control
+            # moved (a press meant for one would have landed on another)
+            assert page.evaluate(BUTTON_TOPS_JS, list(MOTION_BUTTONS)) == tops
             expect(page.get_by_role("button", name="Reset fault", exact=True)).to_be_enabled()
             page.get_by_role("button", name="Reset fault", exact=True).click()
             waiter.until(lambda s: s.mode is Mode.IDLE, "reset to idle")
             _expect_banner(console, waiter, page, False)
             expect(save).to_be_enabled()
+            assert page.evaluate(BUTTON_TOPS_JS, list(MOTION_BUTTONS)) == tops  # nor its going
+
+            # the page's jog guard: a press dragged off its button ends the jog (the server
+            # is told, no pointer-up needed)
+            page.get_by_role("tab", name="Jog").click()
+            expect(jog_button).to_be_enabled()
+            jog_button.hover()
+            e0 = len(console.jog.events)
+            page.mouse.down()
+
+            def jog_events(what: str, e0: int = e0) -> list[Any]:
+                return [e for e in list(console.jog.events)[e0:] if e.what == what]
+
+            waiter.until(lambda s: bool(jog_events("press")), "the press")
+            box = jog_button.bounding_box()
+            xy = (box["x"] - 40, box["y"] + box["height"] / 2)  # left of the control panel
+            page.mouse.move(*xy)
+            waiter.until(lambda s: bool(jog_events("release")), "the guard's release")
+            page.mouse.up()
+            guard = page.evaluate("() => window.__icenavJogGuard.log")
+            assert guard[-1]["what"] == "the pointer left the button", jog_report(
+                console, page, xy, e0
+            )
+            page.get_by_role("tab", name="Views").click()
 
             # a second browser is view only; its E-STOP stops the first one's spin
             page2 = _open(browser, console.url, 1400, 900)

@@ -201,7 +201,7 @@ class Banner:
 
         return (
             f'<div class="icenav-banner icenav-halt">'
-            f"<div style='font-size:1.15em;font-weight:700'>{html.escape(self.title)}</div>"
+            f"<div style='font-size:1.05em;font-weight:700'>{html.escape(self.title)}</div>"
             f"<div><b>Cause:</b> {html.escape(self.cause)}</div>"
             f"<div><b>To clear:</b> {bold(self.action)}</div></div>"
         )
@@ -225,13 +225,13 @@ def halt_banner(state: ControllerState) -> Banner | None:
         return None
     cause = humanize(state.message) if state.message else "not reported"
     title = (
-        "EMERGENCY STOP: every motion control is disabled"
+        "EMERGENCY STOP: motion controls disabled"
         if state.mode is Mode.ESTOP
-        else ("FAULT: the robot stopped; every motion control is disabled")
+        else "FAULT: robot stopped, motion controls disabled"
     )
     action = (
-        "make the patient and the robot safe, then press **Reset fault** below "
-        "(from the browser holding control)."
+        "make the patient and the robot safe, then press **Reset fault** (from the "
+        "browser holding control)."
     )
     return Banner(title, cause, action)
 

@@ -31,7 +31,7 @@ _DOCK_PX = 4
 IMAGE_DISPLAY_PX = 800
 """Width of the displayed ICE picture's image part (pixels; the browser scales it down to
 the panel, and to the window's height: ``PAGE_CSS``)."""
-ALARM_AREA_EM = 9.0
+ALARM_AREA_EM = 10.0
 """Height of the safety bar's alarm area (em): the halt banner (title, cause, what clears
 it) at the control panel's width; reserved whether a banner is shown or not."""
 STATUS_SLOT_EM = 4.6
