@@ -14,10 +14,12 @@ The jog stops, with a zero jog sent at once (not left to the controller's watchd
 - when the page says the pointer left the button, the window lost the focus or the page
   was hidden (the page's guard, :data:`icenav.console.layout.JOG_GUARD_JS`, ends the press
   and clicks the button: a release);
-- when no hold message came for ``deadman_s`` (a lost release, a frozen or throttled page:
-  a hidden tab's timers fire once a second): the dead-man **trips** and the jog stays
-  stopped, whatever holds still arrive, until the button is released and pressed again;
-- when one browser holds two jog buttons at once (conflicting holds trip the dead-man);
+- when no hold message came for ``deadman_s`` (a lost release, a frozen page): the
+  dead-man **pauses** the jog; it moves again only if the page's holds resume (the page
+  still says the button is held: a page starved by a loaded machine, measured in
+  docs/console.md; a hidden page's holds end with the guard's release);
+- when one browser holds two jog buttons at once: the conflicting holds **trip** the jog,
+  which stays stopped whatever holds still arrive until a release;
 - when the browser disconnects, loses control or the robot halts (the console releases).
 
 Every send happens under one lock, so a repeat can never follow the release's zero jog:
@@ -60,8 +62,9 @@ class JogEvent:
     key: Hashable
     """The browser."""
     what: str
-    """"press" (first hold of a press), "release", "trip" (dead-man or conflicting holds),
-    "ignored" (a hold while tripped, first of a run)."""
+    """"press" (first hold of a press), "resume" (a hold after a pause), "pause" (the
+    dead-man), "release", "trip" (conflicting holds: latched until a release), "ignored" (a
+    hold while tripped, first of a run)."""
     button: Hashable = None
     """The button (axis, sign) of the press, if known."""
     detail: str = ""
@@ -73,6 +76,11 @@ class _Held:
     send: Callable[[], None]
     stop: Callable[[], None]
     last: float
+    holds: int = 1
+    longest_gap: float = 0.0
+
+    def summary(self) -> str:
+        return f"{self.holds} holds, longest gap {self.longest_gap:.2f} s"
 
 
 class JogRepeater:
@@ -83,13 +91,14 @@ class JogRepeater:
     hz : float
         Repeat rate (Hz), > 0.
     deadman_s : float
-        A jog stops (and stays stopped until released) when no hold came for this long (s),
-        within :data:`JOG_DEADMAN_RANGE_S` and above two repeat periods.
+        A jog pauses (a zero jog at once) when no hold came for this long (s), within
+        :data:`JOG_DEADMAN_RANGE_S` and above two repeat periods.
     clock : callable
         Time source (s).
     on_trip : callable, optional
-        Called with (key, reason) when a browser's dead-man trips (under the lock: keep it
-        short and do not call back into the repeater).
+        Called with (key, reason, latched) when a browser's jog is paused by the dead-man
+        (latched False) or tripped by conflicting holds (True); under the lock: keep it
+        short and do not call back into the repeater.
     """
 
     def __init__(
@@ -97,7 +106,7 @@ class JogRepeater:
         hz: float,
         deadman_s: float = JOG_DEADMAN_S,
         clock: Callable[[], float] = time.monotonic,
-        on_trip: Callable[[Hashable, str], None] | None = None,
+        on_trip: Callable[[Hashable, str, bool], None] | None = None,
     ):
         if not (math.isfinite(hz) and hz > 0):
             raise ConfigurationError(f"jog repeat rate must be > 0 Hz, got {hz}")
@@ -109,6 +118,7 @@ class JogRepeater:
         self._lock = threading.RLock()
         self._held: dict[Hashable, _Held] = {}
         self._tripped: dict[Hashable, str] = {}
+        self._paused: dict[Hashable, bool] = {}
         self.events: deque[JogEvent] = deque(maxlen=200)
         """The latest presses, releases, trips and ignored holds (diagnostics)."""
         self._stop = threading.Event()
@@ -122,8 +132,9 @@ class JogRepeater:
         stop: Callable[[], None],
     ) -> bool:
         """A "still held" message of ``button`` from ``key`` (one browser): the first of a
-        press sends ``send`` at once, later ones renew the dead-man. ``stop`` sends the
-        zero jog. False when ignored: the dead-man has tripped (until :meth:`release`)."""
+        press (or the first after a pause) sends ``send`` at once, later ones renew the
+        dead-man. ``stop`` sends the zero jog. False when ignored: tripped by conflicting
+        holds (until :meth:`release`)."""
         with self._lock:
             now = self._clock()
             if key in self._tripped:
@@ -135,13 +146,18 @@ class JogRepeater:
             if held is not None and held.button != button:
                 self._trip(key, held, now, f"two jog buttons held at once ({button})")
                 return False
+            paused = self._paused.pop(key, False)
             if held is not None and now - held.last > self.deadman_s:  # tick not yet run
-                self._trip(key, held, now, f"no hold for {now - held.last:.2f} s")
-                return False
-            self._held[key] = _Held(button, send, stop, now)
+                self._stop_jog(key, held, now, f"no hold for {now - held.last:.2f} s", False)
+                held, paused = None, True
             if held is None:
-                self.events.append(JogEvent(now, key, "press", button))
+                self._held[key] = _Held(button, send, stop, now)
+                self.events.append(JogEvent(now, key, "resume" if paused else "press", button))
                 send()
+            else:
+                held.holds += 1
+                held.longest_gap = max(held.longest_gap, now - held.last)
+                held.last = now
             return True
 
     def release(self, key: Hashable) -> bool:
@@ -149,11 +165,11 @@ class JogRepeater:
         clear a tripped dead-man; True if a jog was running."""
         with self._lock:
             tripped = self._tripped.pop(key, None) is not None
+            self._paused.pop(key, None)
             held = self._held.pop(key, None)
             if held is not None or tripped:
-                self.events.append(
-                    JogEvent(self._clock(), key, "release", None if held is None else held.button)
-                )
+                button, detail = (None, "") if held is None else (held.button, held.summary())
+                self.events.append(JogEvent(self._clock(), key, "release", button, detail))
             if held is not None:
                 held.stop()
             return held is not None
@@ -164,31 +180,39 @@ class JogRepeater:
             return set(self._held)
 
     def tripped(self) -> set[Hashable]:
-        """Keys whose dead-man tripped (jog stopped until released)."""
+        """Keys tripped by conflicting holds (jog stopped until released)."""
         with self._lock:
             return set(self._tripped)
 
     def tick(self) -> int:
-        """Re-send every jog whose latest hold is within the dead-man time; trip the
+        """Re-send every jog whose latest hold is within the dead-man time; pause the
         others (their zero jog sent); how many were re-sent."""
         sent = 0
         with self._lock:
             now = self._clock()
             for key, held in list(self._held.items()):
                 if now - held.last > self.deadman_s:
-                    self._trip(key, held, now, f"no hold for {now - held.last:.2f} s")
+                    self._stop_jog(key, held, now, f"no hold for {now - held.last:.2f} s", False)
                 else:
                     held.send()
                     sent += 1
         return sent
 
     def _trip(self, key: Hashable, held: _Held, now: float, reason: str) -> None:
+        self._stop_jog(key, held, now, reason, True)
+
+    def _stop_jog(self, key: Hashable, held: _Held, now: float, reason: str, latch: bool) -> None:
+        """The dead-man's pause (``latch`` False) or a conflict's trip: the zero jog now."""
         del self._held[key]
-        self._tripped[key] = reason
-        self.events.append(JogEvent(now, key, "trip", held.button, reason))
+        if latch:
+            self._tripped[key] = reason
+        else:
+            self._paused[key] = True
+        what = "trip" if latch else "pause"
+        self.events.append(JogEvent(now, key, what, held.button, f"{reason}; {held.summary()}"))
         held.stop()
         if self._on_trip is not None:
-            self._on_trip(key, reason)
+            self._on_trip(key, reason, latch)
 
     def start(self) -> None:
         """Repeat on a thread of its own (returns at once)."""
@@ -207,6 +231,7 @@ class JogRepeater:
         with self._lock:
             self._held.clear()
             self._tripped.clear()
+            self._paused.clear()
 
     def _run(self) -> None:
         while not self._stop.wait(1.0 / self.hz):

@@ -22,13 +22,15 @@ from icenav.console.panels import jog_command
 from icenav.control.commands import Jog
 from icenav.control.state import Mode
 
-__all__ = ["JOG_TRIPPED_TEXT", "JogControls"]
+__all__ = ["JOG_PAUSED_TEXT", "JOG_TRIPPED_TEXT", "JogControls"]
 
-JOG_TRIPPED_TEXT = (
-    "**Jog stopped**: no hold signal from this page for {s:.1f} s ({reason}). Release the "
-    "button and press it again."
+JOG_PAUSED_TEXT = (
+    "**Jog paused**: no hold signal from this page for {s:.1f} s ({reason}; the page is "
+    "slow). It moves again while the page says the button is held; release to stop."
 )
-"""Told to the browser whose dead-man tripped."""
+"""Told to the browser whose jog the dead-man paused."""
+JOG_TRIPPED_TEXT = "**Jog stopped**: {reason}. Release the buttons, then press one."
+"""Told to the browser that held two jog buttons at once."""
 
 
 class JogControls:
@@ -84,11 +86,13 @@ class JogControls:
             zero = np.zeros(6 if tip else 4)
             self.send(panel, Jog(zero, "tip" if tip else "knob", source=panel.source))
 
-    def _jog_tripped(self, key: Hashable, reason: str) -> None:
-        """The dead-man of browser ``key`` tripped: tell it (under the jog's lock)."""
+    def _jog_tripped(self, key: Hashable, reason: str, latched: bool) -> None:
+        """Browser ``key``'s jog was paused by the dead-man or tripped by conflicting holds
+        (``latched``): tell it (under the jog's lock)."""
+        text = JOG_TRIPPED_TEXT if latched else JOG_PAUSED_TEXT
         for p in list(self._panels.values()):
             if p.name == key:
-                p.tell(JOG_TRIPPED_TEXT.format(s=self.jog.deadman_s, reason=reason), "jog")
+                p.tell(text.format(s=self.jog.deadman_s, reason=reason), "jog")
 
     def _jog_follow(self, panel: Any) -> None:
         """Refresh thread: a browser that may no longer move the robot (control lost, the
