@@ -94,6 +94,7 @@ def test_jog_button_sends_the_mode_s_jog_only_with_control(console: Console) -> 
     panel = SimpleNamespace(
         name="browser-7",
         can_control=False,
+        enabled=False,
         source=Source("console", "browser-7"),
         tell=lambda *a: None,
         clear=lambda *a: None,
@@ -105,7 +106,7 @@ def test_jog_button_sends_the_mode_s_jog_only_with_control(console: Console) -> 
     asyncio.run(hold(None))
     asyncio.run(release(None))
     assert not [c for c in ctl.calls if c[0] == "jog"]  # view only: nothing sent
-    panel.can_control = True
+    panel.can_control = panel.enabled = True
     asyncio.run(hold(None))
     (vel, frame), client = ctl.wait_for_call("jog")
     assert frame == "tip" and client == "browser-7"

@@ -538,7 +538,10 @@ def test_console_on_the_real_controller(browser: Any) -> None:
             box = jog_button.bounding_box()
             xy = (box["x"] - 40, box["y"] + box["height"] / 2)  # left of the control panel
             page.mouse.move(*xy)
-            waiter.until(lambda s: bool(jog_events("release")), "the guard's release")
+            try:
+                waiter.until(lambda s: bool(jog_events("release")), "the guard's release")
+            except AssertionError as exc:
+                raise AssertionError(jog_report(console, page, xy, e0)) from exc
             page.mouse.up()
             guard = page.evaluate("() => window.__icenavJogGuard.log")
             assert guard[-1]["what"] == "the pointer left the button", jog_report(

@@ -164,12 +164,14 @@ class JogRepeater:
         """The button let go (or the browser gone): stop ``key``'s jog with its zero jog,
         clear a tripped dead-man; True if a jog was running."""
         with self._lock:
-            tripped = self._tripped.pop(key, None) is not None
-            self._paused.pop(key, None)
+            tripped = self._tripped.pop(key, None)
+            paused = self._paused.pop(key, None)
             held = self._held.pop(key, None)
-            if held is not None or tripped:
-                button, detail = (None, "") if held is None else (held.button, held.summary())
-                self.events.append(JogEvent(self._clock(), key, "release", button, detail))
+            if held is not None:
+                button, detail = held.button, held.summary()
+            else:  # every release is logged: a paused or tripped jog's too
+                button, detail = None, "tripped" if tripped else "paused" if paused else "idle"
+            self.events.append(JogEvent(self._clock(), key, "release", button, detail))
             if held is not None:
                 held.stop()
             return held is not None

@@ -79,8 +79,9 @@ class JogControls:
         return on_click
 
     def _jog_zero(self, panel: Any) -> None:
-        """Stop ``panel``'s jog now: a zero jog (only from a browser that may command)."""
-        if panel.can_control:
+        """Stop ``panel``'s jog now: a zero jog, from a browser that may move the robot (a
+        halted robot is stopped already, and would refuse it with a message)."""
+        if panel.can_control and panel.enabled:
             state = self._last_state
             tip = state is not None and state.mode == Mode.TIP
             zero = np.zeros(6 if tip else 4)
