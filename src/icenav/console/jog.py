@@ -118,7 +118,8 @@ class JogRepeater:
         self._lock = threading.RLock()
         self._held: dict[Hashable, _Held] = {}
         self._tripped: dict[Hashable, str] = {}
-        self._paused: dict[Hashable, bool] = {}
+        self._paused: dict[Hashable, Hashable] = {}
+        """The button of each browser's jog the dead-man paused."""
         self.events: deque[JogEvent] = deque(maxlen=200)
         """The latest presses, releases, trips and ignored holds (diagnostics)."""
         self._stop = threading.Event()
@@ -146,13 +147,13 @@ class JogRepeater:
             if held is not None and held.button != button:
                 self._trip(key, held, now, f"two jog buttons held at once ({button})")
                 return False
-            paused = self._paused.pop(key, False)
             if held is not None and now - held.last > self.deadman_s:  # tick not yet run
                 self._stop_jog(key, held, now, f"no hold for {now - held.last:.2f} s", False)
-                held, paused = None, True
+                held = None
             if held is None:
+                resumed = self._paused.pop(key, None) == button
                 self._held[key] = _Held(button, send, stop, now)
-                self.events.append(JogEvent(now, key, "resume" if paused else "press", button))
+                self.events.append(JogEvent(now, key, "resume" if resumed else "press", button))
                 send()
             else:
                 held.holds += 1
@@ -209,7 +210,7 @@ class JogRepeater:
         if latch:
             self._tripped[key] = reason
         else:
-            self._paused[key] = True
+            self._paused[key] = held.button
         what = "trip" if latch else "pause"
         self.events.append(JogEvent(now, key, what, held.button, f"{reason}; {held.summary()}"))
         held.stop()
