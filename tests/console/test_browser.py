@@ -49,10 +49,13 @@ CHROMIUM_ARGS = [
     "--no-first-run",
 ]
 TIMEOUT_MS = 30_000
-LOADED_CI = ConsoleConfig(stale_after_s=5.0)
+LOADED_CI = ConsoleConfig(stale_after_s=5.0, jog_deadman_s=1.0)
 """As the controllers' ``stall_estop_s=5`` below: a loaded CI machine holds the control loop
-up past the default 0.5 s; the stale-state banner has its own tests (tests/console/
-test_app.py)."""
+up past the default 0.5 s, and its page's hold messages come 0.5-0.6 s apart (viser's
+50 ms message throttle runs on the starved page's timers: docs/console.md), which the
+default 0.5 s jog dead-man pauses on (27-75 % of the cycles moving in a jog, against
+100 % here); the stale-state banner and the dead-man have their own tests
+(tests/console/test_app.py, test_jog.py)."""
 IMAGE_RENDERED_JS = (
     "() => [...document.images].some(i => i.src.startsWith('blob:') && i.naturalWidth > 0)"
 )
