@@ -285,6 +285,22 @@ def _check_layout(page: Any) -> dict[str, float]:
     return got  # type: ignore[no-any-return]
 
 
+GUARD_TRIGGERS = (
+    (None, "the pointer left the button"),  # the mouse moved off the pressed button
+    ("() => window.dispatchEvent(new Event('blur'))", "the window lost the focus"),
+    (
+        """() => {
+      Object.defineProperty(document, 'hidden', {configurable: true, get: () => true});
+      document.dispatchEvent(new Event('visibilitychange'));
+    }""",
+        "the page was hidden",
+    ),
+)
+"""What ends a held jog in the page's guard, and the reason it logs."""
+SHOW_PAGE_JS = "() => { delete document.hidden; }"
+"""Undoes the hidden page of :data:`GUARD_TRIGGERS` (the document's own getter again)."""
+
+
 def _jog_rate(states: list[ControllerState]) -> tuple[float, float]:
     """(deg/s of the AP knob in controller time while it moved, fraction of the cycles from
     the first to the last moving one in which it moved: 1.0 = no stair steps)."""
@@ -525,30 +541,33 @@ def test_console_on_the_real_controller(browser: Any) -> None:
             expect(save).to_be_enabled()
             assert page.evaluate(BUTTON_TOPS_JS, list(MOTION_BUTTONS)) == tops
 
-            # the page's jog guard: a press dragged off its button ends the jog (the server
-            # is told, no pointer-up needed)
+            # the page's jog guard: a press dragged off its button, a window that loses the
+            # focus and a page hidden end the jog (the server is told; no pointer-up needed)
             page.get_by_role("tab", name="Jog").click()
             expect(jog_button).to_be_enabled()
-            jog_button.hover()
-            e0 = len(console.jog.events)
-            page.mouse.down()
+            for trigger, why in GUARD_TRIGGERS:
+                jog_button.hover()
+                box = jog_button.bounding_box()
+                xy = (box["x"] - 40, box["y"] + box["height"] / 2)  # left of the control panel
+                e0 = len(console.jog.events)
+                page.mouse.down()
 
-            def jog_events(what: str, e0: int = e0) -> list[Any]:
-                return [e for e in list(console.jog.events)[e0:] if e.what == what]
+                def jog_events(what: str, e0: int = e0) -> list[Any]:
+                    return [e for e in list(console.jog.events)[e0:] if e.what == what]
 
-            waiter.until(lambda s: bool(jog_events("press")), "the press")
-            box = jog_button.bounding_box()
-            xy = (box["x"] - 40, box["y"] + box["height"] / 2)  # left of the control panel
-            page.mouse.move(*xy)
-            try:
-                waiter.until(lambda s: bool(jog_events("release")), "the guard's release")
-            except AssertionError as exc:
-                raise AssertionError(jog_report(console, page, xy, e0)) from exc
-            page.mouse.up()
-            guard = page.evaluate("() => window.__icenavJogGuard.log")
-            assert guard[-1]["what"] == "the pointer left the button", jog_report(
-                console, page, xy, e0
-            )
+                waiter.until(lambda s: bool(jog_events("press")), "the press")
+                if trigger is None:
+                    page.mouse.move(*xy)
+                else:
+                    page.evaluate(trigger)
+                try:
+                    waiter.until(lambda s: bool(jog_events("release")), f"release: {why}")
+                except AssertionError as exc:
+                    raise AssertionError(jog_report(console, page, xy, e0)) from exc
+                page.mouse.up()
+                guard = page.evaluate("() => window.__icenavJogGuard.log")
+                assert guard[-1]["what"] == why, jog_report(console, page, xy, e0)
+            page.evaluate(SHOW_PAGE_JS)
             page.get_by_role("tab", name="Views").click()
 
             # a second browser is view only; its E-STOP stops the first one's spin
