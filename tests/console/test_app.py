@@ -8,6 +8,7 @@ control; the browser test drives the real ``icenav.control.controller.Controller
 
 from __future__ import annotations
 
+import asyncio
 import threading
 import urllib.request
 from pathlib import Path
@@ -89,33 +90,113 @@ def test_status_and_plot_refresh_at_status_hz() -> None:
 
 
 def test_jog_button_sends_the_mode_s_jog_only_with_control(console: Console) -> None:
-    from types import SimpleNamespace
-
     ctl: RecordingController = console.controller  # type: ignore[assignment]
     panel = SimpleNamespace(
         name="browser-7",
         can_control=False,
+        enabled=False,
         source=Source("console", "browser-7"),
         tell=lambda *a: None,
         clear=lambda *a: None,
     )
-    hold = console._jog_callback(panel, 2, -1)  # type: ignore[arg-type]
+    hold = console._jog_hold(panel, 2, -1)
+    release = console._jog_release(panel)
     ctl.publish(make_state(mode=Mode.TIP))
     console.refresh_once()
-    hold(None)
+    asyncio.run(hold(None))
+    asyncio.run(release(None))
     assert not [c for c in ctl.calls if c[0] == "jog"]  # view only: nothing sent
-    panel.can_control = True
-    hold(None)
+    panel.can_control = panel.enabled = True
+    asyncio.run(hold(None))
     (vel, frame), client = ctl.wait_for_call("jog")
     assert frame == "tip" and client == "browser-7"
     assert vel[2] == -console.mapping.tip_speed and np.count_nonzero(vel) == 1
+    asyncio.run(release(None))  # the release stops it with a zero jog at once
+    assert np.count_nonzero(ctl.calls[-1][1][0]) == 0 and ctl.calls[-1][1][1] == "tip"
     for mode in (Mode.IDLE, Mode.GOTO_VIEW):  # outside tip mode: the knobs
         ctl.calls.clear()
         ctl.publish(make_state(mode=mode))
         console.refresh_once()
-        hold(None)
+        asyncio.run(hold(None))
         (vel, frame), _ = ctl.wait_for_call("jog")
         assert frame == "knob" and vel[2] == -console.mapping.roll_rate
+        asyncio.run(release(None))
+
+
+def _jogs(ctl: RecordingController) -> list[str]:
+    """The jog commands the double got, in order: "move" or "zero"."""
+    with ctl.call_event:
+        return ["zero" if not np.any(c[1][0]) else "move" for c in ctl.calls if c[0] == "jog"]
+
+
+def _wait_jogs(ctl: RecordingController, done: Any, what: str) -> list[str]:
+    with ctl.call_event:
+        ok = ctl.call_event.wait_for(lambda: done(_jogs(ctl)), timeout=10.0)
+    assert ok, f"{what}: the jogs were {_jogs(ctl)}"
+    return _jogs(ctl)
+
+
+def test_a_page_s_holds_release_and_lost_release_over_viser_s_websocket() -> None:
+    """A page's hold and click messages through the real viser server (no browser): holds
+    sent back to back with the click end in the zero jog, never a jog after it (the
+    callbacks run in the order the page sent them); holds that stop (a lost release) meet
+    the dead-man, which sends the zero jog, and nothing moves after it; the next press
+    jogs again. A later message's callback (Release control) marks that every earlier
+    message was handled."""
+    ctl = RecordingController()
+    c = Console(ctl, port=0, refresh_hz=0.01, config=ConsoleConfig(jog_deadman_s=0.15))
+    c.start()
+    w = WireClient(c.port)
+    try:
+        w.become_browser()
+        w.until(
+            lambda w: any(p.get("label") == "AP knob (phi1) +" for p in w.props.values()), "jog"
+        )
+        ctl.wait_for_call("acquire_control")
+        ctl.publish(make_state())
+        c.refresh_once()
+        (panel,) = c._panels.values()
+        assert panel.can_control
+        button = panel.jog_buttons[1][0]
+        for _ in range(5):
+            w.hold(button, c.jog_hz)
+        w.click(button)
+        w.click(panel.release)  # the marker: handled after everything above
+        ctl.wait_for_call("release_control")
+        jogs = _wait_jogs(ctl, lambda j: j and j[-1] == "zero", "the release")
+        assert jogs[0] == "move" and jogs.count("zero") == 1
+        assert c.jog.held() == set()
+        # a lost release: the holds stop, the dead-man sends the zero jog
+        ctl.calls.clear()
+        c.jog.events.clear()
+        w.hold(button, c.jog_hz)
+        _wait_jogs(ctl, lambda j: "zero" in j, "the dead-man's stop")
+        assert [e.what for e in c.jog.events][:2] == ["press", "pause"]
+        ctl.calls.clear()
+        w.click(panel.take)  # the marker
+        ctl.wait_for_call("acquire_control")
+        assert _jogs(ctl) == [] and c.jog.held() == set()
+        assert "Jog paused" in panel.feedback_text
+        w.click(button)  # the (late) pointer-up; the next press jogs
+        w.hold(button, c.jog_hz)
+        assert _wait_jogs(ctl, bool, "the next press")[0] == "move"
+        w.click(button)
+        _wait_jogs(ctl, lambda j: j[-1] == "zero", "its release")
+    finally:
+        w.close()
+        c.stop()
+
+
+def test_the_jog_callbacks_run_on_viser_s_event_loop_in_message_order(console: Console) -> None:
+    """viser runs ``async`` callbacks on its event loop in message order and plain ones in
+    a thread pool in no set order: the jog's hold and release must be ``async``."""
+    import inspect
+
+    client = FakeClient(0)
+    console._on_connect(client)
+    panel = console._panels[0]
+    for b, _, _ in panel.jog_buttons:
+        assert b.callbacks and all(inspect.iscoroutinefunction(cb) for cb in b.callbacks)
 
 
 def test_progress_bar_follows_state_progress(console: Console) -> None:
@@ -405,10 +486,11 @@ ESTOP_BY = "e-stop by {}: reset to continue"
 
 
 def _banner_shown(c: Console) -> bool:
-    """The banner and its Reset button as the page was sent them (the handles' state);
-    the two never differ."""
-    assert c._banner.visible == c._reset.visible
-    return bool(c._banner.visible)
+    """The halt banner in the alarm area and its Reset button (enabled) as the page was
+    sent them (the handles' state); the two never differ."""
+    shown = "icenav-halt" in c._alarm.content
+    assert c._reset.visible and c._reset.disabled is not shown  # Reset keeps its place
+    return shown
 
 
 def test_the_banner_follows_estops_and_resets_coalesced_between_draws(console: Console) -> None:
@@ -419,7 +501,7 @@ def test_the_banner_follows_estops_and_resets_coalesced_between_draws(console: C
     assert not _banner_shown(console)
     ctl.publish(make_state(mode=Mode.ESTOP, message=ESTOP_BY.format("browser-0")))
     console.refresh_once()
-    assert _banner_shown(console) and "browser #0" in console._banner.content
+    assert _banner_shown(console) and "browser #0" in console._alarm.content
     ctl.publish(make_state(mode=Mode.ESTOP, message=ESTOP_BY.format("browser-1")))
     ctl.publish(make_state(mode=Mode.IDLE, message="reset by browser-0; holding position"))
     console.refresh_once()  # the second E-STOP was never drawn: its reset hides the banner
@@ -429,12 +511,10 @@ def test_the_banner_follows_estops_and_resets_coalesced_between_draws(console: C
     ctl.publish(make_state(mode=Mode.FAULT, message="drive 2 following error"))
     console.refresh_once()
     assert _banner_shown(console)
-    assert (
-        "FAULT" in console._banner.content and "drive 2 following error" in console._banner.content
-    )
+    assert "FAULT" in console._alarm.content and "drive 2 following error" in console._alarm.content
     ctl.publish(make_state(mode=Mode.ESTOP, message=ESTOP_BY.format("browser-3")))
     console.refresh_once()  # halted before and after: the cause still follows
-    assert "browser #3" in console._banner.content and "FAULT" not in console._banner.content
+    assert "browser #3" in console._alarm.content and "FAULT" not in console._alarm.content
     ctl.publish(make_state(mode=Mode.IDLE))
     console.refresh_once()
     assert not _banner_shown(console)
@@ -487,7 +567,7 @@ def test_a_halt_the_controller_told_no_listener_reaches_the_banner() -> None:
         state = ctrl.run_cycles(3)
         assert state.mode is Mode.FAULT and c.stats().states_offered == offered
         assert c.refresh_once() is True
-        assert _banner_shown(c) and "a broken listener" in c._banner.content
+        assert _banner_shown(c) and "a broken listener" in c._alarm.content
         assert "FAULT" in c._safety.content
 
 
@@ -581,8 +661,12 @@ def test_pages_connecting_before_during_and_after_a_halt_are_sent_the_current_ba
         return w
 
     def shown(w: WireClient) -> bool | None:
-        assert w.visible(console._banner) == w.visible(console._reset)
-        return w.visible(console._banner)
+        alarm, disabled = w.prop(console._alarm, "content"), w.prop(console._reset, "disabled")
+        if alarm is None or disabled is None:
+            return None
+        assert w.visible(console._alarm) and w.visible(console._reset)
+        assert ("icenav-halt" in alarm) is not disabled
+        return "icenav-halt" in alarm
 
     try:
         before = page()
@@ -615,7 +699,7 @@ def test_pages_connecting_before_during_and_after_a_halt_are_sent_the_current_ba
 
 # ---------------------------------------------------------------- the stale-state banner
 def _stale_shown(c: Console) -> bool:
-    return bool(c._stale.visible)
+    return "icenav-stale" in c._alarm.content
 
 
 def _press_estop(c: Console, client_id: int) -> None:
@@ -639,10 +723,10 @@ def test_the_stale_banner_shows_while_no_state_comes_and_goes_when_states_resume
         assert not _stale_shown(c)  # at the threshold: not beyond it
         clock.t = 0.54
         assert c.refresh_once() is False and _stale_shown(c)
-        assert "No state from the controller for 0.5 s" in c._stale.content
+        assert "No state from the controller for 0.5 s" in c._alarm.content
         clock.t = 2.0
         c.refresh_once()
-        assert "for 2.0 s: the robot&#x27;s state is unknown" in c._stale.content
+        assert "for 2.0 s: the robot&#x27;s state is unknown" in c._alarm.content
         assert not _banner_shown(c)  # the last state was IDLE: no halt banner
         ctl.publish(make_state(cycle=1, time=0.01))  # states resume
         assert c.refresh_once() is True and not _stale_shown(c)
@@ -675,11 +759,11 @@ def test_a_stalled_real_controller_shows_stale_and_both_banners_keep_the_cause()
         assert _stale_shown(c) and not _banner_shown(c)  # the page cannot know the E-STOP
         ctrl.run_cycles(1)  # the loop runs again
         c.refresh_once()
-        assert not _stale_shown(c) and _banner_shown(c) and "browser #1" in c._banner.content
+        assert not _stale_shown(c) and _banner_shown(c) and "browser #1" in c._alarm.content
         clock.t = 2.0  # stalls again: both banners, the halt's cause kept
         c.refresh_once()
-        assert _stale_shown(c) and _banner_shown(c) and "browser #1" in c._banner.content
-        assert "for 1.2 s" in c._stale.content
+        assert _stale_shown(c) and _banner_shown(c) and "browser #1" in c._alarm.content
+        assert "for 1.2 s" in c._alarm.content
         ctrl.run_cycles(1)
         c.refresh_once()
         assert not _stale_shown(c) and _banner_shown(c)
@@ -739,12 +823,12 @@ def test_a_hung_real_time_loop_shows_stale_and_the_estop_then_reaches_the_banner
             assert ctrl.mode is Mode.ESTOP
             c.refresh_once()
             assert _stale_shown(c) and not _banner_shown(c)
-            assert "for 0.6 s" in c._stale.content
+            assert "for 0.6 s" in c._alarm.content
             robot.hang.clear()
             robot.go_on.set()  # the call returns: the loop publishes the E-STOP
             assert estopped.wait(timeout=30.0)
             c.refresh_once()
-            assert not _stale_shown(c) and _banner_shown(c) and "browser #2" in c._banner.content
+            assert not _stale_shown(c) and _banner_shown(c) and "browser #2" in c._alarm.content
         finally:
             robot.go_on.set()
             ctrl.shutdown()

@@ -49,7 +49,7 @@ def test_the_age_counts_from_the_newest_state_seen() -> None:
 def test_the_banner_gives_the_age_and_escapes_nothing_it_should_not() -> None:
     text = stale_banner_html(1.26)
     assert "No state from the controller for 1.3 s: the robot&#x27;s state is unknown" in text
-    assert 'class="icenav-banner"' in text and "E-STOP" in text
+    assert 'class="icenav-banner icenav-stale"' in text and "E-STOP" in text
 
 
 def test_a_threshold_the_controllers_publishing_would_cross_is_refused() -> None:

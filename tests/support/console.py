@@ -318,6 +318,40 @@ class WireClient:
     def close(self) -> None:
         self._ws.close()
 
+    def send(self, message: dict[str, Any]) -> None:
+        """Send a message as a page would (msgpack; ``type`` names viser's class)."""
+        import msgspec
+
+        self._ws.send(msgspec.msgpack.encode(message))
+
+    def become_browser(self) -> None:
+        """Send a first camera message: viser then calls the console's connection
+        handler, which gives this client a panel (and control, when free)."""
+        self.send(
+            {
+                "type": "ViewerCameraMessage",
+                "wxyz": (1.0, 0.0, 0.0, 0.0),
+                "position": (0.0, 0.0, 1.0),
+                "fov": 1.0,
+                "near": 0.01,
+                "far": 100.0,
+                "image_height": 600,
+                "image_width": 800,
+                "look_at": (0.0, 0.0, 0.0),
+                "up_direction": (0.0, 0.0, 1.0),
+            }
+        )
+
+    def hold(self, handle: Any, hz: float) -> None:
+        """A "still held" message of button ``handle`` (its page timer at ``hz``)."""
+        self.send({"type": "GuiButtonHoldMessage", "uuid": handle._impl.uuid, "frequency": hz})
+
+    def click(self, handle: Any) -> None:
+        """A click of button ``handle`` (for a held button: the pointer-up)."""
+        self.send(
+            {"type": "GuiUpdateMessage", "uuid": handle._impl.uuid, "updates": {"value": True}}
+        )
+
     def _read(self, timeout_s: float) -> None:
         import msgspec
         import zstandard
@@ -347,7 +381,77 @@ class WireClient:
             with contextlib.suppress(TimeoutError):
                 self._read(left)
 
+    def prop(self, handle: Any, name: str) -> Any:
+        """The property ``name`` of ``handle`` as the page was sent it (None: not yet)."""
+        return self.props.get(handle._impl.uuid, {}).get(name)
+
     def visible(self, handle: Any) -> bool | None:
         """Whether the page shows ``handle`` (None: the element never arrived)."""
         p = self.props.get(handle._impl.uuid)
         return None if p is None else bool(p.get("visible", True))
+
+
+# ---------------------------------------------------------------- the jog, both sides
+POINTER_LOG_JS = """
+window.__icenavPointer = [];
+const icenavLog = (e) => {
+  window.__icenavPointer.push(e);
+  if (window.__icenavPointer.length > 400) window.__icenavPointer.shift();
+};
+for (const type of ['pointerdown', 'pointerup', 'pointercancel', 'lostpointercapture', 'click']) {
+  addEventListener(type, (e) => {
+    const b = e.target && e.target.closest ? e.target.closest('button') : null;
+    icenavLog({type, t: Math.round(performance.now()), x: Math.round(e.clientX),
+               y: Math.round(e.clientY), trusted: e.isTrusted,
+               button: b ? b.textContent.trim() : String(e.target && e.target.nodeName)});
+  }, true);
+}
+new PerformanceObserver((list) => { for (const e of list.getEntries()) {
+  icenavLog({type: 'layout-shift', t: Math.round(e.startTime),
+    moved: e.sources.map((s) => [(s.node && s.node.textContent || '').trim().slice(0, 24),
+                                Math.round(s.previousRect.y), Math.round(s.currentRect.y)])});
+}}).observe({type: 'layout-shift', buffered: true});
+"""
+"""An init script (``page.add_init_script``): the page's pointer events (target button,
+position) and layout shifts (what moved, from which y to which), for a failing jog check."""
+
+JOG_PAGE_JS = """([x, y]) => {
+  const hit = document.elementFromPoint(x, y);
+  const under = hit && hit.closest ? hit.closest('button') : null;
+  const boxes = {};
+  for (const b of document.querySelectorAll('button')) {
+    const t = b.textContent.trim();
+    if (/knob|roll|translation|tip /.test(t)) boxes[t] = Math.round(b.getBoundingClientRect().y);
+  }
+  const guard = window.__icenavJogGuard;
+  return {under: under ? under.textContent.trim() : (hit ? hit.nodeName : null), boxes,
+          guard: guard ? guard.log.slice(-8) : null,
+          page: (window.__icenavPointer || []).slice(-16)};
+}"""
+"""The page's side of a held jog at the pointer (x, y): the button under it, the jog
+buttons' tops, the jog guard's log, the latest pointer events and layout shifts."""
+
+BUTTON_TOPS_JS = """(names) => names.map((n) => {
+  const b = [...document.querySelectorAll('button')].find((b) => b.textContent.trim() === n);
+  return b ? Math.round(b.getBoundingClientRect().y) : null;
+})"""
+"""The tops (CSS pixels) of the buttons named ``names`` (None: not on the page)."""
+
+
+def jog_report(console: Any, page: Any, xy: tuple[float, float], since: int = 0) -> str:
+    """Both sides of a held jog, for a failing check: what the server saw (the jog's
+    presses, releases and trips since event ``since``, the controller's jog) and what the
+    page saw (:data:`JOG_PAGE_JS` at the pointer ``xy``)."""
+    events = [(round(e.t, 3), e.key, e.what, e.button, e.detail) for e in list(console.jog.events)][
+        since:
+    ]
+    ctl = console.controller
+    try:
+        seen = page.evaluate(JOG_PAGE_JS, list(xy))
+    except Exception as exc:  # a diagnostic never hides the failure it describes
+        seen = f"not read: {exc}"
+    return (
+        f"server: jog events {events}, held {console.jog.held()}, tripped "
+        f"{console.jog.tripped()}, controller jog {getattr(ctl, '_jog', None)!r}; "
+        f"page at {xy}: {seen}"
+    )

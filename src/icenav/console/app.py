@@ -59,21 +59,28 @@ from icenav.console.freshness import (
     check_publish_period,
     stale_banner_html,
 )
-from icenav.console.jog import JogRepeater
+from icenav.console.jog import JogRepeater, check_deadman
+from icenav.console.jog_controls import JogControls
 from icenav.console.labels import (
     SHORTCUTS,
     GamepadState,
+    alarm_html,
     halt_banner,
     jog_rate_words,
     md,
     safety_markdown,
 )
-from icenav.console.layout import CONTROL_PANEL_PX, IMAGE_DISPLAY_PX, IMAGE_PANEL_PX, PAGE_CSS
+from icenav.console.layout import (
+    CONTROL_PANEL_PX,
+    IMAGE_DISPLAY_PX,
+    IMAGE_PANEL_PX,
+    PAGE_CSS,
+    STATUS_SLOT,
+)
 from icenav.console.panels import (
     JointHistory,
     LatestSlot,
     client_name,
-    jog_command,
     mode_from_choice,
     progress_percent,
     status_markdown,
@@ -85,7 +92,6 @@ from icenav.control.authorization import TokenGate
 from icenav.control.commands import (
     CommandResult,
     GoToView,
-    Jog,
     Outcome,
     RefineView,
     Reset,
@@ -126,7 +132,7 @@ class ConsoleStats:
     """Browsers connected now."""
 
 
-class Console(ConsoleCommands):
+class Console(JogControls, ConsoleCommands):
     """The browser console of one controller.
 
     Parameters
@@ -214,6 +220,7 @@ class Console(ConsoleCommands):
             )
         self.config = config or ConsoleConfig()
         check_publish_period(controller, self.config.stale_after_s)
+        check_deadman(self.config.jog_deadman_s, jog_hz)
         self._clock = clock
         self.controller = controller
         self.control_token = control_token
@@ -231,8 +238,9 @@ class Console(ConsoleCommands):
         self.refresh_hz = refresh_hz
         self._status_every = max(1, round(refresh_hz / status_hz))
         self.jog_hz = jog_hz
-        self.jog = JogRepeater(jog_hz)
-        """Keeps a held on-screen jog going between the browser's hold messages."""
+        self.jog = JogRepeater(jog_hz, self.config.jog_deadman_s, on_trip=self._jog_tripped)
+        """Keeps a held on-screen jog going between the browser's hold messages; its
+        dead-man stops it (:mod:`icenav.console.jog`)."""
         self.geometry = geometry
         self.mapping = mapping or JoystickMapping()
         self._jog_rates = jog_rate_words(self.mapping)
@@ -266,6 +274,9 @@ class Console(ConsoleCommands):
         self._message = ("", 0.0)
         self._drawn: ControllerState | None = None
         """The state the latest draw finished (None until one did)."""
+        self._halt_html: str | None = None
+        self._stale_html: str | None = None
+        """The alarm area's halt and stale-state banners (HTML; None: not shown)."""
         self.freshness = StateFreshness(self.config.stale_after_s, self._clock)
         """When the refresh last saw a new state (the stale-state banner)."""
 
@@ -393,12 +404,13 @@ class Console(ConsoleCommands):
                 "Stop", color="orange", hint="End the automatic motion and hold (Space)"
             )
             self._safety = gui.add_markdown("*Waiting for the controller...*")
-            self._stale = gui.add_html("", visible=False)
-            self._banner = gui.add_html("", visible=False)
+            # the alarm area and Reset keep their place whether shown or not: nothing
+            # below them moves under a pointer when a banner comes or goes
+            self._alarm = gui.add_html(alarm_html(None, None))
             self._reset = gui.add_button(
                 "Reset fault",
                 color="yellow",
-                visible=False,
+                disabled=True,
                 hint="Clears the E-STOP or fault (the controller accepts it from the holder)",
             )
             self._error_md = gui.add_markdown("")
@@ -549,9 +561,7 @@ class Console(ConsoleCommands):
             if panel.views.value != NO_VIEWS:
                 self._confirm_delete(panel, str(panel.views.value))
 
-        for b, axis, sign in panel.jog_buttons:
-            b.on_hold(self._jog_callback(panel, axis, sign), callback_hz=self.jog_hz)
-            b.on_click(lambda ev: self._jog_released(panel))  # the click on pointer-up
+        self._wire_jog(panel)
 
         if panel.export is not None:
 
@@ -629,28 +639,6 @@ class Console(ConsoleCommands):
         if panel is not None and view in panel.view_options:
             panel.views.value = view
 
-    def _jog_callback(self, panel: ClientPanel, axis: int, sign: int) -> Any:
-        def send() -> None:
-            state = self._last_state
-            if state is None or not panel.can_control:
-                self.jog.release(panel.name)
-                return
-            # Outside tip mode a jog drives the knobs: the controller wakes from IDLE into
-            # knob mode on it, and it aborts an automatic motion (as gamepad input does).
-            mode = Mode.TIP if state.mode == Mode.TIP else Mode.KNOB
-            vel, frame = jog_command(mode, axis, sign, self.mapping)
-            self.send(panel, Jog(vel, frame, source=panel.source))
-
-        return lambda ev: self.jog.hold(panel.name, send)
-
-    def _jog_released(self, panel: ClientPanel) -> None:
-        """A jog button let go: stop repeating and stop the motion now (a zero jog)."""
-        if self.jog.release(panel.name) and panel.can_control:
-            state = self._last_state
-            tip = state is not None and state.mode == Mode.TIP
-            zero = np.zeros(6 if tip else 4)
-            self.send(panel, Jog(zero, "tip" if tip else "knob", source=panel.source))
-
     # ------------------------------------------------------------------ refreshing
     def refresh_once(self) -> bool:
         """Draw the newest state and image; True if a state was drawn.
@@ -724,20 +712,18 @@ class Console(ConsoleCommands):
         Every draw assigns all of them (viser sends a property only when it differs from
         the handle's: an unchanged bar costs nothing), so the handles are the one record
         of what the page was sent; no flag kept beside them decides what to redraw."""
-        self._safety.content = safety_markdown(state, self.gamepad_state())
+        self._safety.content = STATUS_SLOT + safety_markdown(state, self.gamepad_state())
         banner = halt_banner(state)
-        if banner is not None:  # the cause first: never a shown banner with an old cause
-            self._banner.content = f'<div class="icenav-banner">{banner.html()}</div>'
-        self._banner.visible = banner is not None
-        self._reset.visible = banner is not None
+        self._halt_html = None if banner is None else banner.html()
+        self._alarm.content = alarm_html(self._stale_html, self._halt_html)
+        self._reset.disabled = banner is None
 
     def _draw_staleness(self) -> None:
         """The stale-state banner, above the halt banner (which keeps the cause of the last
         state drawn): shown while the newest state is older than ``stale_after_s``."""
         age = self.freshness.stale_age_s()
-        if age is not None:
-            self._stale.content = stale_banner_html(age)
-        self._stale.visible = age is not None
+        self._stale_html = None if age is None else stale_banner_html(age)
+        self._alarm.content = alarm_html(self._stale_html, self._halt_html)
 
     def _draw_image(self, frame: ImageFrame, state: ControllerState | None) -> None:
         self._last_frame = frame
@@ -774,6 +760,7 @@ class Console(ConsoleCommands):
     def _update_panel(self, p: ClientPanel, state: ControllerState) -> None:
         if p.update(state, self._jog_rates):
             p.draw_view_list(state.views, self.controller.view_image, self._goto_button(p))
+        self._jog_follow(p)
 
     def _goto_button(self, p: ClientPanel) -> Callable[[str], Callable[[Any], None]]:
         def make(view: str) -> Callable[[Any], None]:

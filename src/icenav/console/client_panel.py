@@ -17,6 +17,7 @@ import numpy as np
 
 from icenav.console.commands import NO_VIEWS, Confirmation
 from icenav.console.labels import view_caption
+from icenav.console.layout import FEEDBACK_SLOT
 from icenav.console.panels import (
     JOG_AXES,
     MODE_CHOICES,
@@ -83,7 +84,7 @@ class ClientPanel:
         self.authorised = not token_needed
         gui = client.gui
         self.note = gui.add_markdown("", order=1.0)
-        self.feedback = gui.add_markdown("", order=1.01)
+        self.feedback = gui.add_markdown(FEEDBACK_SLOT, order=1.01)
         self.token = None
         if token_needed:  # reliability: part 4 (security)
             self.token = gui.add_text("Control token", initial_value="", order=1.05)
@@ -161,7 +162,7 @@ class ClientPanel:
         if self.feedback_text and time.monotonic() - self.feedback_at > FEEDBACK_S:
             self.feedback_text = ""
         if self.feedback_text != self.feedback_shown:
-            self.feedback.content = self.feedback_text
+            self.feedback.content = FEEDBACK_SLOT + self.feedback_text
             self.feedback_shown = self.feedback_text
 
     # ------------------------------------------------------------------ state

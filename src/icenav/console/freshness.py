@@ -24,6 +24,7 @@ import math
 from collections.abc import Callable
 from dataclasses import dataclass
 
+from icenav.console.jog import JOG_DEADMAN_RANGE_S, JOG_DEADMAN_S
 from icenav.control.state import ControllerState
 from icenav.errors import ConfigurationError
 
@@ -37,7 +38,7 @@ would wait through."""
 
 @dataclass(frozen=True)
 class ConsoleConfig:
-    """Settings of the console's safety bar."""
+    """Settings of the console's safety bar and its on-screen jog."""
 
     stale_after_s: float = 0.5
     """The safety bar says "no state from the controller" once the newest state the console
@@ -47,14 +48,23 @@ class ConsoleConfig:
     state is unknown before the supervisor's E-STOP, which the page cannot show until the
     loop runs again."""
 
+    jog_deadman_s: float = JOG_DEADMAN_S
+    """A held on-screen jog stops when no "still held" message came from the browser for
+    this long (s, console clock), and stays stopped until the button is released and
+    pressed again (:mod:`icenav.console.jog`). Allowed 0.1-1 s, and above two hold periods
+    of the page (``Console(jog_hz=...)``, 20 Hz: 0.1 s)."""
+
     def __post_init__(self) -> None:
-        lo, hi = STALE_AFTER_RANGE_S
-        value = self.stale_after_s
-        number = isinstance(value, int | float) and not isinstance(value, bool)
-        if not (number and math.isfinite(value) and lo <= value <= hi):
-            raise ConfigurationError(
-                f"ConsoleConfig.stale_after_s must be in [{lo}, {hi}] s, got {value!r} s"
-            )
+        for name, (lo, hi) in (
+            ("stale_after_s", STALE_AFTER_RANGE_S),
+            ("jog_deadman_s", JOG_DEADMAN_RANGE_S),
+        ):
+            value = getattr(self, name)
+            number = isinstance(value, int | float) and not isinstance(value, bool)
+            if not (number and math.isfinite(value) and lo <= value <= hi):
+                raise ConfigurationError(
+                    f"ConsoleConfig.{name} must be in [{lo}, {hi}] s, got {value!r} s"
+                )
 
 
 def check_publish_period(controller: object, stale_after_s: float) -> None:
@@ -112,6 +122,6 @@ def stale_banner_html(age_s: float) -> str:
     title = f"No state from the controller for {age_s:.1f} s: the robot's state is unknown"
     body = "The page shows the last state it had. E-STOP and Stop still go to the controller."
     return (
-        f"<div class=\"icenav-banner\"><div style='font-size:1.15em;font-weight:700'>"
+        f"<div class=\"icenav-banner icenav-stale\"><div style='font-size:1.15em;font-weight:700'>"
         f"{html.escape(title)}</div><div>{html.escape(body)}</div></div>"
     )

@@ -18,11 +18,13 @@ from icenav.control.state import ControllerState, Mode, ViewSummary
 from icenav.control.teleop import JoystickMapping
 
 __all__ = [
+    "ALARM_CLEAR",
     "Banner",
     "GamepadState",
     "MODE_LABELS",
     "SHORTCUTS",
     "ago_text",
+    "alarm_html",
     "client_label",
     "duration_text",
     "halt_banner",
@@ -198,9 +200,10 @@ class Banner:
             return "".join(f"<b>{s}</b>" if i % 2 else s for i, s in enumerate(parts))
 
         return (
-            f"<div style='font-size:1.15em;font-weight:700'>{html.escape(self.title)}</div>"
+            f'<div class="icenav-banner icenav-halt">'
+            f"<div style='font-size:1.05em;font-weight:700'>{html.escape(self.title)}</div>"
             f"<div><b>Cause:</b> {html.escape(self.cause)}</div>"
-            f"<div><b>To clear:</b> {bold(self.action)}</div>"
+            f"<div><b>To clear:</b> {bold(self.action)}</div></div>"
         )
 
 
@@ -222,12 +225,27 @@ def halt_banner(state: ControllerState) -> Banner | None:
         return None
     cause = humanize(state.message) if state.message else "not reported"
     title = (
-        "EMERGENCY STOP: every motion control is disabled"
+        "EMERGENCY STOP: motion controls disabled"
         if state.mode is Mode.ESTOP
-        else ("FAULT: the robot stopped; every motion control is disabled")
+        else "FAULT: robot stopped, motion controls disabled"
     )
     action = (
-        "make the patient and the robot safe, then press **Reset fault** below "
-        "(from the browser holding control)."
+        "make the patient and the robot safe, then press **Reset fault** (from the "
+        "browser holding control)."
     )
     return Banner(title, cause, action)
+
+
+ALARM_CLEAR = "No alarm"
+"""What the alarm area says while no banner is shown."""
+
+
+def alarm_html(stale: str | None, halt: str | None) -> str:
+    """The safety bar's alarm area (HTML): the stale-state banner above the halt banner, or
+    a quiet "No alarm". The area has a fixed height (``layout.PAGE_CSS``, ``.icenav-alarm``;
+    it scrolls inside when both banners are shown), so a banner coming or going moves no
+    control below it under the operator's pointer."""
+    inner = (stale or "") + (halt or "")
+    if not inner:
+        inner = f'<div class="icenav-clear">{ALARM_CLEAR}</div>'
+    return f'<div class="icenav-alarm">{inner}</div>'
