@@ -117,9 +117,8 @@ CLOSED_LOOP = "dense+hysteresis+em"
 CONDITIONS = ("none", "dense", "simplified", OURS, KNOB_HYSTERESIS, CLOSED_LOOP)
 """The conditions, in the order of the table (the paper's three, then ours)."""
 SHORT = "short"
-"""The short calibration (not in the default set): the paper's 5-point F and the roll's and
-the twist's play from two short roll sweeps (:func:`short_hysteresis_plan`; 89 moves in all),
-no knob play, no tracker bias."""
+"""The paper's 5-point F and the roll's and twist's plays from two short roll sweeps
+(:func:`short_hysteresis_plan`; 89 moves; no knob play, no tracker bias; not default)."""
 SHORT_RINGS = "short+rings"
 """The 5-point search, coarse roll sweeps and ring stops turned both ways, F over the points
 and the stops (:mod:`icenav.calibration.short`; 111 moves; not in the default set)."""
