@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import functools
 import math
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from typing import Any
 
 import numpy as np
@@ -15,11 +15,12 @@ from icenav.geometry.kinematics import forward
 from icenav.geometry.trajectories import spin_trajectory
 
 
-def spin_errors(rig: Any, tracker: Any, commands: Callable[[Any], Any]) -> list[float]:
+def spin_runs(
+    rig: Any, tracker: Any, commands: Callable[[Any], Any]
+) -> Iterator[tuple[list[float], Any, Any]]:
     """The eval's spin (20 / 40 / 60 deg, 360 samples) on ``rig`` with ``commands(q_model)``
-    -> (n, 4) motor commands; (EM mm, EM deg, true mm, true deg) per bend, flattened (the
-    order :func:`error_row` reads)."""
-    errs: list[float] = []
+    -> (n, 4) motor commands; per bend (EM mm, EM deg, true mm, true deg), the true poses
+    (n, 4, 4) and the intended ones (n, 4, 4)."""
     for bend in S.BENDS_DEG:
         sp = spin_trajectory([math.radians(bend), 0.0, 0.0, 0.0], 360, include_end=True)
         intended = forward(sp.q_model, check=False)
@@ -27,8 +28,12 @@ def spin_errors(rig: Any, tracker: Any, commands: Callable[[Any], Any]) -> list[
         ok = np.all(np.isfinite(em.reshape(len(em), -1)), axis=1)
         ep, er = S._rmse(em[ok], intended[ok])
         tp, tr = S._rmse(true, intended)
-        errs += [ep, er, tp, tr]
-    return errs
+        yield [ep, er, tp, tr], true, intended
+
+
+def spin_errors(rig: Any, tracker: Any, commands: Callable[[Any], Any]) -> list[float]:
+    """:func:`spin_runs`' errors per bend, flattened (the order :func:`error_row` reads)."""
+    return [e for errs, _, _ in spin_runs(rig, tracker, commands) for e in errs]
 
 
 def error_row(e: Sequence[float]) -> str:

@@ -40,14 +40,13 @@ import sys
 from typing import Any
 
 import numpy as np
+from ablation_rows import spin_runs
 
 from icenav.calibration.plans import Recording
 from icenav.calibration.procedure import run_visits
 from icenav.calibration.procedures import plan_visits
 from icenav.calibration.short import fit_short_rings, short_ring_plan
 from icenav.eval import spin as S
-from icenav.geometry.kinematics import forward
-from icenav.geometry.trajectories import spin_trajectory
 
 
 def split(measured: Any, intended: Any) -> tuple[float, float]:
@@ -64,14 +63,8 @@ def spin_rows(rig: Any, tracker: Any, commands: Any) -> tuple[list[float], list[
     """(EM mm, EM deg, true mm, true deg) and (true axial deg, true tilt deg) per bend."""
     errs: list[float] = []
     parts: list[float] = []
-    for bend in S.BENDS_DEG:
-        sp = spin_trajectory([math.radians(bend), 0.0, 0.0, 0.0], 360, include_end=True)
-        intended = forward(sp.q_model, check=False)
-        true, em = S.run_spin(rig, tracker, commands(sp.q_model))
-        ok = np.all(np.isfinite(em.reshape(len(em), -1)), axis=1)
-        ep, er = S._rmse(em[ok], intended[ok])
-        tp, tr = S._rmse(true, intended)
-        errs += [ep, er, tp, tr]
+    for e, true, intended in spin_runs(rig, tracker, commands):
+        errs += e
         parts += list(split(true, intended))
     return errs, parts
 

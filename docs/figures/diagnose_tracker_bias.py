@@ -30,7 +30,7 @@ import functools
 import json
 import math
 import os
-import pickle
+import sys
 import time
 from typing import Any
 
@@ -38,7 +38,6 @@ import numpy as np
 
 from icenav.calibration.catheter import DENSE_RASTER, fit_catheter
 from icenav.calibration.plans import calibration_set_from
-from icenav.calibration.procedure import run_procedure
 from icenav.calibration.procedures import make_procedure
 from icenav.calibration.tracker_bias import fit_tracker_bias_from
 from icenav.compensation.elasticity import CalibrationSet
@@ -48,22 +47,10 @@ from icenav.geometry.kinematics import forward
 from icenav.geometry.se3 import rotvec_to_matrix
 from icenav.geometry.trajectories import spin_trajectory
 
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+from dev_ours_spins import recording  # noqa: E402  (the same cache of recordings)
+
 BENDS = (20, 40, 60)
-
-
-def recording(family: str, seed: int, cache: str | None) -> Any:
-    """The catheter's calibration recording (from ``cache`` if kept there)."""
-    path = None if cache is None else os.path.join(cache, f"{family}_{seed}.pkl")
-    if path is not None and os.path.exists(path):
-        with open(path, "rb") as f:
-            return pickle.load(f)  # noqa: S301 (our own cache of a deterministic recording)
-    rig, tracker = make_rig(seed, "straight", family)
-    rig.reset()
-    rec = run_procedure(make_procedure("dense+hysteresis"), rig.move, tracker)
-    if path is not None:
-        with open(path, "wb") as f:
-            pickle.dump(rec, f)
-    return rec
 
 
 def noise_free_tip(tracker: Any, tip2base: np.ndarray, roll: float = 0.0, d4: float = 0.0) -> Any:
