@@ -232,6 +232,24 @@ class _FieldTracker(Tracker):
         return pose
 
 
+def _five_points(cath: SyntheticCatheter, tracker: Tracker) -> CalibrationSet:
+    """The origin and four points beyond the rings, as the 5-point search's, at roll 0."""
+    q5 = np.zeros((5, 4))
+    q5[1:, :2] = 85 * DEG * np.array([[1, 0], [0, 1], [-1, 0], [0, -1]])
+    five = run_visits(plan_visits(MotionPlan.make(q5, "five", 1)), cath.move, tracker)
+    return CalibrationSet(q_motor=q5, tip2base=five.tip2base, method="five")
+
+
+def _spin_commands(cal: ShortRingCalibration, model: np.ndarray) -> np.ndarray:
+    """Motor commands (9 + n, 4) of an approach and a spin ``model`` (n, 4), as a spin is
+    commanded: the twist pre-shaped, F, the roll's play inverse."""
+    path = np.vstack([np.linspace(np.zeros(4), model[0], 9), model])
+    comp = cal.hysteresis
+    eff = cal.model_to_motor_path(comp.preshape_model(path))
+    comp.reset(np.zeros(4))
+    return np.asarray(comp.command_path(eff, bends=np.hypot(path[:, 0], path[:, 1])))
+
+
 def test_spin_rings_calibrate_the_tip_where_the_tracker_reads_it_during_a_spin() -> None:
     """Rings at roll 0 teach F the field bias at each stop as if it turned with the knobs:
     a spin through them makes the tracked tip orbit the intended one (about sqrt 2 x the
@@ -247,20 +265,11 @@ def test_spin_rings_calibrate_the_tip_where_the_tracker_reads_it_during_a_spin()
     for spin in (False, True):
         tracker = _FieldTracker(cath)
         cath.p = [0.0, 0.0, 0.0]
-        # the origin and four points beyond the rings, as the 5-point search's, at roll 0
-        q5 = np.zeros((5, 4))
-        q5[1:, :2] = 85 * DEG * np.array([[1, 0], [0, 1], [-1, 0], [0, -1]])
-        five = run_visits(plan_visits(MotionPlan.make(q5, "five", 1)), cath.move, tracker)
-        five_set = CalibrationSet(q_motor=q5, tip2base=five.tip2base, method="five")
+        five_set = _five_points(cath, tracker)
         sp = short_ring_plan((30 * DEG, 50 * DEG), 8, both_ways=False, spin=spin)
         rec = run_visits(plan_visits(sp.plan), cath.move, tracker)
         cal = fit_short_rings(sp, rec, five_set, fit_length=False)
-        # as a spin is commanded: the twist pre-shaped, F, the roll's play inverse
-        path = np.vstack([np.linspace(np.zeros(4), model[0], 9), model])
-        comp = cal.hysteresis
-        eff = cal.model_to_motor_path(comp.preshape_model(path))
-        comp.reset(np.zeros(4))
-        cmd = comp.command_path(eff, bends=np.hypot(path[:, 0], path[:, 1]))
+        cmd = _spin_commands(cal, model)
         cath.p = [0.0, 0.0, 0.0]
         read = []
         for q in cmd:
@@ -315,19 +324,12 @@ def test_the_short_roll_circle_reads_the_field_bias_and_f_aims_the_true_tip() ->
     for circle in (False, True):
         tracker = _AffineFieldTracker(cath)
         cath.p = [0.0, 0.0, 0.0]
-        q5 = np.zeros((5, 4))
-        q5[1:, :2] = 85 * DEG * np.array([[1, 0], [0, 1], [-1, 0], [0, -1]])
-        five = run_visits(plan_visits(MotionPlan.make(q5, "five", 1)), cath.move, tracker)
-        five_set = CalibrationSet(q_motor=q5, tip2base=five.tip2base, method="five")
+        five_set = _five_points(cath, tracker)
         sp = short_ring_plan((30 * DEG, 50 * DEG), 8, both_ways=False, bias_circle=circle)
         rec = run_visits(plan_visits(sp.plan), cath.move, tracker)
         cal = fit_short_rings(sp, rec, five_set, fit_length=False)
         assert (cal.tracker_bias.n_samples > 0) == circle
-        path = np.vstack([np.linspace(np.zeros(4), model[0], 9), model])
-        comp = cal.hysteresis
-        eff = cal.model_to_motor_path(comp.preshape_model(path))
-        comp.reset(np.zeros(4))
-        cmd = comp.command_path(eff, bends=np.hypot(path[:, 0], path[:, 1]))
+        cmd = _spin_commands(cal, model)
         cath.p = [0.0, 0.0, 0.0]
         true = []
         for q in cmd:
