@@ -1,4 +1,5 @@
-"""Run every benchmark module (``python -m benchmarks [name ...]``) and print a table.
+"""Run every benchmark module (``python -m benchmarks [name ...]``: a name picks the module
+``bench_<name>`` if there is one, else every module containing it) and print a table.
 
 Each ``benchmarks/bench_*.py`` has ``main() -> list[Result]``; a Result reports a measured
 time beside a baseline measured in the same run, and the target from the issue.
@@ -18,7 +19,15 @@ def run(selected: list[str]) -> int:
     here = Path(__file__).parent
     names = sorted(m.name for m in pkgutil.iter_modules([str(here)]) if m.name.startswith("bench_"))
     if selected:
-        names = [n for n in names if any(s in n for s in selected)]
+        # a selector naming a module exactly ("controller" = bench_controller) picks it alone;
+        # otherwise every module whose name contains it ("races", "spin")
+        names = [
+            n
+            for n in names
+            if any(
+                n in (s, f"bench_{s}") or (s in n and f"bench_{s}" not in names) for s in selected
+            )
+        ]
     all_results = []
     for name in names:
         module = importlib.import_module(f"benchmarks.{name}")
