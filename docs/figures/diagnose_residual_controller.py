@@ -68,5 +68,6 @@ def run(residual: bool):
     )
 
 
-for r in (False, True):
-    run(r)
+if __name__ == "__main__":
+    for r in (False, True):
+        run(r)
