@@ -11,6 +11,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
+from icenav._typing import Array
 from icenav.calibration.plans import MotionPlan, calibration_set_from, raster_grid
 from icenav.calibration.procedure import run_visits
 from icenav.calibration.procedures import plan_visits
@@ -186,16 +187,25 @@ def test_circle_blocks_count_the_departures_from_rest() -> None:
         assert np.max(np.hypot(*path[labels[1:] == k, :2].T)) == pytest.approx(r * DEG)
 
 
+def _stretch_catheter_on_circles(
+    rng: np.random.Generator,
+) -> tuple[TendonTransmission, Array, CalibrationMotion, Array]:
+    """A catheter whose tendons are routed so that the other pair's bend relieves them (the
+    stretch form, TR3s) on knob circles at 25 / 45 / 65 deg: (truth, the circles' path (n,
+    4), its motion, the middle circle's samples (n,) bool)."""
+    circles = circle_path((25 * DEG, 45 * DEG, 65 * DEG), step=10 * DEG)
+    pair = PairTransmission(slack=1.0 * DEG, seal_play=0.5 * DEG, tension_play=0.5, coupling=0.8)
+    truth = TendonTransmission(ap=pair, rl=pair, wrap=0.5, friction=0.3, coupling_form="stretch")
+    motion = synthetic_catheter(truth, rng, circles, 0.05 * DEG)
+    return truth, circles, motion, circle_blocks(circles) == 2
+
+
 def test_the_tension_form_is_chosen_by_held_out_residual() -> None:
     """Data of a catheter whose tendons are routed so that the other pair's bend relieves
     them (the stretch form, TR3s): the stretch form predicts the held-out middle circle
     better than the added one (TR3) fitted to the same data, and is kept."""
     rng = np.random.default_rng(11)
-    circles = circle_path((25 * DEG, 45 * DEG, 65 * DEG), step=10 * DEG)
-    pair = PairTransmission(slack=1.0 * DEG, seal_play=0.5 * DEG, tension_play=0.5, coupling=0.8)
-    truth = TendonTransmission(ap=pair, rl=pair, wrap=0.5, friction=0.3, coupling_form="stretch")
-    motion = synthetic_catheter(truth, rng, circles, 0.05 * DEG)
-    middle = circle_blocks(circles) == 2
+    truth, circles, motion, middle = _stretch_catheter_on_circles(rng)
     fit = identify_transmission_form(
         [motion], [middle], degree=3, train_nfev=12, refit_nfev=4, extensions=()
     )
@@ -212,11 +222,7 @@ def test_with_the_spin_circle_a_form_must_win_on_both_held_out_paths() -> None:
     form does not win on the spin and the simpler added form is kept; the spin's scores are
     listed (``"spin circle: " + form``). Spin data of the stretch catheter itself keep it."""
     rng = np.random.default_rng(11)
-    circles = circle_path((25 * DEG, 45 * DEG, 65 * DEG), step=10 * DEG)
-    pair = PairTransmission(slack=1.0 * DEG, seal_play=0.5 * DEG, tension_play=0.5, coupling=0.8)
-    truth = TendonTransmission(ap=pair, rl=pair, wrap=0.5, friction=0.3, coupling_form="stretch")
-    motion = synthetic_catheter(truth, rng, circles, 0.05 * DEG)
-    middle = circle_blocks(circles) == 2
+    truth, circles, motion, middle = _stretch_catheter_on_circles(rng)
     kw = {"degree": 3, "train_nfev": 12, "refit_nfev": 2, "extensions": ()}
     lag = (4 * DEG, -6 * DEG)
     other = spin_path_motion(replace(truth, coupling_form="added"), rng, lag, 0.05 * DEG)

@@ -34,7 +34,7 @@ import pytest
 from icenav.apps.wiring import anatomy_meshes
 from icenav.console import Console, ConsoleConfig
 from icenav.control.state import ControllerState, Mode
-from tests.support.console import BUTTON_TOPS_JS, POINTER_LOG_JS, jog_report
+from tests.support.console import BUTTON_TOPS_JS, POINTER_LOG_JS, jog_report, page_read
 
 pytestmark = pytest.mark.browser
 
@@ -332,10 +332,7 @@ def _banner_state(console: Console, waiter: StateWaiter, page: Any) -> str:
     changes = [m for i, m in enumerate(modes) if i == 0 or m != modes[i - 1]]
     drawn = console._drawn
     banners = page.locator(".icenav-halt")
-    try:
-        client = page.evaluate(PAGE_QUEUE_JS)
-    except Exception as exc:  # a diagnostic never hides the failure it describes
-        client = f"not read: {exc}"
+    client = page_read(page, PAGE_QUEUE_JS)
     return (
         f"console: alarm area {console._alarm.content!r}, reset enabled "
         f"{not console._reset.disabled}, last drawn state "

@@ -438,6 +438,15 @@ BUTTON_TOPS_JS = """(names) => names.map((n) => {
 """The tops (CSS pixels) of the buttons named ``names`` (None: not on the page)."""
 
 
+def page_read(page: Any, js: str, *args: Any) -> Any:
+    """``page.evaluate(js, *args)`` for a failure's report: what it could not read is said, not
+    raised (a diagnostic never hides the failure it describes)."""
+    try:
+        return page.evaluate(js, *args)
+    except Exception as exc:
+        return f"not read: {exc}"
+
+
 def jog_report(console: Any, page: Any, xy: tuple[float, float], since: int = 0) -> str:
     """Both sides of a held jog, for a failing check: what the server saw (the jog's
     presses, releases and trips since event ``since``, the controller's jog) and what the
@@ -446,10 +455,7 @@ def jog_report(console: Any, page: Any, xy: tuple[float, float], since: int = 0)
         since:
     ]
     ctl = console.controller
-    try:
-        seen = page.evaluate(JOG_PAGE_JS, list(xy))
-    except Exception as exc:  # a diagnostic never hides the failure it describes
-        seen = f"not read: {exc}"
+    seen = page_read(page, JOG_PAGE_JS, list(xy))
     return (
         f"server: jog events {events}, held {console.jog.held()}, tripped "
         f"{console.jog.tripped()}, controller jog {getattr(ctl, '_jog', None)!r}; "
